@@ -1,0 +1,17 @@
+"""Camera, distortion and refraction models; `CAMERA_MODELS` names them for project files."""
+
+from ._abstract import AbstractCamera, AbstractDistortion, AbstractRefraction
+from ._affine import Affine
+from ._decentering import DecenteringSmac
+from ._pixel import PixelGrid
+from ._radial import RadialSmac
+from ._refraction import AtmosphericRefraction, NoRefraction
+from ._smac import SmacCamera
+
+CAMERA_MODELS: dict[str, type[AbstractCamera]] = {"smac": SmacCamera}
+
+__all__ = [
+    "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
+    "AtmosphericRefraction", "DecenteringSmac", "NoRefraction", "PixelGrid", "RadialSmac",
+    "SmacCamera",
+]

@@ -1,0 +1,123 @@
+"""Refuse rank-deficient bundles before solving, naming what cannot be determined."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._parameters import Parameters, parameter_labels
+from ._problem import BundleProblem, dense_jacobian, free_indices
+from ._rotation import matrix_to_opk, opk_to_matrix, rodrigues_to_matrix
+
+SIMILARITY_NAMES = (
+    "translation in X", "translation in Y", "translation in Z",
+    "rotation about X", "rotation about Y", "rotation about Z", "scale",
+)
+
+
+class DatumError(ValueError):
+    """The observations and constraints do not determine all unknowns."""
+
+
+def _similarity(params: Parameters, theta, centre) -> Parameters:
+    """Apply X -> centre + (1 + s) R(a) (X - centre) + t to all points and stations.
+
+    theta = (t, a, s); camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay.
+    """
+    t, a, s = theta[:3], theta[3:6], theta[6]
+    rotation = rodrigues_to_matrix(a)
+
+    def move(xyz):
+        return centre + (1 + s) * (xyz - centre) @ rotation.T + t
+
+    def turn(opk):
+        return matrix_to_opk(opk_to_matrix(opk) @ rotation.T)
+
+    images = jnp.concatenate([move(params.images[:, :3]), jax.vmap(turn)(params.images[:, 3:])], 1)
+    return Parameters(params.cameras, images, move(params.points))
+
+
+def _similarity_directions(problem: BundleProblem) -> np.ndarray:
+    """(7, n_all): how every unknown changes under each similarity direction."""
+    centre = jnp.mean(problem.initial.points, axis=0)
+
+    def flat(theta):
+        moved = _similarity(problem.initial, theta, centre)
+        return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(moved)])
+
+    return np.asarray(jax.jacfwd(flat)(jnp.zeros(7))).T
+
+
+def _describe_similarity(null_basis, directions, index) -> str | None:
+    """Name the similarity components spanned by the null space, or None if it is not one.
+
+    Null vectors move free unknowns only: extended with zeros on the fixed ones, a fit
+    by similarity directions that would move a fixed unknown leaves a residual there.
+    """
+    n_total = directions.shape[1]
+    names = set()
+    for vector in null_basis:
+        full = np.zeros(n_total)
+        full[index] = vector
+        norms = np.linalg.norm(directions, axis=1)
+        unit = directions / norms[:, None]
+        theta, *_ = np.linalg.lstsq(unit.T, full, rcond=None)
+        if np.linalg.norm(unit.T @ theta - full) > 1e-3 * np.linalg.norm(full):
+            return None
+        significant = np.abs(theta) >= 0.2 * np.max(np.abs(theta))
+        names.update(SIMILARITY_NAMES[k] for k in np.flatnonzero(significant))
+    return ", ".join(name for name in SIMILARITY_NAMES if name in names)
+
+
+def check_datum(
+    problem: BundleProblem, *, labels: list[str] | None = None, rtol: float = 1e-9
+) -> None:
+    """Raise `DatumError` if the bundle is rank deficient at its approximations.
+
+    Rank is judged from the singular values of the column-equilibrated whitened
+    Jacobian (smallest / largest < `rtol`). The message names the defect: a similarity
+    transformation of the network (which of translation, rotation, scale) or the
+    unknowns that can change together without changing any observation.
+    """
+    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
+    if n_observations <= n_unknowns:
+        raise DatumError(
+            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
+            "(redundancy must be positive)"
+        )
+    labels = labels or parameter_labels(problem.initial)
+    index = free_indices(problem)
+    jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
+    if not np.all(np.isfinite(jacobian)):
+        bad = sorted({labels[index[k]] for k in np.flatnonzero(~np.isfinite(jacobian).all(0))})
+        raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
+    column_norms = np.linalg.norm(jacobian, axis=0)
+    unobserved = np.flatnonzero(column_norms == 0)
+    if unobserved.size:
+        names = ", ".join(labels[index[k]] for k in unobserved[:8])
+        raise DatumError(f"datum defect: no observation depends on {names}")
+    _, singular, vt = np.linalg.svd(jacobian / column_norms, full_matrices=False)
+    null_rows = singular < rtol * singular[0]
+    if not null_rows.any():
+        return
+    null_basis = vt[null_rows] / column_norms  # back to unscaled unknowns
+    similarity = _describe_similarity(null_basis, _similarity_directions(problem), index)
+    rank_defect = int(null_rows.sum())
+    if similarity is not None:
+        hint = (
+            " The scale is not defined: add distance observations or control coordinates "
+            "that fix the scale."
+            if "scale" in similarity
+            else " Fix or weight more control coordinates."
+        )
+        raise DatumError(
+            f"datum defect (rank deficiency {rank_defect}): the observations do not "
+            f"determine a similarity transformation of the network involving {similarity}."
+            + hint
+        )
+    magnitude = np.max(np.abs(vt[null_rows]), axis=0)
+    involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
+    names = ", ".join(labels[index[k]] for k in involved)
+    raise DatumError(
+        f"rank deficiency {rank_defect}: these unknowns can change together without "
+        f"changing any observation: {names}"
+    )

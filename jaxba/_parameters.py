@@ -1,0 +1,91 @@
+"""The unknowns of a bundle: camera (IOP), image (EOP) and object-point blocks."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._camera import CAMERA_MODELS
+
+IMAGE_PARAMETER_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+POINT_PARAMETER_NAMES = ("X", "Y", "Z")
+ANGLE_NAMES = ("omega", "phi", "kappa")
+
+
+class Parameters(eqx.Module):
+    """One value per scalar unknown; the same structure also holds masks and σ.
+
+    - `cameras`: camera model name -> (n_cameras_of_model, n_model_parameters), the
+      model's `parameter_names` order, mm-based units.
+    - `images`: (n_images, 6): X0, Y0, Z0 (object units), omega, phi, kappa (radians).
+    - `points`: (n_points, 3): X, Y, Z (object units).
+    """
+
+    cameras: dict[str, Float[Array, "n_cameras n_iop"]]
+    images: Float[Array, "n_images 6"]
+    points: Float[Array, "n_points 3"]
+
+    def block(self, name: str) -> Array:
+        """The block called "images", "points" or "cameras/<model>"."""
+        if name.startswith("cameras/"):
+            return self.cameras[name.removeprefix("cameras/")]
+        return getattr(self, name)
+
+
+def where_free(free: Parameters, values: Parameters, fixed: Parameters) -> Parameters:
+    """`values` where `free` is True, else `fixed` (elementwise over the blocks)."""
+    return jax.tree.map(jnp.where, free, values, fixed)
+
+
+def flatten(tree: Parameters) -> np.ndarray:
+    """All entries of a Parameters tree as one NumPy vector (jax.tree leaf order)."""
+    return np.concatenate([np.ravel(np.asarray(leaf)) for leaf in jax.tree.leaves(tree)])
+
+
+def unflatten(like: Parameters, vector) -> Parameters:
+    """Inverse of `flatten`, shaped like `like`."""
+    leaves, treedef = jax.tree.flatten(like)
+    out, start = [], 0
+    for leaf in leaves:
+        size = int(np.size(leaf))
+        out.append(jnp.reshape(jnp.asarray(vector[start:start + size]), jnp.shape(leaf)))
+        start += size
+    return jax.tree.unflatten(treedef, out)
+
+
+def parameter_labels(
+    params: Parameters,
+    camera_ids: dict[str, list[str]] | None = None,
+    image_ids: list[str] | None = None,
+    point_ids: list[str] | None = None,
+) -> list[str]:
+    """A readable name for every scalar unknown, in `flatten` order.
+
+    E.g. "camera C1 c", "image img03 omega", "point 12 Z"; row numbers stand in for
+    missing IDs.
+    """
+    def ids(given, n):
+        return list(given) if given is not None else [str(i) for i in range(n)]
+
+    labelled = Parameters(
+        cameras={
+            model: [
+                [f"camera {cid} {name}" for name in CAMERA_MODELS[model].parameter_names]
+                for cid in ids((camera_ids or {}).get(model), block.shape[0])
+            ]
+            for model, block in params.cameras.items()
+        },
+        images=[[f"image {i} {n}" for n in IMAGE_PARAMETER_NAMES]
+                for i in ids(image_ids, params.images.shape[0])],
+        points=[[f"point {p} {n}" for n in POINT_PARAMETER_NAMES]
+                for p in ids(point_ids, params.points.shape[0])],
+    )
+    return [label for leaf in _label_leaves(labelled) for label in leaf]
+
+
+def _label_leaves(labelled: Parameters) -> list[list[str]]:
+    """Flattened label lists in the same leaf order as `flatten` (dict keys sorted)."""
+    blocks = [labelled.cameras[model] for model in sorted(labelled.cameras)]
+    blocks += [labelled.images, labelled.points]
+    return [[label for row in block for label in row] for block in blocks]

@@ -1,0 +1,85 @@
+"""A bundle-adjustment problem: parameter blocks, their fixing, and observation groups."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from ._camera import AbstractRefraction, NoRefraction
+from ._observations import AbstractObservationGroup
+from ._parameters import Parameters, flatten, where_free
+
+
+class BundleProblem(eqx.Module):
+    """Everything the solver needs; pure arrays and static structure, no file names.
+
+    - `initial`: approximations of all unknowns and the values of the fixed ones;
+    - `free`: Parameters of booleans, True where the scalar is estimated (free or
+      weighted: weighted ones are free with a prior observation in `groups`);
+    - `groups`: the observation groups (image points per camera, control, distances...);
+    - `refraction`: the atmospheric refraction model (NoRefraction for close range).
+    """
+
+    initial: Parameters
+    free: Parameters
+    groups: tuple[AbstractObservationGroup, ...]
+    refraction: AbstractRefraction = NoRefraction()
+
+    def residuals(self, params: Parameters) -> tuple[Array, ...]:
+        """Whitened residuals of every group, masked entries set to exactly 0."""
+        return tuple(
+            jnp.where(group.mask(), group.residuals(params, self.refraction), 0.0)
+            for group in self.groups
+        )
+
+    def with_free(self, values: Parameters) -> Parameters:
+        """`values` on the free entries, the fixed values of `initial` elsewhere."""
+        return where_free(self.free, values, self.initial)
+
+    def n_observations(self) -> int:
+        """Number of real scalar observations over all groups."""
+        return int(sum(np.sum(np.asarray(group.mask())) for group in self.groups))
+
+    def n_unknowns(self) -> int:
+        """Number of free (estimated) scalars."""
+        return int(np.sum(flatten(self.free)))
+
+
+def free_indices(problem: BundleProblem) -> np.ndarray:
+    """Positions of the free scalars in `flatten(Parameters)` order."""
+    return np.flatnonzero(flatten(problem.free))
+
+
+def observation_mask(problem: BundleProblem) -> Bool[np.ndarray, " n_residuals"]:
+    """Flat mask of real observations, in the order of the raveled residuals."""
+    return np.concatenate([np.ravel(np.asarray(group.mask())) for group in problem.groups])
+
+
+def dense_jacobian(
+    problem: BundleProblem, params: Parameters
+) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
+    """Whitened Jacobian d e / d x_free and whitened residuals e, real observations only.
+
+    Dense: for problems of up to a few thousand unknowns (statistics, datum check).
+    """
+    index = jnp.asarray(free_indices(problem))
+    rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
+    return _dense_jacobian(problem, params, index, rows)
+
+
+@eqx.filter_jit
+def _dense_jacobian(problem, params, index, rows):
+    base = jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(params)])
+    leaves, treedef = jax.tree.flatten(params)
+    sizes = np.cumsum([np.size(leaf) for leaf in leaves])[:-1]
+
+    def residual_vector(x_free):
+        flat = base.at[index].set(x_free)
+        parts = jnp.split(flat, sizes)
+        shaped = [part.reshape(leaf.shape) for part, leaf in zip(parts, leaves)]
+        values = jax.tree.unflatten(treedef, shaped)
+        return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(values)])[rows]
+
+    x_free = base[index]
+    return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)

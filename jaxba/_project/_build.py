@@ -1,0 +1,184 @@
+"""Turn a validated ProjectSpec into a BundleProblem, keeping the IDs for the reports."""
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._camera import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
+from .._observations import Distances, ImagePoints, ParameterObservations
+from .._parameters import Parameters, parameter_labels
+from .._problem import BundleProblem
+from ._spec import ProjectSpec
+
+_ANGLE_COLUMNS = slice(3, 6)
+
+
+@dataclasses.dataclass(frozen=True)
+class Project:
+    """A project ready to adjust: the problem plus what maps its rows back to IDs.
+
+    `camera_rows[camera_id] = (model, row)`; `image_ids` and `point_ids` are the row
+    order of the image and point blocks; `labels` names every scalar unknown.
+    """
+
+    spec: ProjectSpec
+    problem: BundleProblem
+    camera_rows: dict[str, tuple[str, int]]
+    image_ids: list[str]
+    point_ids: list[str]
+    pixel_grids: dict[str, PixelGrid | None]
+    labels: list[str]
+
+
+def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
+    """File σ (None free, 0 fixed, > 0 weighted) -> (estimated?, σ of a prior or inf)."""
+    if sigma is None:
+        return True, math.inf
+    if sigma == 0:
+        return False, math.inf
+    return True, float(sigma)
+
+
+def _cameras(spec: ProjectSpec):
+    rows, values, free, prior_sigma = {}, {}, {}, {}
+    for camera in spec.cameras.values():
+        names = CAMERA_MODELS[camera.model].parameter_names
+        rows[camera.id] = (camera.model, len(values.setdefault(camera.model, [])))
+        values[camera.model].append([camera.values.get(n, 0.0) for n in names])
+        free.setdefault(camera.model, []).append(
+            [n in camera.free or n in camera.sigma for n in names])
+        prior_sigma.setdefault(camera.model, []).append(
+            [camera.sigma.get(n, math.inf) for n in names])
+    priors = [
+        ParameterObservations(
+            name="camera_priors" if len(values) == 1 else f"camera_priors:{model}",
+            block=f"cameras/{model}",
+            rows=jnp.arange(len(values[model])),
+            observed=jnp.asarray(values[model], dtype=float),
+            sigma_obs=jnp.asarray(prior_sigma[model], dtype=float),
+        )
+        for model in values
+        if np.isfinite(prior_sigma[model]).any()
+    ]
+    as_arrays = {m: jnp.asarray(v, dtype=float) for m, v in values.items()}
+    return rows, as_arrays, {m: jnp.asarray(f) for m, f in free.items()}, priors
+
+
+def _images(spec: ProjectSpec):
+    eop, free, sigma = [], [], []
+    for image in spec.images.values():
+        values = np.asarray(image.eop, dtype=float)
+        values[_ANGLE_COLUMNS] = np.radians(values[_ANGLE_COLUMNS])
+        flags = [_sigma_to_free_and_observed(s) for s in image.eop_sigma]
+        observed_sigma = np.array([s for _, s in flags])
+        observed_sigma[_ANGLE_COLUMNS] = np.radians(observed_sigma[_ANGLE_COLUMNS])
+        eop.append(values)
+        free.append([f for f, _ in flags])
+        sigma.append(observed_sigma)
+    eop, sigma = np.asarray(eop), np.asarray(sigma)
+    groups = []
+    if np.isfinite(sigma).any():
+        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
+        groups.append(ParameterObservations(
+            name="gnss_ins", block="images", rows=jnp.asarray(rows),
+            observed=jnp.asarray(eop[rows]), sigma_obs=jnp.asarray(sigma[rows])))
+    return jnp.asarray(eop), jnp.asarray(free), groups
+
+
+def _used_points(spec: ProjectSpec) -> list[str]:
+    used = {m.point for m in spec.image_points}
+    used.update(p for d in spec.distances for p in (d.a, d.b))
+    return [pid for pid in spec.points if pid in used]
+
+
+def _points(spec: ProjectSpec, point_ids: list[str]):
+    xyz, free, sigma = [], [], []
+    for pid in point_ids:
+        point = spec.points[pid]
+        flags = [_sigma_to_free_and_observed(s) for s in point.sigma]
+        xyz.append(point.xyz)
+        free.append([f for f, _ in flags])
+        sigma.append([s for _, s in flags])
+    xyz, sigma = np.asarray(xyz, dtype=float), np.asarray(sigma, dtype=float)
+    groups = []
+    if np.isfinite(sigma).any():
+        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
+        groups.append(ParameterObservations(
+            name="control", block="points", rows=jnp.asarray(rows),
+            observed=jnp.asarray(xyz[rows]), sigma_obs=jnp.asarray(sigma[rows])))
+    return jnp.asarray(xyz), jnp.asarray(free), groups
+
+
+def _pixel_grid(camera) -> PixelGrid | None:
+    if camera.pixel_size is None or camera.sensor is None:
+        return None
+    return PixelGrid(tuple(camera.pixel_size), tuple(camera.sensor))
+
+
+def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
+    """One ImagePoints group per camera, in mm (pixels converted with the camera's grid)."""
+    by_camera: dict[str, list] = {}
+    for m in spec.image_points:
+        by_camera.setdefault(spec.images[m.image].camera, []).append(m)
+    groups = []
+    for camera_id, measurements in by_camera.items():
+        model, row = camera_rows[camera_id]
+        xy = np.array([m.xy for m in measurements], dtype=float)
+        default = (spec.settings.image_sigma, spec.settings.image_sigma)
+        sigma = np.array([m.sigma or default for m in measurements], dtype=float)
+        if spec.image_units == "pixel":
+            grid = grids[camera_id]
+            xy = np.asarray(grid.pixel_to_image(xy))
+            sigma = sigma * np.asarray(grid.pixel_size)
+        groups.append(ImagePoints(
+            name=f"image_points:{camera_id}",
+            model=model,
+            camera=jnp.full(len(measurements), row),
+            image=jnp.asarray([image_index[m.image] for m in measurements]),
+            point=jnp.asarray([point_index[m.point] for m in measurements]),
+            measured=jnp.asarray(xy),
+            sigma_xy=jnp.asarray(sigma),
+        ))
+    return groups
+
+
+def build_project(spec: ProjectSpec) -> Project:
+    """The BundleProblem of a project, in mm (image) and object units; angles in radians."""
+    camera_rows, iop, iop_free, camera_priors = _cameras(spec)
+    image_ids = list(spec.images)
+    point_ids = _used_points(spec)
+    eop, eop_free, gnss = _images(spec)
+    xyz, xyz_free, control = _points(spec, point_ids)
+    grids = {cid: _pixel_grid(camera) for cid, camera in spec.cameras.items()}
+    image_index = {iid: k for k, iid in enumerate(image_ids)}
+    point_index = {pid: k for k, pid in enumerate(point_ids)}
+    groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids)
+    groups += control + gnss + camera_priors
+    if spec.distances:
+        groups.append(Distances(
+            name="distances",
+            a=jnp.asarray([point_index[d.a] for d in spec.distances]),
+            b=jnp.asarray([point_index[d.b] for d in spec.distances]),
+            observed=jnp.asarray([[d.distance] for d in spec.distances], dtype=float),
+            sigma_d=jnp.asarray([[d.sigma] for d in spec.distances], dtype=float),
+        ))
+    settings = spec.settings
+    refraction = (
+        AtmosphericRefraction(settings.object_unit_km, settings.height_offset)
+        if settings.refraction else NoRefraction()
+    )
+    initial = Parameters(iop, eop, xyz)
+    problem = BundleProblem(
+        initial=initial,
+        free=Parameters(iop_free, eop_free, xyz_free),
+        groups=tuple(groups),
+        refraction=refraction,
+    )
+    camera_ids: dict[str, list[str]] = {}
+    for cid, (model, _) in camera_rows.items():
+        camera_ids.setdefault(model, []).append(cid)
+    labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
+    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels)
+

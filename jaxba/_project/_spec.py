@@ -1,0 +1,97 @@
+"""Plain-Python description of a project as read from its files (FORMATS.md).
+
+Nothing here touches jax: the readers fill these records, `_build.py` turns them into a
+`BundleProblem`. Angles are kept in decimal degrees, as in the files. A σ entry is
+`None` (free / no observation), `0.0` (fixed) or a positive number (weighted).
+"""
+
+import dataclasses
+import pathlib
+
+
+@dataclasses.dataclass(frozen=True)
+class AdjustmentSettings:
+    """The `[adjustment]` table of a project file."""
+
+    sigma0: float = 1.0
+    image_sigma: float = 0.002
+    max_iterations: int = 50
+    variance_components: bool = False
+    rtol: float = 1e-8
+    atol: float = 1e-8
+    refraction: bool = False
+    # Refraction needs heights above sea level in km: height_km = (Z + z_offset) * unit_km.
+    object_unit_km: float = 0.001
+    height_offset: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraSpec:
+    """One table of cameras.toml."""
+
+    id: str
+    model: str
+    values: dict[str, float]
+    free: frozenset[str]
+    sigma: dict[str, float]
+    pixel_size: tuple[float, float] | None = None
+    sensor: tuple[int, int] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ImageSpec:
+    """One row of the images table: approximate EOPs (degrees) and GNSS/INS σ."""
+
+    id: str
+    camera: str
+    eop: tuple[float, float, float, float, float, float]
+    eop_sigma: tuple[float | None, ...]
+    line: int
+
+
+@dataclasses.dataclass(frozen=True)
+class PointSpec:
+    """One row of the points table: approximation or control coordinates and their σ."""
+
+    id: str
+    xyz: tuple[float, float, float]
+    sigma: tuple[float | None, float | None, float | None]
+    line: int
+
+
+@dataclasses.dataclass(frozen=True)
+class ImagePointSpec:
+    """One image measurement, in the project's image units."""
+
+    image: str
+    point: str
+    xy: tuple[float, float]
+    sigma: tuple[float, float] | None
+    line: int
+
+
+@dataclasses.dataclass(frozen=True)
+class DistanceSpec:
+    """A measured distance between two points, object units."""
+
+    a: str
+    b: str
+    distance: float
+    sigma: float
+    line: int
+
+
+@dataclasses.dataclass(frozen=True)
+class ProjectSpec:
+    """Everything one project file describes, validated."""
+
+    path: pathlib.Path
+    name: str
+    image_units: str
+    settings: AdjustmentSettings
+    cameras: dict[str, CameraSpec]
+    images: dict[str, ImageSpec]
+    points: dict[str, PointSpec]
+    image_points: list[ImagePointSpec]
+    distances: list[DistanceSpec]
+    input_files: tuple[pathlib.Path, ...]
