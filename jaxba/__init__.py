@@ -69,6 +69,15 @@ from ._parameters import (
     unflatten as unflatten,
 )
 from ._problem import BundleProblem as BundleProblem
+from ._project import (
+    AdjustmentSettings as AdjustmentSettings,
+    Project as Project,
+    ProjectError as ProjectError,
+    ProjectSpec as ProjectSpec,
+    adjust_project as adjust_project,
+    build_project as build_project,
+    read_project as read_project,
+)
 from ._progress import Iteration as Iteration
 from ._rotation import (
     matrix_to_opk as matrix_to_opk,
@@ -97,7 +106,15 @@ from ._rotation import (
 from ._solve import Adjustment as Adjustment
 from ._solve import NotConvergedError as NotConvergedError
 from ._solve import adjust as adjust
+from ._synthetic import (
+    SyntheticTruth as SyntheticTruth,
+    write_synthetic_project as write_synthetic_project,
+)
 from ._statistics import Precision as Precision
+from ._synthetic import (
+    SyntheticTruth as SyntheticTruth,
+    write_synthetic_project as write_synthetic_project,
+)
 from ._statistics import precision as precision
 
 __version__ = "0.1.0"

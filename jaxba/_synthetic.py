@@ -190,7 +190,7 @@ def make_stations(rng, n_images, n_cameras):
     """Convergent stations in front of the wall, all looking at FIELD_CENTRE.
 
     Image i stands at cell i mod 9 of a 3 x 3 grid (X0 = centre + {-1.6, 0, 1.6} m, Y0 = centre +
-    {-1, 0, 1} m, jittered by 0.15 m) at Z0 in [3, 3.8] m, aims within 0.1 m of the centre and is
+    {-1, 0, 1} m, jittered by 0.15 m) at Z0 in [2.0, 2.6] m (the field fills the format), aims within 0.1 m of the centre and is
     rolled by kappa = 90° ((i // n_cameras) mod 4), so that every camera has all four rolls.
     Returns stations (n, 3) m and M (n, 3, 3).
     """
@@ -198,7 +198,7 @@ def make_stations(rng, n_images, n_cameras):
     for i in range(n_images):
         offset = [1.6 * (i % 3 - 1), 1.0 * ((i % 9) // 3 - 1), 0.0]
         station = FIELD_CENTRE + offset + rng.normal(0.0, 0.15, 3) * [1.0, 1.0, 0.0]
-        station[2] = rng.uniform(3.0, 3.8)
+        station[2] = rng.uniform(2.0, 2.6)
         aim = FIELD_CENTRE + rng.normal(0.0, 0.1, 3)
         stations.append(station)
         matrices.append(look_at(station, aim, math.radians(90.0 * ((i // n_cameras) % 4))))

@@ -42,8 +42,10 @@ def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
 
 
 def _cameras(spec: ProjectSpec):
+    """IOP blocks per camera model, cameras used by no image left out."""
     rows, values, free, prior_sigma = {}, {}, {}, {}
-    for camera in spec.cameras.values():
+    used = {image.camera for image in spec.images.values()}
+    for camera in (c for c in spec.cameras.values() if c.id in used):
         names = CAMERA_MODELS[camera.model].parameter_names
         rows[camera.id] = (camera.model, len(values.setdefault(camera.model, [])))
         values[camera.model].append([camera.values.get(n, 0.0) for n in names])

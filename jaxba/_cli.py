@@ -1,0 +1,133 @@
+"""The `jaxba` command line: `jaxba adjust PROJECT.toml [--out DIR]`.
+
+Thin: reading, adjusting and reporting live in the library and `jaxba._report`; this module
+parses arguments, sets up jax (float64, persistent compilation cache), prints progress and maps
+outcomes to exit codes: 0 success, 1 not converged (reports still written), 2 bad input.
+Each subcommand is an `_add_<name>` function that registers its parser and its `run` function.
+"""
+
+import argparse
+import os
+import pathlib
+import sys
+from collections.abc import Sequence
+
+EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
+CACHE_DIR = pathlib.Path("~/.cache/jaxba/jax")
+
+
+class _UsageError(Exception):
+    """Bad input from the user: printed as `jaxba: error: ...`, exit code 2."""
+
+
+def _error(message: str) -> None:
+    print(f"jaxba: error: {message}", file=sys.stderr, flush=True)
+
+
+def _say(message: str = "") -> None:
+    print(message, flush=True)
+
+
+def _setup_jax() -> None:
+    """float64 (never set by the library at import) and a persistent compilation cache.
+
+    The cache is best effort: if its folder cannot be made or written, jax runs without it.
+    """
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    try:
+        cache = CACHE_DIR.expanduser()
+        cache.mkdir(parents=True, exist_ok=True)
+        if not os.access(cache, os.W_OK):
+            return
+        jax.config.update("jax_compilation_cache_dir", str(cache))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    except (OSError, RuntimeError, ValueError):
+        pass
+
+
+# --- jaxba adjust ---------------------------------------------------------------------------
+
+
+def _add_adjust(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "adjust",
+        help="adjust a project and write its reports",
+        description=(
+            "Adjust the bundle of PROJECT.toml and write NAME.out, NAME.res, NAME.sigma and"
+            " results.json (NAME = the project name). Exit codes: 0 converged, 1 not converged"
+            " (reports written), 2 bad input."
+        ),
+    )
+    parser.add_argument("project", type=pathlib.Path, help="the project file (TOML)")
+    parser.add_argument(
+        "--out", type=pathlib.Path, default=None, metavar="DIR",
+        help="folder for the reports (default: the project file's folder)",
+    )
+    parser.set_defaults(run=_adjust)
+
+
+def _adjust(args: argparse.Namespace) -> int:
+    _setup_jax()
+    import jaxba
+    from jaxba import _report
+
+    try:
+        spec = jaxba.read_project(args.project)
+        out_dir = args.out if args.out is not None else spec.path.parent
+        _report.check_outputs(spec, out_dir)
+        project = jaxba.build_project(spec)
+        _say(_report.start_line(project))
+        result = jaxba.adjust_project(
+            project, on_iteration=lambda it: _say(_report.iteration_line(it))
+        )
+    except (jaxba.ProjectError, jaxba.DatumError, _report.OutputError) as error:
+        raise _UsageError(str(error)) from None
+    except jaxba.NotConvergedError as error:
+        _error(f"the adjustment failed: {error}")
+        return EXIT_NOT_CONVERGED
+    try:
+        written = _report.write_reports(project, result, out_dir)
+    except (_report.OutputError, OSError) as error:
+        raise _UsageError(str(error)) from None
+
+    for line in _report.summary_lines(project, result):
+        _say(line)
+    _say("wrote")
+    for path in written:
+        _say(f"  {path}")
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+# --- entry point ----------------------------------------------------------------------------
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxba", description="Self-calibrating photogrammetric bundle adjustment in JAX."
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_adjust(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 1 not converged, 2 bad input)."""
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # --help, or a usage error already printed by argparse
+        return exit_.code if isinstance(exit_.code, int) else EXIT_BAD_INPUT
+    try:
+        return args.run(args)
+    except _UsageError as error:
+        _error(str(error))
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        _error("interrupted")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,42 @@
+"""Shared test helpers: central differences, Jacobian checks and named tolerances (float64)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+# Tolerances, named where the tests use them.
+ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
+ANGLE_TOL = 1e-12  # radians, round trips through atan2 / asin
+FORMULA_RTOL = 1e-13  # a model against its formula written out again in NumPy
+FD_STEP = 1e-6  # central-difference step, relative to max(1, |x_i|)
+FD_RTOL = 1e-6  # jax.jacfwd against central differences (truncation ~ step², rounding ~ 1e-16/step)
+FD_ATOL = 1e-8  # absolute floor of the same comparison, for entries that are (near) zero
+
+
+def central_difference(f, x, eps):
+    """Jacobian of `f` at `x` by central differences, (f(x + h e_i) - f(x - h e_i)) / 2h.
+
+    `f` maps an array of the shape of `x` to an array of any shape; `eps` is a scalar step or
+    an array of per-component steps broadcastable to `x`. Returns `f(x).shape + x.shape`, as
+    `jax.jacfwd` does. Plain NumPy, float64.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    steps = np.broadcast_to(np.asarray(eps, dtype=np.float64), x.shape)
+    value = np.asarray(f(x), dtype=np.float64)
+    jacobian = np.empty(value.shape + x.shape)
+    for index in np.ndindex(x.shape):
+        dx = np.zeros_like(x)
+        dx[index] = steps[index]
+        forward = np.asarray(f(x + dx), dtype=np.float64)
+        backward = np.asarray(f(x - dx), dtype=np.float64)
+        jacobian[(..., *index)] = (forward - backward) / (2 * steps[index])
+    return jacobian
+
+
+def assert_jacobian_matches_fd(f, x, rtol, atol, *, step=FD_STEP):
+    """Assert that `jax.jacfwd(f)(x)` matches central differences with steps step·max(1, |x_i|)."""
+    x = np.asarray(x, dtype=np.float64)
+    exact = np.asarray(jax.jacfwd(f)(jnp.asarray(x)))
+    assert np.all(np.isfinite(exact)), "jax.jacfwd returned non-finite entries"
+    approximate = central_difference(f, x, step * np.maximum(1.0, np.abs(x)))
+    np.testing.assert_allclose(exact, approximate, rtol=rtol, atol=atol)

@@ -1,0 +1,147 @@
+"""End-to-end adjustment of independent synthetic blocks (jaxba._synthetic, NumPy model)."""
+
+import math
+
+import equinox as eqx
+import numpy as np
+import pytest
+
+import jaxba
+
+# A result is "recovered" when it is within this many of its reported σ of the truth.
+RECOVERY_SIGMAS = 4.0
+# σ̂0 when the prior σ equals the simulated noise; r ≈ 2500 gives std(σ̂0) ≈ 1.4 %.
+SIGMA0_TOLERANCE = 0.10
+FREE_IOPS = ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2")
+
+
+def _adjust(directory, **kwargs):
+    truth = jaxba.write_synthetic_project(directory, **kwargs)
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    return truth, project, jaxba.adjust_project(project)
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """An 18-image block, datum of 6 fixed coordinates plus four distances (the lab's)."""
+    return _adjust(tmp_path_factory.mktemp("lab"), seed=7, noise_px=0.3)
+
+
+def test_converges_with_unit_variance_factor(lab):
+    _, project, result = lab
+    assert result.converged, result.message
+    assert abs(result.sigma0 - 1.0) < SIGMA0_TOLERANCE
+    costs = [it.cost for it in result.iterations]
+    assert costs[-1] < 1e-3 * costs[0]
+    assert result.precision.redundancy == (
+        project.problem.n_observations() - project.problem.n_unknowns()
+    )
+    sigma0_squared = [it.sigma0_squared for it in result.iterations]
+    assert math.isclose(sigma0_squared[-1], result.precision.sigma0_squared, rel_tol=1e-8)
+
+
+def test_recovers_interior_orientation_within_its_sigma(lab):
+    truth, project, result = lab
+    model, row = project.camera_rows["C1"]
+    names = jaxba.CAMERA_MODELS[model].parameter_names
+    values = np.asarray(result.parameters.cameras[model][row])
+    std = np.asarray(result.precision.std.cameras[model][row])
+    for name in FREE_IOPS:
+        k = names.index(name)
+        assert std[k] > 0, name
+        assert abs(values[k] - truth.cameras["C1"][name]) < RECOVERY_SIGMAS * std[k], name
+    for name in set(names) - set(FREE_IOPS):
+        k = names.index(name)
+        assert std[k] == 0 and values[k] == 0, name
+
+
+def test_recovers_exterior_orientation_within_its_sigma(lab):
+    truth, project, result = lab
+    values = np.asarray(result.parameters.images)
+    std = np.asarray(result.precision.std.images)
+    for row, image_id in enumerate(project.image_ids):
+        true = np.asarray(truth.images[image_id], dtype=float)
+        difference = values[row] - np.r_[true[:3], np.radians(true[3:])]
+        difference[3:] = (difference[3:] + np.pi) % (2 * np.pi) - np.pi
+        assert np.all(np.abs(difference) < RECOVERY_SIGMAS * std[row]), image_id
+
+
+def test_fixed_control_stays_put_and_points_are_recovered(lab):
+    truth, project, result = lab
+    free = np.asarray(project.problem.free.points)
+    values = np.asarray(result.parameters.points)
+    std = np.asarray(result.precision.std.points)
+    true = np.array([truth.points[p] for p in project.point_ids])
+    assert (~free).sum() == 6
+    np.testing.assert_array_equal(values[~free], np.asarray(project.problem.initial.points)[~free])
+    np.testing.assert_allclose(values[~free], true[~free], atol=1e-9)  # files hold 9 decimals
+    assert np.all(std[~free] == 0)
+    outside = np.abs(values - true)[free] > RECOVERY_SIGMAS * std[free]
+    # 4σ bounds on ~234 coordinates: expect none outside; allow one by chance.
+    assert outside.sum() <= 1
+
+
+def test_pixel_units_give_the_same_adjustment(tmp_path, lab):
+    _, _, result_mm = lab
+    _, _, result_px = _adjust(tmp_path, seed=7, noise_px=0.3, image_units="pixel")
+    # Files round coordinates to 1e-8 (mm or px): results agree far below their σ.
+    iop_mm = np.asarray(result_mm.parameters.cameras["smac"][0])
+    iop_px = np.asarray(result_px.parameters.cameras["smac"][0])
+    std = np.asarray(result_mm.precision.std.cameras["smac"][0])
+    free = std > 0
+    assert np.all(np.abs(iop_mm - iop_px)[free] < 1e-3 * std[free])
+    assert math.isclose(result_mm.sigma0, result_px.sigma0, rel_tol=1e-4)
+
+
+def test_missing_scale_is_refused_before_solving(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=7, n_distances=0)
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    with pytest.raises(jaxba.DatumError, match="scale"):
+        jaxba.adjust_project(project)
+
+
+def test_no_datum_at_all_names_translation_rotation_and_scale(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=7, datum="none", n_distances=0)
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    with pytest.raises(jaxba.DatumError) as error:
+        jaxba.check_datum(project.problem, labels=project.labels)
+    message = str(error.value)
+    assert "rank deficiency 7" in message
+    for word in ("translation in X", "rotation about Z", "scale"):
+        assert word in message
+
+
+def test_point_on_a_single_ray_is_named(lab):
+    """A tie point seen from two images taken at one station has no depth: name it."""
+    _, project, _ = lab
+    problem = project.problem
+    group = problem.groups[0]
+    point = 40
+    seen_in = np.flatnonzero(np.asarray(group.point) == point)
+    keep = (np.asarray(group.point) != point) | np.isin(np.arange(group.point.size), seen_in[:2])
+    image_a, image_b = np.asarray(group.image)[seen_in[:2]]
+    thinned = eqx.tree_at(
+        lambda g: (g.camera, g.image, g.point, g.measured, g.sigma_xy),
+        group,
+        tuple(leaf[keep] for leaf in (group.camera, group.image, group.point,
+                                      group.measured, group.sigma_xy)),
+    )
+    images = problem.initial.images.at[image_b, :3].set(problem.initial.images[image_a, :3])
+    degenerate = eqx.tree_at(
+        lambda p: (p.groups, p.initial.images), problem, ((thinned, *problem.groups[1:]), images)
+    )
+    with pytest.raises(jaxba.DatumError) as error:
+        jaxba.check_datum(degenerate, labels=project.labels)
+    message = str(error.value)
+    assert "rank deficiency 1" in message
+    point_id = project.point_ids[point]
+    assert f"point {point_id} X" in message and f"point {point_id} Z" in message
+
+
+def test_non_convergence_is_reported_not_hidden(lab):
+    _, project, _ = lab
+    result = jaxba.adjust(project.problem, max_steps=2, labels=project.labels)
+    assert not result.converged
+    assert "maximum number of steps" in result.message.lower()
+    with pytest.raises(jaxba.NotConvergedError):
+        jaxba.adjust(project.problem, max_steps=2, throw=True)
