@@ -20,8 +20,8 @@ class _UsageError(Exception):
     """Bad input from the user: printed as `jaxba: error: ...`, exit code 2."""
 
 
-def _error(message: str) -> None:
-    print(f"jaxba: error: {message}", file=sys.stderr, flush=True)
+def _error(message: str, kind: str = "error") -> None:
+    print(f"jaxba: {kind}: {message}", file=sys.stderr, flush=True)
 
 
 def _say(message: str = "") -> None:
@@ -97,7 +97,10 @@ def _adjust(args: argparse.Namespace) -> int:
     _say("wrote")
     for path in written:
         _say(f"  {path}")
-    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+    if not result.converged:
+        _error(f"the adjustment did not converge: {result.message}", "warning")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
 
 
 # --- entry point ----------------------------------------------------------------------------

@@ -19,21 +19,27 @@ from ._rotation import opk_to_matrix
 
 
 class AbstractObservationGroup(eqx.Module):
-    """A set of observations of one kind, with its own σ."""
+    """A set of observations of one kind.
+
+    `stddev` holds the a priori σ of every residual entry (units of the observation);
+    σ = inf marks an entry that is not an observation (an unobserved coordinate, or a
+    measurement removed as a blunder): it is whitened to 0 and counted nowhere.
+    """
 
     name: eqx.AbstractVar[str]
+    stddev: eqx.AbstractVar[Float[Array, "n k"]]
 
     @abc.abstractmethod
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
-        """Whitened residuals, shape (n, k)."""
+        """Whitened residuals (observed - computed) / σ, shape (n, k)."""
 
-    @abc.abstractmethod
     def mask(self) -> Bool[Array, "n k"]:
         """True where the residual entry is an observation."""
+        return jnp.isfinite(self.stddev)
 
-    @abc.abstractmethod
     def sigma(self) -> Float[Array, "n k"]:
-        """A priori σ of every residual entry (units of the observation)."""
+        """A priori σ of every residual entry."""
+        return self.stddev
 
 
 def collinearity_residual(
@@ -57,7 +63,7 @@ class ImagePoints(AbstractObservationGroup):
     """Image coordinates of points, all taken with cameras of one model.
 
     `camera`, `image`, `point` index the rows of `cameras[model]`, `images`, `points`;
-    `measured` and `sigma_xy` are (n, 2) in mm.
+    `measured` and `stddev` are (n, 2) in the camera model's image units.
     """
 
     name: str = eqx.field(static=True)
@@ -66,7 +72,7 @@ class ImagePoints(AbstractObservationGroup):
     image: Int[Array, " n"]
     point: Int[Array, " n"]
     measured: Float[Array, "n 2"]
-    sigma_xy: Float[Array, "n 2"]
+    stddev: Float[Array, "n 2"]
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
         def one(iop, eop, point, measured, sigma):
@@ -77,38 +83,26 @@ class ImagePoints(AbstractObservationGroup):
             params.images[self.image],
             params.points[self.point],
             self.measured,
-            self.sigma_xy,
+            self.stddev,
         )
-
-    def mask(self) -> Bool[Array, "n 2"]:
-        return jnp.ones(self.measured.shape, dtype=bool)
-
-    def sigma(self) -> Float[Array, "n 2"]:
-        return self.sigma_xy
 
 
 class ParameterObservations(AbstractObservationGroup):
     """Direct observations of parameters: control coordinates, GNSS/INS EOPs, IOP priors.
 
     `rows` index the block `block` ("points", "images" or "cameras/<model>"); `observed`
-    and `sigma_obs` have the block's width, with σ = inf where an entry is not observed.
+    and `stddev` have the block's width, with σ = inf where an entry is not observed.
     """
 
     name: str = eqx.field(static=True)
     block: str = eqx.field(static=True)
     rows: Int[Array, " n"]
     observed: Float[Array, "n k"]
-    sigma_obs: Float[Array, "n k"]
+    stddev: Float[Array, "n k"]
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n k"]:
         del refraction
-        return (self.observed - params.block(self.block)[self.rows]) / self.sigma_obs
-
-    def mask(self) -> Bool[Array, "n k"]:
-        return jnp.isfinite(self.sigma_obs)
-
-    def sigma(self) -> Float[Array, "n k"]:
-        return self.sigma_obs
+        return (self.observed - params.block(self.block)[self.rows]) / self.stddev
 
 
 class Distances(AbstractObservationGroup):
@@ -118,16 +112,10 @@ class Distances(AbstractObservationGroup):
     a: Int[Array, " n"]
     b: Int[Array, " n"]
     observed: Float[Array, "n 1"]
-    sigma_d: Float[Array, "n 1"]
+    stddev: Float[Array, "n 1"]
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 1"]:
         del refraction
         difference = params.points[self.a] - params.points[self.b]
         computed = jnp.sqrt(jnp.sum(difference**2, axis=1, keepdims=True))
-        return (self.observed - computed) / self.sigma_d
-
-    def mask(self) -> Bool[Array, "n 1"]:
-        return jnp.ones(self.observed.shape, dtype=bool)
-
-    def sigma(self) -> Float[Array, "n 1"]:
-        return self.sigma_d
+        return (self.observed - computed) / self.stddev

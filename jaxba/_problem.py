@@ -4,6 +4,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float
 
 from ._camera import AbstractRefraction, NoRefraction
@@ -56,6 +57,15 @@ def observation_mask(problem: BundleProblem) -> Bool[np.ndarray, " n_residuals"]
     return np.concatenate([np.ravel(np.asarray(group.mask())) for group in problem.groups])
 
 
+def params_from_free(
+    problem: BundleProblem, x_free: Float[Array, " n_free"], index: Array
+) -> Parameters:
+    """The Parameters with the free scalars (positions `index` in `flatten` order) set to
+    `x_free` and all others at their values in `problem.initial`. Traceable."""
+    flat, unravel = ravel_pytree(problem.initial)
+    return unravel(flat.at[index].set(x_free))
+
+
 def dense_jacobian(
     problem: BundleProblem, params: Parameters
 ) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
@@ -70,16 +80,11 @@ def dense_jacobian(
 
 @eqx.filter_jit
 def _dense_jacobian(problem, params, index, rows):
-    base = jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(params)])
-    leaves, treedef = jax.tree.flatten(params)
-    sizes = np.cumsum([np.size(leaf) for leaf in leaves])[:-1]
+    at_params = eqx.tree_at(lambda p: p.initial, problem, params)
 
     def residual_vector(x_free):
-        flat = base.at[index].set(x_free)
-        parts = jnp.split(flat, sizes)
-        shaped = [part.reshape(leaf.shape) for part, leaf in zip(parts, leaves)]
-        values = jax.tree.unflatten(treedef, shaped)
+        values = params_from_free(at_params, x_free, index)
         return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(values)])[rows]
 
-    x_free = base[index]
+    x_free = ravel_pytree(params)[0][index]
     return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)

@@ -43,11 +43,14 @@ def matrix_to_opk(m: Matrix3) -> Float[Array, "3"]:
     return jnp.array([omega, phi, kappa])
 
 
-def _safe_norm(v: Vector3) -> tuple[Float[Array, ""], Float[Array, ""]]:
-    """(|v|, is_small) with a norm whose gradient stays finite at v = 0."""
+def _safe_norm(v: Vector3) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """(|v|, |v|², is_small); |v| is a placeholder 1 where small, so its gradient stays finite.
+
+    Where `is_small`, callers must use Taylor expansions in |v|² only.
+    """
     squared = jnp.sum(v**2)
     small = squared < 1e-24
-    return jnp.sqrt(jnp.where(small, 1.0, squared)), small
+    return jnp.sqrt(jnp.where(small, 1.0, squared)), squared, small
 
 
 def rodrigues_to_matrix(r: Vector3) -> Matrix3:
@@ -56,10 +59,10 @@ def rodrigues_to_matrix(r: Vector3) -> Matrix3:
     R = I + sin(θ) K + (1 - cos(θ)) K², K = [r/θ]_x, θ = |r|. Near θ = 0 the Taylor
     expansion R ≈ I + [r]_x + [r]_x²/2 keeps values and derivatives exact.
     """
-    theta, small = _safe_norm(r)
+    theta, squared, small = _safe_norm(r)
     k = _skew(r)
-    sin_term = jnp.where(small, 1.0 - theta**2 / 6.0, jnp.sin(theta) / theta)
-    cos_term = jnp.where(small, 0.5 - theta**2 / 24.0, (1.0 - jnp.cos(theta)) / theta**2)
+    sin_term = jnp.where(small, 1.0 - squared / 6.0, jnp.sin(theta) / theta)
+    cos_term = jnp.where(small, 0.5 - squared / 24.0, (1.0 - jnp.cos(theta)) / theta**2)
     return jnp.eye(3) + sin_term * k + cos_term * (k @ k)
 
 
@@ -101,7 +104,7 @@ def quaternion_to_rodrigues(q: Float[Array, "4"]) -> Vector3:
     q = q / jnp.linalg.norm(q)
     q = jnp.where(q[0] < 0, -q, q)
     w, v = q[0], q[1:]
-    sin_half, small = _safe_norm(v)
+    sin_half, _, small = _safe_norm(v)
     # θ = 2 atan2(|v|, w); θ / |v| → 2 / w as |v| → 0.
     factor = jnp.where(small, 2.0 / w, 2.0 * jnp.arctan2(sin_half, w) / sin_half)
     return factor * v
@@ -109,10 +112,11 @@ def quaternion_to_rodrigues(q: Float[Array, "4"]) -> Vector3:
 
 def rodrigues_to_quaternion(r: Vector3) -> Float[Array, "4"]:
     """Unit quaternion (w, x, y, z) of the axis-angle vector `r` (radians)."""
-    theta, small = _safe_norm(r)
+    theta, squared, small = _safe_norm(r)
     half = 0.5 * theta
-    sinc_half = jnp.where(small, 0.5 - theta**2 / 48.0, jnp.sin(half) / theta)
-    return jnp.concatenate([jnp.cos(half)[None], sinc_half * r])
+    cos_half = jnp.where(small, 1.0 - squared / 8.0, jnp.cos(half))
+    sinc_half = jnp.where(small, 0.5 - squared / 48.0, jnp.sin(half) / theta)
+    return jnp.concatenate([cos_half[None], sinc_half * r])
 
 
 def matrix_to_rodrigues(m: Matrix3) -> Vector3:

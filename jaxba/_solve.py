@@ -9,10 +9,12 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float
 
 from ._datum import check_datum
-from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, dense_jacobian, free_indices
+from ._parameters import Parameters
+from ._problem import BundleProblem, dense_jacobian, free_indices, params_from_free
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
 
@@ -48,36 +50,37 @@ class Adjustment:
         return float(np.sqrt(self.precision.sigma0_squared))
 
 
-def _column_scale(problem: BundleProblem) -> Parameters:
-    """Jacobi scaling: 1/‖column‖ of the whitened Jacobian for free unknowns, 0 for fixed.
+def _column_scale(problem: BundleProblem) -> Float[Array, " n_free"]:
+    """Jacobi scaling: 1/‖column‖ of the whitened Jacobian at the approximations.
 
-    The solver works on z with x = x₀ + scale ⊙ z, so every column has unit norm at the
-    approximations and the Levenberg-Marquardt damping λI treats all unknowns alike.
+    The solver works on z with x_free = x_free,0 + scale ⊙ z, so every column has unit
+    norm at the start and the Levenberg-Marquardt damping λI treats all unknowns alike.
     """
-    jacobian, _ = dense_jacobian(problem, problem.initial)
-    norms = np.linalg.norm(np.asarray(jacobian), axis=0)
-    scale = np.zeros(flatten(problem.initial).shape)
-    scale[free_indices(problem)] = 1.0 / np.where(norms > 0, norms, 1.0)
-    return unflatten(problem.initial, scale)
+    norms = np.linalg.norm(np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
+    return jnp.asarray(1.0 / np.where(norms > 0, norms, 1.0))
 
 
-def _residual_fn(z: Parameters, args: tuple[BundleProblem, Parameters]):
-    problem, scale = args
-    params = jax.tree.map(lambda x0, s, dz: x0 + s * dz, problem.initial, scale, z)
-    return problem.residuals(params), None
+def _params(z, problem: BundleProblem, index, scale) -> Parameters:
+    x_free = ravel_pytree(problem.initial)[0][index]
+    return params_from_free(problem, x_free + scale * z, index)
+
+
+def _residual_fn(z, args):
+    problem, index, scale = args
+    return problem.residuals(_params(z, problem, index, scale)), None
 
 
 @eqx.filter_jit
-def _solve(problem: BundleProblem, scale: Parameters, max_steps: int, rtol: float, atol: float):
+def _solve(problem: BundleProblem, index, scale, max_steps: int, rtol: float, atol: float):
+    """LM on the scaled free unknowns z (dense Jacobian, QR), through optx.least_squares."""
     solver = optx.LevenbergMarquardt(
         rtol=rtol, atol=atol, linear_solver=lx.QR(), verbose=report_step
     )
-    z0 = jax.tree.map(jnp.zeros_like, problem.initial)
     solution = optx.least_squares(
-        _residual_fn, solver, z0, args=(problem, scale), has_aux=True,
-        max_steps=max_steps, throw=False,
+        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
+        has_aux=True, max_steps=max_steps, throw=False,
     )
-    params = jax.tree.map(lambda x0, s, dz: x0 + s * dz, problem.initial, scale, solution.value)
+    params = _params(solution.value, problem, index, scale)
     return params, solution.result, solution.stats["num_steps"]
 
 
@@ -91,20 +94,25 @@ def adjust(
     labels: list[str] | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
     throw: bool = False,
+    check: bool = True,
 ) -> Adjustment:
     """Adjust `problem` by Levenberg-Marquardt (optx.least_squares, dense QR).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
-    `labels`, one per scalar unknown in `flatten` order). `on_iteration` is called for
+    `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
+    re-adjusting a checked bundle with new weights). `on_iteration` is called for
     every accepted iterate. With `throw=True` a non-converged solve raises
     `NotConvergedError`; otherwise `converged` and `message` say what happened.
     """
-    check_datum(problem, labels=labels)
+    if check:
+        check_datum(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
-    scale = _column_scale(problem)
+    index = jnp.asarray(free_indices(problem))
     with listening(recorder):
-        params, result, steps = _solve(problem, scale, max_steps, rtol, atol)
+        params, result, steps = _solve(
+            problem, index, _column_scale(problem), max_steps, rtol, atol
+        )
         params = jax.block_until_ready(params)
     whitened = problem.residuals(params)
     final_cost = 0.5 * sum(float(jnp.sum(e**2)) for e in whitened)

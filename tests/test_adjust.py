@@ -121,10 +121,10 @@ def test_point_on_a_single_ray_is_named(lab):
     keep = (np.asarray(group.point) != point) | np.isin(np.arange(group.point.size), seen_in[:2])
     image_a, image_b = np.asarray(group.image)[seen_in[:2]]
     thinned = eqx.tree_at(
-        lambda g: (g.camera, g.image, g.point, g.measured, g.sigma_xy),
+        lambda g: (g.camera, g.image, g.point, g.measured, g.stddev),
         group,
         tuple(leaf[keep] for leaf in (group.camera, group.image, group.point,
-                                      group.measured, group.sigma_xy)),
+                                      group.measured, group.stddev)),
     )
     images = problem.initial.images.at[image_b, :3].set(problem.initial.images[image_a, :3])
     degenerate = eqx.tree_at(

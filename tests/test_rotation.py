@@ -23,8 +23,6 @@ quaternion_to_rodrigues = jax.jit(jaxba.quaternion_to_rodrigues)
 
 NEAR_PI = math.pi - 1e-7
 ROUND_TRIP_RTOL = 1e-9  # relative to |r|: axis-angle recovered through the quaternion
-# Library bug (see test docstrings): the Taylor branch of |r| < 1e-12 uses theta = 1.
-TAYLOR_BUG = "rodrigues_to_matrix/_to_quaternion Taylor branch evaluates at theta = 1, not |r|"
 
 
 def element_matrix(omega, phi, kappa):
@@ -182,7 +180,6 @@ def test_rodrigues_zero_is_identity():
     np.testing.assert_array_equal(rodrigues_to_matrix(jnp.zeros(3)), np.eye(3))
 
 
-@pytest.mark.xfail(strict=True, reason=TAYLOR_BUG)
 def test_rodrigues_taylor_branch_value():
     """For |r| = 1e-13 (< the 1e-12 switch), R - I = [r]_x to first order, so (R - I)/|r|
     is the skew matrix of the unit axis. The library gives 5/6 of it (1 - θ²/6 at θ = 1)."""
@@ -217,7 +214,6 @@ def test_rodrigues_jacobian_at_zero_finite():
     assert np.all(np.isfinite(jacobian))
 
 
-@pytest.mark.xfail(strict=True, reason=TAYLOR_BUG)
 def test_rodrigues_jacobian_at_zero_is_skew_generators():
     """dR/dr_i at r = 0 is [e_i]_x (the so(3) generators). The library gives 5/6 [e_i]_x."""
     jacobian = np.asarray(jax.jacfwd(rodrigues_to_matrix)(jnp.zeros(3)))
@@ -240,7 +236,6 @@ def test_round_trip_gradient_at_zero_finite():
     assert np.all(np.isfinite(gradient))
 
 
-@pytest.mark.xfail(strict=True, reason=TAYLOR_BUG)
 def test_round_trip_jacobian_at_zero_is_identity():
     """matrix_to_rodrigues ∘ rodrigues_to_matrix is the identity, so its Jacobian is I."""
     jacobian = jax.jacfwd(lambda r: matrix_to_rodrigues(rodrigues_to_matrix(r)))(jnp.zeros(3))
@@ -304,7 +299,6 @@ def test_rodrigues_to_quaternion_matches_scipy():
         assert same_quaternion(rodrigues_to_quaternion(jnp.asarray(r)), expected)
 
 
-@pytest.mark.xfail(strict=True, reason=TAYLOR_BUG)
 def test_rodrigues_to_quaternion_zero_is_unit():
     """r = 0 is the identity quaternion (1, 0, 0, 0); the library gives (cos 0.5, 0, 0, 0)."""
     np.testing.assert_allclose(rodrigues_to_quaternion(jnp.zeros(3)), [1.0, 0.0, 0.0, 0.0],

@@ -3,15 +3,19 @@
 from ._abstract import AbstractCamera, AbstractDistortion, AbstractRefraction
 from ._affine import Affine
 from ._decentering import DecenteringSmac
+from ._opencv import OpenCVCamera
+from ._photomodeler import PhotoModelerCamera
 from ._pixel import PixelGrid
 from ._radial import RadialSmac
 from ._refraction import AtmosphericRefraction, NoRefraction
 from ._smac import SmacCamera
 
-CAMERA_MODELS: dict[str, type[AbstractCamera]] = {"smac": SmacCamera}
+CAMERA_MODELS: dict[str, type[AbstractCamera]] = {
+    "smac": SmacCamera, "opencv": OpenCVCamera, "photomodeler": PhotoModelerCamera,
+}
 
 __all__ = [
     "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
-    "AtmosphericRefraction", "DecenteringSmac", "NoRefraction", "PixelGrid", "RadialSmac",
-    "SmacCamera",
+    "AtmosphericRefraction", "DecenteringSmac", "NoRefraction", "OpenCVCamera",
+    "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera",
 ]

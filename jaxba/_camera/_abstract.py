@@ -46,7 +46,13 @@ class AbstractRefraction(eqx.Module):
 
 
 class AbstractCamera(_Parametrised):
-    """Maps one point in the camera frame to its computed image coordinates."""
+    """Maps one point in the camera frame to its computed image coordinates.
+
+    `image_units` says what the model computes: "mm" (photogrammetric image frame; pixel
+    observations are converted with the camera's pixel grid) or "pixel" (col, row directly).
+    """
+
+    image_units: ClassVar[str]
 
     @abc.abstractmethod
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:

@@ -30,6 +30,7 @@ class SmacCamera(AbstractCamera):
     affine: Affine
     parameter_names = ("xp", "yp", "c", *RadialSmac.parameter_names,
                        *DecenteringSmac.parameter_names, *Affine.parameter_names)
+    image_units = "mm"
 
     @classmethod
     def from_parameters(cls, values: Float[Array, " 12"]) -> Self:

@@ -10,6 +10,7 @@ from .._camera import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelG
 from .._observations import Distances, ImagePoints, ParameterObservations
 from .._parameters import Parameters, parameter_labels
 from .._problem import BundleProblem
+from ._errors import ProjectError
 from ._spec import ProjectSpec
 
 _ANGLE_COLUMNS = slice(3, 6)
@@ -59,7 +60,7 @@ def _cameras(spec: ProjectSpec):
             block=f"cameras/{model}",
             rows=jnp.arange(len(values[model])),
             observed=jnp.asarray(values[model], dtype=float),
-            sigma_obs=jnp.asarray(prior_sigma[model], dtype=float),
+            stddev=jnp.asarray(prior_sigma[model], dtype=float),
         )
         for model in values
         if np.isfinite(prior_sigma[model]).any()
@@ -85,7 +86,7 @@ def _images(spec: ProjectSpec):
         rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
         groups.append(ParameterObservations(
             name="gnss_ins", block="images", rows=jnp.asarray(rows),
-            observed=jnp.asarray(eop[rows]), sigma_obs=jnp.asarray(sigma[rows])))
+            observed=jnp.asarray(eop[rows]), stddev=jnp.asarray(sigma[rows])))
     return jnp.asarray(eop), jnp.asarray(free), groups
 
 
@@ -109,7 +110,7 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
         rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
         groups.append(ParameterObservations(
             name="control", block="points", rows=jnp.asarray(rows),
-            observed=jnp.asarray(xyz[rows]), sigma_obs=jnp.asarray(sigma[rows])))
+            observed=jnp.asarray(xyz[rows]), stddev=jnp.asarray(sigma[rows])))
     return jnp.asarray(xyz), jnp.asarray(free), groups
 
 
@@ -120,17 +121,23 @@ def _pixel_grid(camera) -> PixelGrid | None:
 
 
 def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
-    """One ImagePoints group per camera, in mm (pixels converted with the camera's grid)."""
+    """One ImagePoints group per camera, in its model's units (pixels -> mm for mm-models)."""
     by_camera: dict[str, list] = {}
     for m in spec.image_points:
         by_camera.setdefault(spec.images[m.image].camera, []).append(m)
     groups = []
     for camera_id, measurements in by_camera.items():
         model, row = camera_rows[camera_id]
+        model_units = CAMERA_MODELS[model].image_units
+        if spec.image_units != model_units and model_units != "mm":
+            raise ProjectError(
+                f"camera {camera_id!r}: model {model!r} works in {model_units} units, but the "
+                f'project has image_units = "{spec.image_units}"'
+            )
         xy = np.array([m.xy for m in measurements], dtype=float)
         default = (spec.settings.image_sigma, spec.settings.image_sigma)
         sigma = np.array([m.sigma or default for m in measurements], dtype=float)
-        if spec.image_units == "pixel":
+        if spec.image_units == "pixel" and model_units == "mm":
             grid = grids[camera_id]
             xy = np.asarray(grid.pixel_to_image(xy))
             sigma = sigma * np.asarray(grid.pixel_size)
@@ -141,7 +148,7 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
             image=jnp.asarray([image_index[m.image] for m in measurements]),
             point=jnp.asarray([point_index[m.point] for m in measurements]),
             measured=jnp.asarray(xy),
-            sigma_xy=jnp.asarray(sigma),
+            stddev=jnp.asarray(sigma),
         ))
     return groups
 
@@ -164,9 +171,15 @@ def build_project(spec: ProjectSpec) -> Project:
             a=jnp.asarray([point_index[d.a] for d in spec.distances]),
             b=jnp.asarray([point_index[d.b] for d in spec.distances]),
             observed=jnp.asarray([[d.distance] for d in spec.distances], dtype=float),
-            sigma_d=jnp.asarray([[d.sigma] for d in spec.distances], dtype=float),
+            stddev=jnp.asarray([[d.sigma] for d in spec.distances], dtype=float),
         ))
     settings = spec.settings
+    for camera_id, (model, _) in camera_rows.items():
+        if settings.refraction and CAMERA_MODELS[model].image_units != "mm":
+            raise ProjectError(
+                f"camera {camera_id!r}: model {model!r} has no atmospheric refraction; "
+                "set refraction = false in [adjustment]"
+            )
     refraction = (
         AtmosphericRefraction(settings.object_unit_km, settings.height_offset)
         if settings.refraction else NoRefraction()

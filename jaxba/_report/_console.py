@@ -52,7 +52,8 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         lines.append(f"converged after {n_iterations} iterations ({result.steps} solver steps)")
     else:
         lines.append(
-            f"NOT converged after {n_iterations} iterations ({result.steps} solver steps):"
-            f" {result.message}; the reports show the last iterate"
+            f"NOT converged after {n_iterations} iterations ({result.steps} solver steps);"
+            " the reports show the last iterate"
         )
+        lines.append(f"  solver: {result.message}")
     return lines

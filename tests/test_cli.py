@@ -1,0 +1,203 @@
+"""Tests of `jaxba adjust`, run in-process on copies of configs/lab.
+
+One adjustment is shared by most tests (module fixture); the error cases stop before solving.
+"""
+
+import contextlib
+import hashlib
+import io
+import json
+import math
+import pathlib
+import shutil
+
+import pytest
+
+import jaxba
+from jaxba._cli import main
+
+LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
+OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json")
+APPROXIMATION_DEG = 10.0  # the lab's angle approximations are within a few degrees of the result
+SIGMA_FILE_RTOL = 1e-9  # .sigma prints 11 significant digits
+
+
+def _copy_lab(folder: pathlib.Path) -> pathlib.Path:
+    shutil.copytree(LAB, folder, ignore=shutil.ignore_patterns(*OUTPUTS))
+    return folder / "lab.toml"
+
+
+def _hashes(folder: pathlib.Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+
+
+def _edit(path: pathlib.Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, f"{old!r} not in {path}"
+    path.write_text(text.replace(old, new, 1))
+
+
+def _run(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def _data_lines(path: pathlib.Path) -> list[list[str]]:
+    lines = path.read_text().splitlines()
+    return [line.split() for line in lines if line.strip() and not line.startswith("#")]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """`jaxba adjust lab.toml` (reports beside the project) on a fresh copy of the lab."""
+    folder = tmp_path_factory.mktemp("cli") / "lab"
+    project_file = _copy_lab(folder)
+    inputs = _hashes(folder)
+    code, stdout, stderr = _run("adjust", str(project_file))
+    return {
+        "folder": folder, "inputs": inputs, "code": code, "stdout": stdout, "stderr": stderr,
+        "results": json.loads((folder / "results.json").read_text()),
+    }
+
+
+def test_exit_code_and_files(run):
+    assert run["code"] == 0, run["stderr"]
+    assert run["stderr"] == ""
+    for name in OUTPUTS:
+        assert (run["folder"] / name).is_file()
+
+
+def test_inputs_untouched(run):
+    after = _hashes(run["folder"])
+    assert {name: after[name] for name in run["inputs"]} == run["inputs"]
+    assert set(after) == set(run["inputs"]) | set(OUTPUTS)
+
+
+def test_results_json_contract(run):
+    data = run["results"]
+    assert data["converged"] is True
+    assert isinstance(data["redundancy"], int) and data["redundancy"] > 0
+    assert data["redundancy"] == data["n_observations"] - data["n_unknowns"]
+    assert data["sigma0"] == pytest.approx(math.sqrt(data["sigma0_squared"]), rel=1e-12)
+    assert 0.5 < data["sigma0"] < 2.0  # the lab's σ of image points is the simulated noise
+    assert data["project"] == "lab" and isinstance(data["message"], str)
+    for it in data["iterations"]:
+        assert set(it) == {"iteration", "sigma0_squared", "cost"}
+        assert isinstance(it["iteration"], int) and isinstance(it["cost"], float)
+    assert data["iterations"][-1]["sigma0_squared"] == pytest.approx(data["sigma0_squared"])
+    names = jaxba.CAMERA_MODELS["smac"].parameter_names
+    assert list(data["cameras"]["C1"]) == list(names)
+    for name, entry in data["cameras"]["C1"].items():
+        assert isinstance(entry["value"], float) and isinstance(entry["std"], float), name
+        assert (entry["std"] == 0.0) == (entry["status"] == "fixed"), name
+    for entry in data["images"].values():
+        assert list(entry) == list(jaxba.IMAGE_PARAMETER_NAMES)
+        assert all(isinstance(e["value"], float) and e["std"] > 0 for e in entry.values())
+    for entry in data["points"].values():
+        assert list(entry) == list(jaxba.POINT_PARAMETER_NAMES)
+        assert all(isinstance(e["value"], float) and e["std"] >= 0 for e in entry.values())
+    assert data["image_residuals"]["all"]["rms_x_px"] > 0
+
+
+def test_angles_in_degrees_near_approximations(run):
+    rows = _data_lines(run["folder"] / "orientation.txt")
+    approximations = {row[0]: [float(v) for v in row[5:8]] for row in rows}
+    for iid, entry in run["results"]["images"].items():
+        for name, approx in zip(("omega", "phi", "kappa"), approximations[iid]):
+            difference = (entry[name]["value"] - approx + 180.0) % 360.0 - 180.0
+            assert abs(difference) < APPROXIMATION_DEG, (iid, name)
+            assert entry[name]["std"] < 1.0  # degrees: a σ of 1 rad would be 57
+
+
+def test_sigma_file_matches_json(run):
+    rows = _data_lines(run["folder"] / "lab.sigma")
+    iterations = run["results"]["iterations"]
+    assert len(rows) == len(iterations)
+    for row, it in zip(rows, iterations):
+        assert int(row[0]) == it["iteration"]
+        assert float(row[1]) == pytest.approx(it["sigma0_squared"], rel=SIGMA_FILE_RTOL)
+        assert float(row[2]) == pytest.approx(it["cost"], rel=SIGMA_FILE_RTOL)
+
+
+def test_res_has_one_row_per_image_observation(run):
+    rows = _data_lines(run["folder"] / "lab.res")
+    measured = _data_lines(run["folder"] / "image_coordinates.txt")
+    assert len(rows) == len(measured)
+    assert {(r[0], r[1]) for r in rows} == {(m[0], m[1]) for m in measured}
+
+
+def test_out_file_sections(run):
+    text = (run["folder"] / "lab.out").read_text()
+    for part in ("Camera C1", "Exterior orientation", "Object points", "a posteriori sigma0"):
+        assert part in text
+
+
+def test_progress_and_summary(run):
+    lines = run["stdout"].splitlines()
+    progress = [line for line in lines if line.startswith("iter ")]
+    assert len(progress) == len(run["results"]["iterations"])
+    assert progress[0].split()[:3] == ["iter", "0", "cost"]
+    assert any(line.startswith("sigma0 ") for line in lines)
+    assert any(line.strip().startswith("c ") and "+/-" in line for line in lines)
+    for name in OUTPUTS:
+        assert any(line.strip().endswith(name) for line in lines)
+
+
+def test_output_would_overwrite_input(tmp_path):
+    project_file = _copy_lab(tmp_path / "lab")
+    (tmp_path / "lab" / "distances.txt").rename(tmp_path / "lab" / "lab.res")
+    _edit(project_file, '"distances.txt"', '"lab.res"')
+    before = _hashes(tmp_path / "lab")
+    code, stdout, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "lab"))
+    assert code == 2
+    assert stderr.startswith("jaxba: error: ") and "lab.res" in stderr
+    assert "Traceback" not in stderr
+    assert _hashes(tmp_path / "lab") == before
+
+
+def test_bad_file(tmp_path):
+    project_file = _copy_lab(tmp_path / "lab")
+    path = tmp_path / "lab" / "image_coordinates.txt"
+    lines = path.read_text().splitlines()
+    data_line = next(k for k, line in enumerate(lines) if line and not line.startswith("#"))
+    lines[data_line] = lines[data_line].rsplit(maxsplit=1)[0] + " not-a-number"
+    path.write_text("\n".join(lines) + "\n")
+    code, _, stderr = _run("adjust", str(project_file))
+    assert code == 2
+    assert "image_coordinates.txt" in stderr and "Traceback" not in stderr
+    assert not (tmp_path / "lab" / "results.json").exists()
+
+
+def test_missing_project_file(tmp_path):
+    code, _, stderr = _run("adjust", str(tmp_path / "nowhere.toml"))
+    assert code == 2 and "nowhere.toml" in stderr
+
+
+def test_datum_without_scale(tmp_path):
+    project_file = _copy_lab(tmp_path / "lab")
+    _edit(project_file, 'distances = "distances.txt"\n', "")
+    code, _, stderr = _run("adjust", str(project_file))
+    assert code == 2
+    assert stderr.startswith("jaxba: error: ") and "scale" in stderr
+    assert not (tmp_path / "lab" / "results.json").exists()
+
+
+def test_usage(capsys):
+    assert main(["--help"]) == 0
+    assert main([]) == 2
+    assert main(["adjust"]) == 2
+    assert "usage" in capsys.readouterr().err
+
+
+def test_not_converged_still_writes_reports(tmp_path):
+    project_file = _copy_lab(tmp_path / "lab")
+    _edit(project_file, "max_iterations = 50", "max_iterations = 3")
+    out = tmp_path / "reports"
+    code, stdout, stderr = _run("adjust", str(project_file), "--out", str(out))
+    assert code == 1
+    assert "did not converge" in stderr and "NOT converged" in stdout
+    data = json.loads((out / "results.json").read_text())
+    assert data["converged"] is False and data["message"] != "converged"
+    assert all((out / name).is_file() for name in OUTPUTS)
