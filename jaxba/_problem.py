@@ -8,8 +8,9 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float
 
 from ._camera import AbstractRefraction, NoRefraction
-from ._observations import AbstractObservationGroup
+from ._observations import AbstractObservationGroup, ImagePoints
 from ._parameters import Parameters, flatten, where_free
+from ._robust import RobustLoss
 
 
 class BundleProblem(eqx.Module):
@@ -19,19 +20,31 @@ class BundleProblem(eqx.Module):
     - `free`: Parameters of booleans, True where the scalar is estimated (free or
       weighted: weighted ones are free with a prior observation in `groups`);
     - `groups`: the observation groups (image points per camera, control, distances...);
-    - `refraction`: the atmospheric refraction model (NoRefraction for close range).
+    - `refraction`: the atmospheric refraction model (NoRefraction for close range);
+    - `robust`: an optional robust loss applied to the image-point groups.
     """
 
     initial: Parameters
     free: Parameters
     groups: tuple[AbstractObservationGroup, ...]
     refraction: AbstractRefraction = NoRefraction()
+    robust: RobustLoss | None = None
 
-    def residuals(self, params: Parameters) -> tuple[Array, ...]:
-        """Whitened residuals of every group, masked entries set to exactly 0."""
+    def whitened(self, params: Parameters) -> tuple[Array, ...]:
+        """Whitened residuals e = v/σ of every group, masked entries exactly 0."""
         return tuple(
             jnp.where(group.mask(), group.residuals(params, self.refraction), 0.0)
             for group in self.groups
+        )
+
+    def residuals(self, params: Parameters) -> tuple[Array, ...]:
+        """The residuals the solver minimises: whitened, robustified where a loss is set."""
+        whitened = self.whitened(params)
+        if self.robust is None:
+            return whitened
+        return tuple(
+            self.robust(e) if isinstance(group, ImagePoints) else e
+            for group, e in zip(self.groups, whitened)
         )
 
     def with_free(self, values: Parameters) -> Parameters:

@@ -31,8 +31,12 @@ class Adjustment:
     - `precision`: σ̂0², redundancy, covariance and σ of every unknown;
     - `residuals`: per observation group, v = observed - computed in the observation's
       units (masked entries 0), same shapes as the group's residuals;
-    - `iterations`: every accepted iterate with its cost ½Σe² and σ̂0²;
-    - `converged`, `message`, `steps` (solver steps, rejected ones included).
+    - `iterations`: every accepted iterate with its cost ½Σe² and σ̂0² (re-adjustments
+      for variance components or data snooping continue the numbering);
+    - `converged`, `message`, `steps` (solver steps, rejected ones included);
+    - filled in by `adjust_project` as the project asks: `reliability` (a `Reliability`),
+      `variance_components` ({group: VarianceComponent}) with `variance_iterations`, and
+      `rejections` (data snooping, in order of removal).
     """
 
     problem: BundleProblem
@@ -43,6 +47,10 @@ class Adjustment:
     converged: bool
     message: str
     steps: int
+    reliability: "Reliability | None" = None  # noqa: F821  (defined in _reliability)
+    variance_components: dict | None = None
+    variance_iterations: int = 0
+    rejections: tuple = ()
 
     @property
     def sigma0(self) -> float:
@@ -114,8 +122,8 @@ def adjust(
             problem, index, _column_scale(problem), max_steps, rtol, atol
         )
         params = jax.block_until_ready(params)
-    whitened = problem.residuals(params)
-    final_cost = 0.5 * sum(float(jnp.sum(e**2)) for e in whitened)
+    final_cost = 0.5 * sum(float(jnp.sum(e**2)) for e in problem.residuals(params))
+    whitened = problem.whitened(params)
     if not np.isfinite(final_cost):
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
     recorder.finish(final_cost)

@@ -11,7 +11,7 @@ import dataclasses
 import equinox as eqx
 import numpy as np
 
-from ._problem import observation_mask
+from ._problem import BundleProblem, observation_mask
 from ._reliability import redundancy_numbers, restart_from
 from ._solve import Adjustment, adjust
 
@@ -23,6 +23,13 @@ class VarianceComponent:
     sigma0: float
     redundancy: float
     n_observations: int
+
+
+def _finite_ratio(stddev, prior) -> np.ndarray:
+    """σ_current / σ_prior over the entries observed in both (NaN if none)."""
+    stddev, prior = np.asarray(stddev), np.asarray(prior)
+    both = np.isfinite(stddev) & np.isfinite(prior)
+    return stddev[both] / prior[both] if both.any() else np.array([np.nan])
 
 
 def _group_slices(problem):
@@ -39,15 +46,22 @@ def estimate_variance_components(
     max_iterations: int = 30,
     tolerance: float = 1e-4,
     min_redundancy: float = 1.0,
+    reference: BundleProblem | None = None,
     **adjust_options,
 ) -> tuple[Adjustment, dict[str, VarianceComponent], int]:
     """Iterate variance components from an adjusted bundle.
 
     Groups with r_k < `min_redundancy` are reported but not re-weighted (their estimate
-    is unreliable). Returns the final adjustment (its σ̂0 ≈ 1 when the components are
-    right), the components by group name, and the number of iterations.
+    is unreliable). Components are relative to the σ of `reference` (default: the
+    adjusted problem itself), so a second pass can continue a first one. Returns the
+    final adjustment (its σ̂0 ≈ 1 when the components are right), the components by
+    group name, and the number of iterations.
     """
-    factors = {group.name: 1.0 for group in result.problem.groups}
+    reference = reference or result.problem
+    factors = {
+        group.name: float(np.nanmedian(_finite_ratio(group.stddev, prior.stddev)))
+        for group, prior in zip(result.problem.groups, reference.groups)
+    }
     current = result
     for iteration in range(1, max_iterations + 1):
         problem = current.problem

@@ -1,23 +1,62 @@
-"""Adjust a project with the settings of its `[adjustment]` table."""
+"""Adjust a project with the settings of its `[adjustment]` table.
 
+The pipeline: adjust; estimate variance components (`variance_components = true`);
+Baarda data snooping (`data_snooping = true`), with a second variance-component pass
+when observations were removed; reliability at the final solution, always.
+"""
+
+import dataclasses
 from collections.abc import Callable
 
 from .._progress import Iteration
+from .._reliability import data_snooping, reliability
 from .._solve import Adjustment, adjust
+from .._variance_components import estimate_variance_components
 from ._build import Project
+
+
+def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list[Iteration]:
+    start = before[-1].iteration + 1 if before else 0
+    renumbered = [dataclasses.replace(it, iteration=start + k) for k, it in enumerate(after)]
+    return before + renumbered
 
 
 def adjust_project(
     project: Project, *, on_iteration: Callable[[Iteration], None] | None = None
 ) -> Adjustment:
-    """Run `adjust` on the project's problem with its settings and parameter labels."""
+    """Run the project's adjustment and statistics; see the module docstring."""
     settings = project.spec.settings
-    return adjust(
-        project.problem,
-        sigma0=settings.sigma0,
-        max_steps=settings.max_iterations,
-        rtol=settings.rtol,
-        atol=settings.atol,
-        labels=project.labels,
-        on_iteration=on_iteration,
+    options = dict(
+        sigma0=settings.sigma0, max_steps=settings.max_iterations,
+        rtol=settings.rtol, atol=settings.atol,
+    )
+    result = adjust(project.problem, labels=project.labels, on_iteration=on_iteration, **options)
+    iterations = list(result.iterations)
+    components, variance_iterations, rejections = None, 0, ()
+
+    def with_components(current):
+        nonlocal components, variance_iterations, iterations
+        current, components, rounds = estimate_variance_components(
+            current, reference=project.problem, **options
+        )
+        variance_iterations += rounds
+        iterations = _continue_numbering(iterations, current.iterations)
+        return current
+
+    if settings.variance_components and result.converged:
+        result = with_components(result)
+    if settings.data_snooping and result.converged:
+        result, found, _ = data_snooping(result, alpha=settings.snooping_alpha, **options)
+        rejections = tuple(found)
+        if found:
+            iterations = _continue_numbering(iterations, result.iterations)
+            if settings.variance_components:
+                result = with_components(result)
+    return dataclasses.replace(
+        result,
+        iterations=iterations,
+        reliability=reliability(result, alpha=settings.snooping_alpha),
+        variance_components=components,
+        variance_iterations=variance_iterations,
+        rejections=rejections,
     )

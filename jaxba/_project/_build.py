@@ -10,6 +10,7 @@ from .._camera import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelG
 from .._observations import Distances, ImagePoints, ParameterObservations
 from .._parameters import Parameters, parameter_labels
 from .._problem import BundleProblem
+from .._robust import RobustLoss
 from ._errors import ProjectError
 from ._spec import ProjectSpec
 
@@ -184,12 +185,18 @@ def build_project(spec: ProjectSpec) -> Project:
         AtmosphericRefraction(settings.object_unit_km, settings.height_offset)
         if settings.refraction else NoRefraction()
     )
+    if not settings.snooping_alpha < 1:
+        raise ProjectError(f"{spec.path.name}: [adjustment] snooping_alpha must be < 1")
+    robust = (
+        None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
+    )
     initial = Parameters(iop, eop, xyz)
     problem = BundleProblem(
         initial=initial,
         free=Parameters(iop_free, eop_free, xyz_free),
         groups=tuple(groups),
         refraction=refraction,
+        robust=robust,
     )
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():

@@ -35,7 +35,10 @@ _PROJECT_KEYS = ("name", "image_units")
 _REQUIRED_FILES = ("cameras", "images", "image_points", "points")
 _OPTIONAL_FILES = ("distances",)
 _CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor")
-_POSITIVE_SETTINGS = frozenset({"sigma0", "image_sigma", "max_iterations", "object_unit_km"})
+_POSITIVE_SETTINGS = frozenset({
+    "sigma0", "image_sigma", "max_iterations", "object_unit_km", "snooping_alpha", "robust_scale",
+})
+_SETTING_CHOICES = {"robust": ("none", "huber", "cauchy")}
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
 
 _IMAGE_COLUMNS = (
@@ -164,6 +167,9 @@ def _read_settings(table: dict, where: str) -> AdjustmentSettings:
             )
         elif kind is str:
             values[key] = _toml_str(value, key_where)
+            choices = _SETTING_CHOICES.get(key)
+            if choices is not None and values[key] not in choices:
+                raise ProjectError(f"{key_where}: expected one of {choices}, got {values[key]!r}")
         else:
             raise TypeError(f"no reader for AdjustmentSettings.{key} of type {kind!r}")
     return AdjustmentSettings(**values)

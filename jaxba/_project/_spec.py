@@ -23,6 +23,12 @@ class AdjustmentSettings:
     # Refraction needs heights above sea level in km: height_km = (Z + z_offset) * unit_km.
     object_unit_km: float = 0.001
     height_offset: float = 0.0
+    # Reliability: Baarda data snooping at significance `snooping_alpha` (two-sided).
+    data_snooping: bool = False
+    snooping_alpha: float = 0.001
+    # Robust loss on image observations: "none", "huber" or "cauchy", scale k in σ.
+    robust: str = "none"
+    robust_scale: float = 3.0
 
 
 @dataclasses.dataclass(frozen=True)
