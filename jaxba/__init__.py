@@ -1,5 +1,11 @@
 """jaxba: self-calibrating bundle adjustment in JAX, differentiable and batchable."""
 
+from ._bal import (
+    BalFormatError as BalFormatError,
+    BalProblem as BalProblem,
+    read_bal as read_bal,
+    run_bal as run_bal,
+)
 from ._camera import (
     CAMERA_MODELS as CAMERA_MODELS,
     AbstractCamera as AbstractCamera,
@@ -39,7 +45,7 @@ from ._precision import (
     point_covariances as point_covariances,
     propagate as propagate,
 )
-from ._problem import BundleProblem as BundleProblem
+from ._problem import BundleProblem as BundleProblem, free_indices as free_indices
 from ._progress import Iteration as Iteration
 from ._project import (
     AdjustmentSettings as AdjustmentSettings,
@@ -59,6 +65,7 @@ from ._reliability import (
     restart_from as restart_from,
 )
 from ._report import OutputError as OutputError, write_reports as write_reports
+from ._robust import RobustLoss as RobustLoss
 from ._rotation import (
     matrix_to_opk as matrix_to_opk,
     matrix_to_quaternion as matrix_to_quaternion,
@@ -69,10 +76,19 @@ from ._rotation import (
     rodrigues_to_matrix as rodrigues_to_matrix,
     rodrigues_to_quaternion as rodrigues_to_quaternion,
 )
+from ._schur import (
+    SchurDampedNewtonDescent as SchurDampedNewtonDescent,
+    SchurLevenbergMarquardt as SchurLevenbergMarquardt,
+    TwoBlockProblem as TwoBlockProblem,
+    solve_two_block as solve_two_block,
+    two_block_residuals as two_block_residuals,
+)
 from ._solve import (
     Adjustment as Adjustment,
     NotConvergedError as NotConvergedError,
+    Solution as Solution,
     adjust as adjust,
+    solve as solve,
 )
 from ._statistics import Precision as Precision, precision as precision
 from ._synthetic import (

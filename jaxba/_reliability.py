@@ -8,6 +8,7 @@ w_i = v_i / (σ0 sqrt(q_vv,i)) = e_i / sqrt(r_i) (Baarda); the minimal detectabl
 """
 
 import dataclasses
+import math
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -60,9 +61,22 @@ def redundancy_numbers(problem: BundleProblem, params) -> tuple[np.ndarray, np.n
     return 1.0 - leverage, whitened
 
 
-def reliability(result: Adjustment, *, alpha: float = 0.001, power: float = 0.8) -> Reliability:
-    """Redundancy numbers, w-test statistics and MDBs at the adjusted solution."""
+def per_test_alpha(alpha: float, n_tests: int, *, familywise: bool) -> float:
+    """Significance of one w-test: `alpha` itself, or for a family-wise `alpha` over
+    `n_tests` tests Šidák's α0 = 1 - (1 - α)^(1/n)."""
+    return -math.expm1(math.log1p(-alpha) / n_tests) if familywise else alpha
+
+
+def reliability(
+    result: Adjustment, *, alpha: float = 0.001, power: float = 0.8, familywise: bool = False
+) -> Reliability:
+    """Redundancy numbers, w-test statistics and MDBs at the adjusted solution.
+
+    `alpha` is the significance of each w-test, or with `familywise=True` that of the
+    whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
+    """
     problem = result.problem
+    alpha = per_test_alpha(alpha, problem.n_observations(), familywise=familywise)
     r, whitened = redundancy_numbers(problem, result.parameters)
     safe_r = np.where(r > 1e-12, r, np.nan)
     critical = float(scipy.stats.norm.ppf(1 - alpha / 2))
@@ -110,20 +124,22 @@ def data_snooping(
     result: Adjustment,
     *,
     alpha: float = 0.001,
+    familywise: bool = False,
     max_rejections: int = 50,
     **adjust_options,
 ) -> tuple[Adjustment, list[Rejection], Reliability]:
     """Baarda's iterative data snooping.
 
-    Test every observation's w against the two-sided normal critical value at `alpha`;
-    remove the worst one above it, re-adjust from the current solution, and repeat.
+    Test every observation's w against the two-sided normal critical value at `alpha`
+    (per test, or family-wise over all tests with `familywise=True`); remove the worst
+    one above it, re-adjust from the current solution, and repeat.
     Returns the final adjustment, the rejected observations in order, and the final
     reliability. `adjust_options` go to `adjust` (sigma0, max_steps, ...).
     """
     rejections: list[Rejection] = []
     current = result
     while True:
-        report = reliability(current, alpha=alpha)
+        report = reliability(current, alpha=alpha, familywise=familywise)
         worst = [
             (np.nanmax(np.abs(w)) if np.isfinite(w).any() else 0.0, k)
             for k, w in enumerate(report.normalised_residuals)

@@ -10,11 +10,11 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from ._datum import check_datum
 from ._parameters import Parameters
-from ._problem import BundleProblem, dense_jacobian, free_indices, params_from_free
+from ._problem import BundleProblem, free_indices, params_from_free
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
 
@@ -58,14 +58,15 @@ class Adjustment:
         return float(np.sqrt(self.precision.sigma0_squared))
 
 
-def _column_scale(problem: BundleProblem) -> Float[Array, " n_free"]:
-    """Jacobi scaling: 1/‖column‖ of the whitened Jacobian at the approximations.
+class Solution(eqx.Module):
+    """What `solve` returns: adjusted `parameters`, `converged` flag, solver `steps`, the
+    final `cost` ½Σẽ² and optimistix's `result` code. A pytree, so it batches under vmap."""
 
-    The solver works on z with x_free = x_free,0 + scale ⊙ z, so every column has unit
-    norm at the start and the Levenberg-Marquardt damping λI treats all unknowns alike.
-    """
-    norms = np.linalg.norm(np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
-    return jnp.asarray(1.0 / np.where(norms > 0, norms, 1.0))
+    parameters: Parameters
+    converged: Bool[Array, ""]
+    steps: Int[Array, ""]
+    cost: Float[Array, ""]
+    result: optx.RESULTS
 
 
 def _params(z, problem: BundleProblem, index, scale) -> Parameters:
@@ -78,18 +79,56 @@ def _residual_fn(z, args):
     return problem.residuals(_params(z, problem, index, scale)), None
 
 
+def _flat_residuals(problem: BundleProblem, params: Parameters) -> Float[Array, " n"]:
+    return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(params)])
+
+
+def _column_scale(problem: BundleProblem, index) -> Float[Array, " n_free"]:
+    """Jacobi scaling: 1/‖column‖ of the whitened Jacobian at the approximations.
+
+    The solver works on z with x_free = x_free,0 + scale ⊙ z, so every column has unit
+    norm at the start and the Levenberg-Marquardt damping λI treats all unknowns alike.
+    Masked residual entries are exactly 0 and add nothing to the norms.
+    """
+    x_free = ravel_pytree(problem.initial)[0][index]
+    jacobian = jax.jacfwd(
+        lambda x: _flat_residuals(problem, params_from_free(problem, x, index))
+    )(x_free)
+    norms = jnp.linalg.norm(jacobian, axis=0)
+    return 1.0 / jnp.where(norms > 0, norms, 1.0)
+
+
 @eqx.filter_jit
-def _solve(problem: BundleProblem, index, scale, max_steps: int, rtol: float, atol: float):
-    """LM on the scaled free unknowns z (dense Jacobian, QR), through optx.least_squares."""
+def solve(
+    problem: BundleProblem,
+    free_index: Int[Array, " n_free"],
+    *,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+) -> Solution:
+    """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
+
+    Pure and jitted (dense Jacobian, QR): no datum check, no statistics, so it can be
+    `jax.vmap`ped over problems of one structure (Monte Carlo, batches).
+    `free_index` = `free_indices(problem)`, the free positions in `flatten` order.
+    """
+    scale = _column_scale(problem, free_index)
     solver = optx.LevenbergMarquardt(
         rtol=rtol, atol=atol, linear_solver=lx.QR(), verbose=report_step
     )
     solution = optx.least_squares(
-        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
+        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, free_index, scale),
         has_aux=True, max_steps=max_steps, throw=False,
     )
-    params = _params(solution.value, problem, index, scale)
-    return params, solution.result, solution.stats["num_steps"]
+    params = _params(solution.value, problem, free_index, scale)
+    return Solution(
+        parameters=params,
+        converged=solution.result == optx.RESULTS.successful,
+        steps=solution.stats["num_steps"],
+        cost=0.5 * jnp.sum(_flat_residuals(problem, params) ** 2),
+        result=solution.result,
+    )
 
 
 def adjust(
@@ -118,11 +157,10 @@ def adjust(
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     index = jnp.asarray(free_indices(problem))
     with listening(recorder):
-        params, result, steps = _solve(
-            problem, index, _column_scale(problem), max_steps, rtol, atol
-        )
-        params = jax.block_until_ready(params)
-    final_cost = 0.5 * sum(float(jnp.sum(e**2)) for e in problem.residuals(params))
+        solution = solve(problem, index, max_steps=max_steps, rtol=rtol, atol=atol)
+        solution = jax.block_until_ready(solution)
+    params, result, steps = solution.parameters, solution.result, solution.steps
+    final_cost = float(solution.cost)
     whitened = problem.whitened(params)
     if not np.isfinite(final_cost):
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")

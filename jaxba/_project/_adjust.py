@@ -1,15 +1,16 @@
 """Adjust a project with the settings of its `[adjustment]` table.
 
-The pipeline: adjust; estimate variance components (`variance_components = true`);
-Baarda data snooping (`data_snooping = true`), with a second variance-component pass
-when observations were removed; reliability at the final solution, always.
+The pipeline: adjust by least squares, then with the robust loss if one is set;
+estimate variance components (`variance_components = true`); Baarda data snooping
+(`data_snooping = true`), with a second variance-component pass when observations were
+removed; reliability at the final solution, always.
 """
 
 import dataclasses
 from collections.abc import Callable
 
 from .._progress import Iteration
-from .._reliability import data_snooping, reliability
+from .._reliability import data_snooping, reliability, restart_from
 from .._solve import Adjustment, adjust
 from .._variance_components import estimate_variance_components
 from ._build import Project
@@ -30,8 +31,16 @@ def adjust_project(
         sigma0=settings.sigma0, max_steps=settings.max_iterations,
         rtol=settings.rtol, atol=settings.atol,
     )
-    result = adjust(project.problem, labels=project.labels, on_iteration=on_iteration, **options)
+    snooping = dict(alpha=settings.snooping_alpha, familywise=settings.snooping_familywise)
+    problem = project.problem
+    # A robust loss from far-off approximations treats every residual as an outlier; start
+    # it from the least-squares solution instead.
+    least_squares = dataclasses.replace(problem, robust=None)
+    result = adjust(least_squares, labels=project.labels, on_iteration=on_iteration, **options)
     iterations = list(result.iterations)
+    if problem.robust is not None and result.converged:
+        result = adjust(restart_from(problem, result.parameters), check=False, **options)
+        iterations = _continue_numbering(iterations, result.iterations)
     components, variance_iterations, rejections = None, 0, ()
 
     def with_components(current):
@@ -46,7 +55,7 @@ def adjust_project(
     if settings.variance_components and result.converged:
         result = with_components(result)
     if settings.data_snooping and result.converged:
-        result, found, _ = data_snooping(result, alpha=settings.snooping_alpha, **options)
+        result, found, _ = data_snooping(result, **snooping, **options)
         rejections = tuple(found)
         if found:
             iterations = _continue_numbering(iterations, result.iterations)
@@ -55,7 +64,7 @@ def adjust_project(
     return dataclasses.replace(
         result,
         iterations=iterations,
-        reliability=reliability(result, alpha=settings.snooping_alpha),
+        reliability=reliability(result, **snooping),
         variance_components=components,
         variance_iterations=variance_iterations,
         rejections=rejections,

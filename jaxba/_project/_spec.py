@@ -23,9 +23,12 @@ class AdjustmentSettings:
     # Refraction needs heights above sea level in km: height_km = (Z + z_offset) * unit_km.
     object_unit_km: float = 0.001
     height_offset: float = 0.0
-    # Reliability: Baarda data snooping at significance `snooping_alpha` (two-sided).
+    # Reliability: Baarda data snooping at significance `snooping_alpha` (two-sided), of
+    # the whole set of w-tests (family-wise, Šidák) or, with `snooping_familywise = false`,
+    # of each test.
     data_snooping: bool = False
-    snooping_alpha: float = 0.001
+    snooping_alpha: float = 0.05
+    snooping_familywise: bool = True
     # Robust loss on image observations: "none", "huber" or "cauchy", scale k in σ.
     robust: str = "none"
     robust_scale: float = 3.0
