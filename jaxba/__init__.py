@@ -22,6 +22,10 @@ from ._camera import (
     SmacCamera as SmacCamera,
 )
 from ._datum import DatumError as DatumError, check_datum as check_datum
+from ._free_network import (
+    InnerConstraints as InnerConstraints,
+    inner_constraints as inner_constraints,
+)
 from ._observations import (
     AbstractObservationGroup as AbstractObservationGroup,
     Distances as Distances,

@@ -68,15 +68,63 @@ def _describe_similarity(null_basis, directions, index) -> str | None:
     return ", ".join(name for name in SIMILARITY_NAMES if name in names)
 
 
+def null_space(
+    problem: BundleProblem, *, rtol: float = 1e-9, jacobian: np.ndarray | None = None
+) -> np.ndarray | None:
+    """Basis (d, n_free) of the unknowns' directions no observation sees, or None.
+
+    From the singular values of the column-equilibrated whitened Jacobian at the
+    approximations (smallest / largest < `rtol`); rows in unscaled units. `jacobian`:
+    that Jacobian if already computed.
+    """
+    if jacobian is None:
+        jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
+    column_norms = np.linalg.norm(jacobian, axis=0)
+    _, singular, vt = np.linalg.svd(jacobian / column_norms, full_matrices=False)
+    null_rows = singular < rtol * singular[0]
+    return vt[null_rows] / column_norms if null_rows.any() else None
+
+
+def describe_defect(problem, null_basis, index, labels, *, allow_similarity=False) -> None:
+    """Raise `DatumError` naming the defect spanned by `null_basis` (d, n_free).
+
+    With `allow_similarity`, a defect that is a similarity transformation of the
+    network (what inner constraints fix) passes silently.
+    """
+    rank_defect = null_basis.shape[0]
+    similarity = _describe_similarity(null_basis, _similarity_directions(problem), index)
+    if similarity is not None:
+        if allow_similarity:
+            return
+        hint = (
+            " The scale is not defined: add distance observations or control coordinates "
+            "that fix the scale."
+            if "scale" in similarity
+            else " Fix or weight more control coordinates, or choose datum = \"free\"."
+        )
+        raise DatumError(
+            f"datum defect (rank deficiency {rank_defect}): the observations do not "
+            f"determine a similarity transformation of the network involving {similarity}."
+            + hint
+        )
+    unit = null_basis * np.linalg.norm(null_basis, axis=1, keepdims=True) ** -1
+    magnitude = np.max(np.abs(unit), axis=0)
+    involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
+    names = ", ".join(labels[index[k]] for k in involved)
+    raise DatumError(
+        f"rank deficiency {rank_defect}: these unknowns can change together without "
+        f"changing any observation: {names}"
+    )
+
+
 def check_datum(
     problem: BundleProblem, *, labels: list[str] | None = None, rtol: float = 1e-9
 ) -> None:
     """Raise `DatumError` if the bundle is rank deficient at its approximations.
 
-    Rank is judged from the singular values of the column-equilibrated whitened
-    Jacobian (smallest / largest < `rtol`). The message names the defect: a similarity
-    transformation of the network (which of translation, rotation, scale) or the
-    unknowns that can change together without changing any observation.
+    The message names the defect: a similarity transformation of the network (which of
+    translation, rotation, scale) or the unknowns that can change together without
+    changing any observation.
     """
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
     if n_observations <= n_unknowns:
@@ -90,34 +138,10 @@ def check_datum(
     if not np.all(np.isfinite(jacobian)):
         bad = sorted({labels[index[k]] for k in np.flatnonzero(~np.isfinite(jacobian).all(0))})
         raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
-    column_norms = np.linalg.norm(jacobian, axis=0)
-    unobserved = np.flatnonzero(column_norms == 0)
+    unobserved = np.flatnonzero(np.linalg.norm(jacobian, axis=0) == 0)
     if unobserved.size:
         names = ", ".join(labels[index[k]] for k in unobserved[:8])
         raise DatumError(f"datum defect: no observation depends on {names}")
-    _, singular, vt = np.linalg.svd(jacobian / column_norms, full_matrices=False)
-    null_rows = singular < rtol * singular[0]
-    if not null_rows.any():
-        return
-    null_basis = vt[null_rows] / column_norms  # back to unscaled unknowns
-    similarity = _describe_similarity(null_basis, _similarity_directions(problem), index)
-    rank_defect = int(null_rows.sum())
-    if similarity is not None:
-        hint = (
-            " The scale is not defined: add distance observations or control coordinates "
-            "that fix the scale."
-            if "scale" in similarity
-            else " Fix or weight more control coordinates."
-        )
-        raise DatumError(
-            f"datum defect (rank deficiency {rank_defect}): the observations do not "
-            f"determine a similarity transformation of the network involving {similarity}."
-            + hint
-        )
-    magnitude = np.max(np.abs(vt[null_rows]), axis=0)
-    involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
-    names = ", ".join(labels[index[k]] for k in involved)
-    raise DatumError(
-        f"rank deficiency {rank_defect}: these unknowns can change together without "
-        f"changing any observation: {names}"
-    )
+    null_basis = null_space(problem, rtol=rtol, jacobian=jacobian)
+    if null_basis is not None:
+        describe_defect(problem, null_basis, index, labels)

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._camera import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
+from .._free_network import inner_constraints
 from .._observations import Distances, ImagePoints, ParameterObservations
 from .._parameters import Parameters, parameter_labels
 from .._problem import BundleProblem
@@ -98,10 +99,13 @@ def _used_points(spec: ProjectSpec) -> list[str]:
 
 
 def _points(spec: ProjectSpec, point_ids: list[str]):
+    """Point block, free mask and control observations; a free network frees them all."""
+    free_network = spec.settings.datum == "free"
     xyz, free, sigma = [], [], []
     for pid in point_ids:
         point = spec.points[pid]
-        flags = [_sigma_to_free_and_observed(s) for s in point.sigma]
+        given = (None, None, None) if free_network else point.sigma
+        flags = [_sigma_to_free_and_observed(s) for s in given]
         xyz.append(point.xyz)
         free.append([f for f, _ in flags])
         sigma.append([s for _, s in flags])
@@ -154,6 +158,17 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
     return groups
 
 
+def _datum_rows(spec: ProjectSpec, point_index: dict[str, int]) -> list[int] | None:
+    """Rows of the free network's datum points; None for all points."""
+    names = spec.settings.datum_points
+    unknown = [p for p in names if p not in point_index]
+    if unknown:
+        raise ProjectError(
+            f"{spec.path.name}: [adjustment] datum_points: no measured point {unknown[0]!r}"
+        )
+    return [point_index[p] for p in names] or None
+
+
 def build_project(spec: ProjectSpec) -> Project:
     """The BundleProblem of a project, in mm (image) and object units; angles in radians."""
     camera_rows, iop, iop_free, camera_priors = _cameras(spec)
@@ -202,5 +217,9 @@ def build_project(spec: ProjectSpec) -> Project:
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
     labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
+    if settings.datum == "free":
+        problem = inner_constraints(
+            problem, datum_points=_datum_rows(spec, point_index), labels=labels
+        )
     return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels)
 

@@ -38,7 +38,7 @@ _CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor")
 _POSITIVE_SETTINGS = frozenset({
     "sigma0", "image_sigma", "max_iterations", "object_unit_km", "snooping_alpha", "robust_scale",
 })
-_SETTING_CHOICES = {"robust": ("none", "huber", "cauchy")}
+_SETTING_CHOICES = {"robust": ("none", "huber", "cauchy"), "datum": ("control", "free")}
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
 
 _IMAGE_COLUMNS = (
@@ -154,7 +154,11 @@ def _read_settings(table: dict, where: str) -> AdjustmentSettings:
     for key, value in table.items():
         kind, key_where = fields[key].type, f"{where} {key}"
         kind = {"bool": bool, "int": int, "float": float, "str": str}.get(kind, kind)  # type: ignore
-        if kind is bool:
+        if kind == tuple[str, ...]:
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise ProjectError(f"{key_where}: expected a list of strings, got {value!r}")
+            values[key] = tuple(value)
+        elif kind is bool:
             values[key] = _toml_bool(value, key_where)
         elif kind is int:
             values[key] = _toml_int(value, key_where, positive=key in _POSITIVE_SETTINGS)

@@ -32,6 +32,10 @@ class AdjustmentSettings:
     # Robust loss on image observations: "none", "huber" or "cauchy", scale k in σ.
     robust: str = "none"
     robust_scale: float = 3.0
+    # Datum: "control" (fixed/weighted coordinates in the points table) or "free" (inner
+    # constraints over `datum_points`, default all points; point σ are then ignored).
+    datum: str = "control"
+    datum_points: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

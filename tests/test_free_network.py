@@ -1,0 +1,96 @@
+"""Free-network datum (inner constraints) against the lab's control datum."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxba
+
+GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
+
+
+def _adjust(truth, **settings):
+    if settings:
+        lines = "".join(f"\n{key} = {value}" for key, value in settings.items())
+        text = truth.project_file.read_text().replace("[adjustment]", "[adjustment]" + lines)
+        truth.project_file.write_text(text)
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    return project, jaxba.adjust_project(project)
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """The same block with the lab datum (6 fixed coordinates) and as a free network."""
+    directory = tmp_path_factory.mktemp("network")
+    truth = jaxba.write_synthetic_project(directory, seed=4, noise_px=0.3)
+    control = _adjust(truth)
+    free = _adjust(truth, datum='"free"')
+    return control, free
+
+
+def test_free_network_converges_with_the_same_redundancy(both):
+    (_, control), (project, free) = both
+    assert control.converged and free.converged
+    assert free.precision.redundancy == control.precision.redundancy
+    assert free.sigma0 == pytest.approx(control.sigma0, rel=1e-9)
+    constraints = [g for g in project.problem.groups if isinstance(g, jaxba.InnerConstraints)]
+    assert len(constraints) == 1 and constraints[0].stddev.shape == (6, 1)  # scale from distances
+
+
+def test_gauge_invariant_quantities_agree(both):
+    (_, control), (_, free) = both
+    for result_a, result_b in [(control, free)]:
+        iop_a = np.asarray(result_a.parameters.cameras["smac"][0])
+        iop_b = np.asarray(result_b.parameters.cameras["smac"][0])
+        std_a = np.asarray(result_a.precision.std.cameras["smac"][0])
+        std_b = np.asarray(result_b.precision.std.cameras["smac"][0])
+        free_iop = std_a > 0
+        assert np.all(np.abs(iop_a - iop_b)[free_iop] < 1e-6 * std_a[free_iop])
+        np.testing.assert_allclose(std_b, std_a, rtol=GAUGE_RTOL)
+
+    def distance(params):
+        return jnp.linalg.norm(params.points[3] - params.points[50])
+
+    value_a, var_a = jaxba.propagate(control, distance)
+    value_b, var_b = jaxba.propagate(free, distance)
+    assert float(value_b) == pytest.approx(float(value_a), abs=1e-6 * np.sqrt(var_a[0, 0]))
+    assert var_b[0, 0] == pytest.approx(var_a[0, 0], rel=GAUGE_RTOL)
+
+
+def test_covariance_is_the_inner_constraint_one(both):
+    (_, control), (project, free) = both
+    group = next(g for g in project.problem.groups if isinstance(g, jaxba.InnerConstraints))
+    directions = np.asarray(group.directions)
+    covariance = jaxba.full_covariance(free)
+    # Bᵀ Cxx = 0: the constrained datum directions carry no variance.
+    scale = np.abs(directions).max() * np.sqrt(np.abs(np.diag(covariance)).max())
+    assert np.abs(directions @ covariance).max() < 1e-9 * scale * np.abs(directions).sum(1).max()
+    # ... and of all datums it gives the points the smallest total variance.
+    trace_free = np.trace(jaxba.point_covariances(free).sum(0))
+    trace_control = np.trace(jaxba.point_covariances(control).sum(0))
+    assert trace_free < trace_control
+    total_r = sum(np.nansum(r) for r in free.reliability.redundancy_numbers)
+    assert total_r == pytest.approx(free.precision.redundancy, rel=1e-9)
+
+
+def test_datum_points_subset_and_seven_parameter_defect(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_distances=0)
+    project, result = _adjust(truth, datum='"free"', datum_points='["1", "10", "40", "71"]')
+    assert result.converged
+    group = next(g for g in project.problem.groups if isinstance(g, jaxba.InnerConstraints))
+    assert group.stddev.shape == (7, 1)  # no distances: scale is part of the defect
+    positions = np.asarray(jaxba.unflatten(result.parameters,
+                                           np.arange(jaxba.flatten(result.parameters).size))
+                           .points)
+    datum_rows = [project.point_ids.index(p) for p in ("1", "10", "40", "71")]
+    others = np.setdiff1d(np.arange(len(project.point_ids)), datum_rows)
+    assert np.all(np.asarray(group.directions)[:, positions[others].ravel()] == 0)
+
+
+def test_unknown_datum_point_is_refused(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3)
+    text = truth.project_file.read_text().replace(
+        "[adjustment]", '[adjustment]\ndatum = "free"\ndatum_points = ["nope"]')
+    truth.project_file.write_text(text)
+    with pytest.raises(jaxba.ProjectError, match="nope"):
+        jaxba.build_project(jaxba.read_project(truth.project_file))
