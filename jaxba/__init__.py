@@ -81,9 +81,12 @@ from ._rotation import (
     rodrigues_to_quaternion as rodrigues_to_quaternion,
 )
 from ._schur import (
+    BundleCofactors as BundleCofactors,
     SchurDampedNewtonDescent as SchurDampedNewtonDescent,
     SchurLevenbergMarquardt as SchurLevenbergMarquardt,
     TwoBlockProblem as TwoBlockProblem,
+    schur_cofactors as schur_cofactors,
+    solve_schur as solve_schur,
     solve_two_block as solve_two_block,
     two_block_residuals as two_block_residuals,
 )

@@ -23,7 +23,9 @@ from ._model import bal_initial, bal_two_block
 from ._reader import read_bal
 
 
-@functools.partial(jax.jit, static_argnames=("max_steps", "rtol", "atol", "function_tolerance"))
+@functools.partial(
+    jax.jit, static_argnames=("max_steps", "rtol", "atol", "function_tolerance", "progress")
+)
 def _solve(
     problem: TwoBlockProblem,
     y0: TwoBlockY,
@@ -32,14 +34,25 @@ def _solve(
     rtol: float,
     atol: float,
     function_tolerance: float,
+    progress: bool = True,
 ):
-    """The whole solve, jitted: final (cameras, points), cost, iterations, steps, result.
+    """The whole solve, jitted: final (cameras, points), cost, iterations, steps, result,
+    accepted steps.
 
     iterations = trial steps, as Ceres counts them: optimistix's steps less step 0 (the
     evaluation of y0) and less the zero step that ends a function-tolerance convergence.
+    `progress`: report every step to the host (`report_step`, a `jax.debug.callback`).
+    Executables with host callbacks are never written to jax's persistent compilation
+    cache (jax/_src/compiler.py `_cache_write`: "Not writing persistent cache entry ...
+    because it uses host callbacks"), so progress=False is what makes a second run on
+    the same shapes load the solve from the cache.
     """
     solver = SchurLevenbergMarquardt(
-        problem, rtol=rtol, atol=atol, function_tolerance=function_tolerance, verbose=report_step
+        problem,
+        rtol=rtol,
+        atol=atol,
+        function_tolerance=function_tolerance,
+        verbose=report_step if progress else False,
     )
     solution = optx.least_squares(
         two_block_residuals, solver, y0, args=problem, max_steps=max_steps, throw=False
@@ -48,7 +61,8 @@ def _solve(
     steps = solution.stats["num_steps"]
     zero_step = solution.state.descent_state.converged.astype(steps.dtype)
     iterations = jnp.maximum(steps - 1 - zero_step, 0)
-    return solution.value, final_cost, iterations, steps, solution.result
+    accepted = solution.state.num_accepted_steps - 1 - zero_step  # less step 0
+    return solution.value, final_cost, iterations, steps, solution.result, accepted
 
 
 def _buffers_mib(memory) -> float | None:
@@ -72,6 +86,7 @@ def run_bal(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     on_iteration: Callable[[Iteration], None] | None = _print_iteration,
+    progress: bool | None = None,
 ) -> dict:
     """Solve the BAL problem in `path` (plain, .bz2 or .gz) and write `out_dir/results.json`.
 
@@ -80,6 +95,10 @@ def run_bal(
     than `function_tolerance` (relative, as Ceres), on optimistix's rtol/atol test, or
     after `max_steps` steps (trial steps, rejected ones included, as Ceres counts
     iterations). `on_iteration` is called for every accepted iterate (None: silent).
+    `progress` (default: whether `on_iteration` is given) compiles the per-step host
+    callback in; without it the solve has no host callback, jax's persistent compilation
+    cache can store it (a second run on the same shapes compiles from the cache) and
+    "cost_history" holds only the initial and final costs.
 
     Needs float64 (`jax.config.update("jax_enable_x64", True)`; the jaxba CLI sets it).
     Returns the dict written to results.json: "problem", "n_cameras", "n_points",
@@ -108,6 +127,9 @@ def run_bal(
     settings = dict(
         max_steps=max_steps, rtol=rtol, atol=atol, function_tolerance=function_tolerance
     )
+    if progress is None:
+        progress = on_iteration is not None
+    settings["progress"] = progress
     compiled = _solve.lower(problem, y0, **settings).compile()
     compile_seconds = time.perf_counter() - start
     memory = compiled.memory_analysis()
@@ -118,10 +140,15 @@ def run_bal(
     )
     with listening(recorder):
         start = time.perf_counter()
-        _, final_cost, iterations, steps, result = jax.block_until_ready(compiled(problem, y0))
+        outputs = jax.block_until_ready(compiled(problem, y0))
+        _, final_cost, iterations, steps, result, accepted = outputs
         solve_seconds = time.perf_counter() - start
     final_cost = float(final_cost)
-    recorder.finish(final_cost)
+    if progress:
+        recorder.finish(final_cost)
+        cost_history = [iteration.cost for iteration in recorder.iterations]
+    else:
+        cost_history = [initial_cost, final_cost]
     converged = bool(result == optx.RESULTS.successful)
     results = {
         "problem": str(path),
@@ -132,10 +159,10 @@ def run_bal(
         "final_cost": final_cost,
         "iterations": int(iterations),
         "solver_steps": int(steps),
-        "accepted_iterations": len(recorder.iterations) - 1,
+        "accepted_iterations": int(accepted),
         "converged": converged,
         "message": "converged" if converged else str(optx.RESULTS[result]),
-        "cost_history": [iteration.cost for iteration in recorder.iterations],
+        "cost_history": cost_history,
         "read_seconds": read_seconds,
         "compile_seconds": compile_seconds,
         "solve_seconds": solve_seconds,

@@ -1,5 +1,12 @@
 """Schur-complement Levenberg-Marquardt for two-block (bundle-adjustment) least squares."""
 
+from ._bundle import (
+    BundleCofactors as BundleCofactors,
+    BundleSchurLevenbergMarquardt as BundleSchurLevenbergMarquardt,
+    bundle_structure as bundle_structure,
+    schur_cofactors as schur_cofactors,
+    solve_schur as solve_schur,
+)
 from ._normal import (
     NormalEquations as NormalEquations,
     marquardt_diagonal as marquardt_diagonal,

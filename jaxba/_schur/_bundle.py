@@ -1,0 +1,705 @@
+"""Schur-complement Levenberg-Marquardt for photogrammetric bundles (`BundleProblem`).
+
+The unknowns split into a reduced ("camera") side and an eliminated point side:
+
+- reduced side, r: all IOPs of all camera models (shared by the images that use them), all
+  EOPs, and the object points touched by `Distances` (a distance couples two points, so they
+  cannot be eliminated one by one), in that order;
+- point side, e: every other object point, 3 unknowns each.
+
+Image observation i touches one IOP row, one EOP row and one point, so its Jacobian splits
+into J_r,i (2 x m: n_iop + 6, plus 3 for a reduced-side point) and J_e,i (2 x 3). With
+U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i + control (3 x 3 per
+point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations reduce to
+
+    S x_r = g_r - Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p,   S = U + λD_r - Σ_p Y_pᵀ V_λ,p⁻¹ Y_p,
+
+Y_p = Σ_{i∈p} W_iᵀ (3 x n_r, the coupling of point p with the reduced side), then
+x_e,p = V_λ,p⁻¹ (g_e,p - Y_p x_r) (Triggs et al., "Bundle adjustment - a modern synthesis",
+2000, section 6.1). S is assembled a chunk of points at a time: Y of a chunk is scattered
+into a dense (3 P x n_r) matrix and Σ_p Y_pᵀ V⁻¹ Y_p is one matrix product, so memory is
+O(n_obs + n_r² + P n_r) and the work O(n_points n_r²) per trial step (cheap when the
+reduced side is small and points are seen by many images, as in close-range blocks).
+
+Fixed unknowns (False in `problem.free`) get zero Jacobian columns and a unit diagonal:
+their step is exactly 0. Control points / GNSS-INS / IOP priors (`ParameterObservations`)
+add 1/σ² to the diagonal of V (eliminated points) or U (everything else).
+"""
+
+from collections.abc import Callable
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, Int, PyTree, Scalar
+
+from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
+from .._parameters import Parameters
+from .._problem import BundleProblem
+from ._cholesky import cholesky_solve
+from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
+from ._solver import BAL_TRUST_REGION
+
+
+class BundleStructure(eqx.Module):
+    """Index arrays of the Schur split of one `BundleProblem` (built by `bundle_structure`).
+
+    Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
+    then the reduced points); column n_reduced is a dummy that absorbs padding.
+    - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
+      (all ImagePoints groups concatenated; the last row is a padding observation);
+    - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
+      point or the padding row;
+    - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
+      per-key blocks (n_keys, m) before one dense scatter;
+    - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
+      (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
+      points (padding: observation n_image_obs / local point points_per_chunk / point
+      n_eliminated);
+    - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
+      (n_points,) first reduced column of a reduced point, -1 otherwise;
+    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise.
+    """
+
+    image_columns: Int[Array, "n_obs1 m"]
+    image_point: Int[Array, " n_obs1"]
+    key: Int[Array, " n_obs1"]
+    key_columns: Int[Array, "n_keys m"]
+    chunk_obs: Int[Array, "n_chunks max_obs"]
+    chunk_local: Int[Array, "n_chunks max_obs"]
+    chunk_points: Int[Array, "n_chunks points_per_chunk"]
+    reduced_points: Int[Array, " n_reduced_points"]
+    eliminated_points: Int[Array, " n_eliminated"]
+    point_column: Int[Array, " n_points"]
+    eliminated_index: Int[Array, " n_points"]
+    models: tuple[str, ...] = eqx.field(static=True)
+    camera_offsets: tuple[int, ...] = eqx.field(static=True)
+    image_offset: int = eqx.field(static=True)
+    n_reduced: int = eqx.field(static=True)
+    m: int = eqx.field(static=True)
+    points_per_chunk: int = eqx.field(static=True)
+    jacobian_batch: int = eqx.field(static=True)
+
+
+def bundle_structure(
+    problem: BundleProblem, *, chunk_mib: float = 64.0, jacobian_batch: int = 16384
+) -> BundleStructure:
+    """The Schur split of `problem` (NumPy, before any tracing).
+
+    `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
+    doubles) in the S assembly; `jacobian_batch` is the number of image observations
+    differentiated at once. Raises `ValueError` for observation groups other than
+    ImagePoints, ParameterObservations and Distances.
+    """
+    initial = problem.initial
+    models = tuple(sorted(initial.cameras))
+    offsets, column = [], 0
+    for model in models:
+        offsets.append(column)
+        column += int(np.size(initial.cameras[model]))
+    image_offset = column
+    column += int(np.size(initial.images))
+    n_points = int(initial.points.shape[0])
+    coupled = []
+    for group in problem.groups:
+        if isinstance(group, Distances):
+            coupled += [np.asarray(group.a), np.asarray(group.b)]
+        elif not isinstance(group, ImagePoints | ParameterObservations):
+            raise ValueError(
+                f"solve_schur cannot split observation group {group.name!r} of type"
+                f" {type(group).__name__}: only ImagePoints, ParameterObservations, Distances"
+            )
+    reduced_points = np.unique(np.concatenate(coupled)) if coupled else np.zeros(0, int)
+    point_column = np.full(n_points, -1, dtype=np.int64)
+    point_column[reduced_points] = column + 3 * np.arange(reduced_points.size)
+    n_reduced = column + 3 * reduced_points.size
+    is_eliminated = point_column < 0
+    eliminated_points = np.flatnonzero(is_eliminated)
+    n_eliminated = eliminated_points.size
+    eliminated_index = np.full(n_points, n_eliminated, dtype=np.int64)
+    eliminated_index[eliminated_points] = np.arange(n_eliminated)
+
+    images = [g for g in problem.groups if isinstance(g, ImagePoints)]
+    m = max([int(initial.cameras[g.model].shape[1]) for g in images], default=0) + 9
+    columns, point_rows = [], []
+    for group in images:
+        model_index = models.index(group.model)
+        n_iop = int(initial.cameras[group.model].shape[1])
+        camera, image, point = (np.asarray(a) for a in (group.camera, group.image, group.point))
+        block = np.full((camera.size, m), n_reduced, dtype=np.int64)
+        block[:, :n_iop] = offsets[model_index] + camera[:, None] * n_iop + np.arange(n_iop)
+        block[:, n_iop : n_iop + 6] = image_offset + image[:, None] * 6 + np.arange(6)
+        reduced = point_column[point] >= 0
+        block[reduced, m - 3 :] = point_column[point[reduced], None] + np.arange(3)
+        columns.append(block)
+        point_rows.append(eliminated_index[point])
+    columns.append(np.full((1, m), n_reduced, dtype=np.int64))
+    point_rows.append(np.array([n_eliminated]))
+    columns, point_rows = np.concatenate(columns), np.concatenate(point_rows)
+    key_columns, key = np.unique(columns, axis=0, return_inverse=True)
+    n_obs = columns.shape[0] - 1
+
+    points_per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
+    n_chunks = max(1, -(-n_eliminated // points_per_chunk))
+    order = np.argsort(point_rows[:n_obs], kind="stable")
+    chunk_of = point_rows[order] // points_per_chunk
+    keep = point_rows[order] < n_eliminated
+    order, chunk_of = order[keep], chunk_of[keep]
+    counts = np.bincount(chunk_of, minlength=n_chunks)
+    max_obs = max(1, int(counts.max(initial=0)))
+    chunk_obs = np.full((n_chunks, max_obs), n_obs, dtype=np.int64)
+    chunk_local = np.full((n_chunks, max_obs), points_per_chunk, dtype=np.int64)
+    rank = np.arange(order.size) - (np.cumsum(counts) - counts)[chunk_of]
+    chunk_obs[chunk_of, rank] = order
+    chunk_local[chunk_of, rank] = point_rows[order] - chunk_of * points_per_chunk
+    chunk_points = np.arange(n_chunks * points_per_chunk).reshape(n_chunks, points_per_chunk)
+    chunk_points = np.minimum(chunk_points, n_eliminated)
+
+    return BundleStructure(
+        image_columns=jnp.asarray(columns),
+        image_point=jnp.asarray(point_rows),
+        key=jnp.asarray(np.ravel(key)),
+        key_columns=jnp.asarray(key_columns),
+        chunk_obs=jnp.asarray(chunk_obs),
+        chunk_local=jnp.asarray(chunk_local),
+        chunk_points=jnp.asarray(chunk_points),
+        reduced_points=jnp.asarray(reduced_points),
+        eliminated_points=jnp.asarray(eliminated_points),
+        point_column=jnp.asarray(point_column),
+        eliminated_index=jnp.asarray(eliminated_index),
+        models=models,
+        camera_offsets=tuple(offsets),
+        image_offset=image_offset,
+        n_reduced=int(n_reduced),
+        m=int(m),
+        points_per_chunk=points_per_chunk,
+        jacobian_batch=int(jacobian_batch),
+    )
+
+
+class BundleNormalEquations(eqx.Module):
+    """Jacobian-dependent blocks (once per accepted iterate); see the module docstring.
+
+    `reduced_hessian` U (n_r, n_r) with unit diagonal on fixed unknowns; `point_hessian` V
+    (n_e, 3, 3) likewise; `coupling` W_i (n_image_obs + 1, m, 3) (last row zero);
+    gradients g_r (n_r,), g_e (n_e, 3); Marquardt damping D_r (n_r,), D_e (n_e, 3).
+    """
+
+    reduced_hessian: Float[Array, "n_r n_r"]
+    point_hessian: Float[Array, "n_e 3 3"]
+    coupling: Float[Array, "n_obs1 m 3"]
+    reduced_gradient: Float[Array, " n_r"]
+    point_gradient: Float[Array, "n_e 3"]
+    reduced_damping: Float[Array, " n_r"]
+    point_damping: Float[Array, "n_e 3"]
+
+
+def _reduced_vector(structure: BundleStructure, params: Parameters) -> Float[Array, " n_r"]:
+    """The reduced-side entries of a Parameters tree (values, masks) as one vector."""
+    parts = [jnp.ravel(params.cameras[model]) for model in structure.models]
+    parts += [jnp.ravel(params.images), jnp.ravel(params.points[structure.reduced_points])]
+    return jnp.concatenate(parts).astype(params.images.dtype)
+
+
+def _to_parameters(
+    structure: BundleStructure, like: Parameters, reduced: Array, eliminated: Array
+) -> Parameters:
+    """Inverse of the split: reduced (n_r,) and eliminated (n_e, 3) into a Parameters tree."""
+    cameras = {}
+    for model, offset in zip(structure.models, structure.camera_offsets):
+        shape = like.cameras[model].shape
+        cameras[model] = reduced[offset : offset + int(np.prod(shape))].reshape(shape)
+    n_images = like.images.shape[0]
+    images = reduced[structure.image_offset : structure.image_offset + 6 * n_images]
+    points = jnp.zeros_like(like.points)
+    points = points.at[structure.eliminated_points].set(eliminated)
+    start = structure.image_offset + 6 * n_images
+    points = points.at[structure.reduced_points].set(reduced[start:].reshape(-1, 3))
+    return Parameters(cameras=cameras, images=images.reshape(n_images, 6), points=points)
+
+
+def bundle_normal_equations(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    params: Parameters,
+    min_diagonal: float = 1e-6,
+    max_diagonal: float = 1e32,
+) -> BundleNormalEquations:
+    """U, V, W, g and the Marquardt damping of `problem` at `params` (all unknowns' values)."""
+    n_r, m = structure.n_reduced, structure.m
+    n_e = structure.eliminated_points.shape[0]
+    dtype = params.images.dtype
+    free_r = jnp.append(_reduced_vector(structure, problem.free), 0.0).astype(dtype)
+    free_points = problem.free.points.astype(dtype)
+    free_e = jnp.concatenate([free_points[structure.eliminated_points], jnp.zeros((1, 3), dtype)])
+
+    n_keys = structure.key_columns.shape[0]
+    totals = (
+        jnp.zeros((n_keys, m, m), dtype),
+        jnp.zeros(n_r + 1, dtype),
+        jnp.zeros((n_e + 1, 3, 3), dtype),
+        jnp.zeros((n_e + 1, 3), dtype),
+    )
+    couplings, start = [], 0
+    for group in problem.groups:
+        if not isinstance(group, ImagePoints):
+            continue
+        n = group.point.shape[0]
+        stop = start + n
+        totals, coupling = _accumulate_image_group(
+            problem, structure, group, params, free_r, free_e, totals, start, stop
+        )
+        couplings.append(coupling)
+        start = stop
+    couplings.append(jnp.zeros((1, m, 3), dtype))
+    coupling = jnp.concatenate(couplings)
+    per_key, gradient, point_hessian, point_gradient = totals
+    key_columns = structure.key_columns
+    flat = key_columns[:, :, None] * (n_r + 1) + key_columns[:, None, :]
+    hessian = jnp.zeros(((n_r + 1) ** 2,), dtype).at[flat].add(per_key)
+    hessian = hessian.reshape(n_r + 1, n_r + 1)
+
+    residuals = problem.residuals(problem.with_free(params))
+    for group, residual in zip(problem.groups, residuals):
+        if isinstance(group, ParameterObservations):
+            # e = (observed - x) / σ: ∂e/∂x = -1/σ on the observed entries.
+            derivative = jnp.where(group.mask(), -1.0 / group.stddev, 0.0).astype(dtype)
+            rows = jnp.asarray(group.rows)
+            if group.block == "points":
+                point_row_p = structure.eliminated_index[rows]
+                column = jnp.where(
+                    structure.point_column[rows] >= 0, structure.point_column[rows], n_r
+                )
+                sub = free_points[rows] * derivative
+                eliminated = (point_row_p < n_e)[:, None]
+                point_hessian = point_hessian.at[point_row_p].add(
+                    jnp.where(eliminated, sub, 0.0)[:, :, None] ** 2 * jnp.eye(3, dtype=dtype)
+                )
+                point_gradient = point_gradient.at[point_row_p].add(
+                    jnp.where(eliminated, sub * residual, 0.0)
+                )
+                reduced_sub = jnp.where(eliminated, 0.0, sub)
+                reduced_columns = column[:, None] + jnp.arange(3)
+                reduced_columns = jnp.where(eliminated, n_r, reduced_columns)
+            else:
+                width = group.observed.shape[1]
+                if group.block == "images":
+                    start = structure.image_offset
+                else:
+                    model = group.block.removeprefix("cameras/")
+                    start = structure.camera_offsets[structure.models.index(model)]
+                reduced_columns = start + rows[:, None] * width + jnp.arange(width)
+                reduced_sub = free_r[reduced_columns] * derivative
+            hessian = hessian.at[reduced_columns, reduced_columns].add(reduced_sub**2)
+            gradient = gradient.at[reduced_columns].add(reduced_sub * residual)
+        elif isinstance(group, Distances):
+            jd, e_d = _distance_jacobians(problem, group, params)
+            a_col = structure.point_column[group.a][:, None] + jnp.arange(3)
+            b_col = structure.point_column[group.b][:, None] + jnp.arange(3)
+            cols = jnp.concatenate([a_col, b_col], axis=1)
+            jd = jd * free_r[cols][:, None, :]
+            hessian = hessian.at[cols[:, :, None], cols[:, None, :]].add(_gram(jd, jd))
+            gradient = gradient.at[cols].add(jnp.sum(jd * e_d[:, :, None], axis=1))
+
+    hessian, gradient = hessian[:n_r, :n_r], gradient[:n_r]
+    point_hessian, point_gradient = point_hessian[:n_e], point_gradient[:n_e]
+    fixed_r = 1.0 - free_r[:n_r]
+    fixed_e = 1.0 - free_e[:n_e]
+    hessian = hessian + jnp.diag(fixed_r)
+    point_hessian = _add_diagonal(point_hessian, fixed_e)
+    return BundleNormalEquations(
+        reduced_hessian=hessian,
+        point_hessian=point_hessian,
+        coupling=coupling,
+        reduced_gradient=gradient,
+        point_gradient=point_gradient,
+        reduced_damping=marquardt_diagonal(jnp.diagonal(hessian), min_diagonal, max_diagonal),
+        point_damping=marquardt_diagonal(
+            jnp.diagonal(point_hessian, axis1=1, axis2=2), min_diagonal, max_diagonal
+        ),
+    )
+
+
+def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
+    """aᵀb per observation, the short sum over the residual entries k written out."""
+    return sum(a[:, k, :, None] * b[:, k, None, :] for k in range(a.shape[1]))
+
+
+def _accumulate_image_group(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    group: ImagePoints,
+    params: Parameters,
+    free_r: Array,
+    free_e: Array,
+    totals: tuple[Array, Array, Array, Array],
+    start: int,
+    stop: int,
+) -> tuple[tuple[Array, Array, Array, Array], Float[Array, "n m 3"]]:
+    """Add one ImagePoints group to (U per key, g_r, V, g_e), a chunk of observations at
+    a time (`jax.lax.scan`: the per-observation m x m products never exist for all
+    observations at once); returns the totals and the group's couplings W_i (n, m, 3).
+
+    Observations [start, stop) of the structure's concatenated image observations.
+    The residual differentiated is the one the solver minimises: whitened, masked,
+    robustified (`BundleProblem.residuals`).
+    """
+    params = problem.with_free(params)
+    m, batch = structure.m, max(1, min(structure.jacobian_batch, stop - start))
+    n = stop - start
+    n_iop = params.cameras[group.model].shape[1]
+    dtype = params.images.dtype
+
+    def residual(iop, eop, point, measured, sigma, mask):
+        e = collinearity_residual(
+            group.model, iop, eop, point, measured, sigma, problem.refraction
+        )
+        e = jnp.where(mask, e, 0.0)
+        return e if problem.robust is None else problem.robust(e)
+
+    def one(iop, eop, point, measured, sigma, mask):
+        j_iop, j_eop, j_point = jax.jacfwd(residual, argnums=(0, 1, 2))(
+            iop, eop, point, measured, sigma, mask
+        )
+        e = residual(iop, eop, point, measured, sigma, mask)
+        return jnp.concatenate([j_iop, j_eop], axis=1), j_point, e
+
+    def accumulate(totals, chunk):
+        per_key, gradient, point_hessian, point_gradient = totals
+        camera, image, point, measured, sigma, mask, columns, point_row, key = chunk
+        jc, jp, e = jax.vmap(one)(
+            params.cameras[group.model].at[camera].get(mode="clip"),
+            params.images.at[image].get(mode="clip"),
+            params.points.at[point].get(mode="clip"),
+            measured,
+            sigma,
+            mask,
+        )
+        mask = mask.astype(dtype)[:, :, None]
+        jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
+        reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
+        padding = jnp.zeros((*jc.shape[:2], m - n_iop - 9), dtype)
+        jr = jnp.concatenate([jc, padding, jnp.where(reduced_point, jp, 0.0)], axis=-1)
+        jr = jr * free_r[columns][:, None, :]
+        je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
+        totals = (
+            per_key + jax.ops.segment_sum(_gram(jr, jr), key, per_key.shape[0]),
+            gradient.at[columns].add(jnp.sum(jr * e[:, :, None], axis=1), mode="drop"),
+            point_hessian.at[point_row].add(_gram(je, je), mode="drop"),
+            point_gradient.at[point_row].add(jnp.sum(je * e[:, :, None], axis=1), mode="drop"),
+        )
+        return totals, _gram(jr, je)
+
+    pad = -n % batch
+    n_reduced, n_e = structure.n_reduced, structure.eliminated_points.shape[0]
+
+    def chunked(x, fill=None):
+        widths = [(0, pad)] + [(0, 0)] * (x.ndim - 1)
+        if fill is None:
+            x = jnp.pad(x, widths, mode="edge")
+        else:
+            x = jnp.pad(x, widths, constant_values=fill)
+        return x.reshape(-1, batch, *x.shape[1:])
+
+    chunks = (
+        chunked(group.camera),
+        chunked(group.image),
+        chunked(group.point),
+        chunked(group.measured),
+        chunked(group.stddev),
+        chunked(group.mask(), False),
+        chunked(structure.image_columns[start:stop], n_reduced),
+        chunked(structure.image_point[start:stop], n_e),
+        chunked(structure.key[start:stop], structure.key_columns.shape[0]),
+    )
+    totals, coupling = jax.lax.scan(accumulate, totals, chunks)
+    return totals, coupling.reshape(-1, m, 3)[:n]
+
+
+def _distance_jacobians(
+    problem: BundleProblem, group: Distances, params: Parameters
+) -> tuple[Array, Array]:
+    """∂e/∂(point a, point b) (n, 1, 6) and e (n, 1) of every distance."""
+    params = problem.with_free(params)
+
+    def residual(pair, observed, sigma, mask):
+        distance = jnp.sqrt(jnp.sum((pair[:3] - pair[3:]) ** 2))
+        return jnp.where(mask, (observed - distance) / sigma, 0.0)
+
+    def one(pair, observed, sigma, mask):
+        j = jax.jacfwd(residual)(pair, observed, sigma, mask)
+        return jnp.where(mask[:, None], j, 0.0), residual(pair, observed, sigma, mask)
+
+    pairs = jnp.concatenate([params.points[group.a], params.points[group.b]], axis=1)
+    return jax.vmap(one)(pairs, group.observed, group.stddev, group.mask())
+
+
+def solve_bundle_damped(
+    structure: BundleStructure, normal: BundleNormalEquations, damping: Scalar
+) -> tuple[Float[Array, " n_r"], Float[Array, "n_e 3"]]:
+    """x = (JᵀJ + λD)⁻¹ Jᵀe as (x_r, x_e) by the Schur complement on the eliminated points."""
+    dtype = normal.reduced_gradient.dtype
+    point_inverse = _small_inverse(
+        _add_diagonal(normal.point_hessian, damping * normal.point_damping)
+    )
+    reduced, rhs = _schur_complement(structure, normal, point_inverse)
+    reduced = reduced + normal.reduced_hessian + jnp.diag(damping * normal.reduced_damping)
+    x_r = cholesky_solve(reduced, normal.reduced_gradient - rhs)
+    x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
+    n_e = normal.point_gradient.shape[0]
+    coupled = jnp.sum(normal.coupling * x_r_padded[structure.image_columns][:, :, None], axis=1)
+    coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
+    x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
+    return x_r, x_e
+
+
+def _schur_complement(
+    structure: BundleStructure, normal: BundleNormalEquations, point_inverse: Array
+) -> tuple[Float[Array, "n_r n_r"], Float[Array, " n_r"]]:
+    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p, a chunk of points at a time."""
+    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    dtype = normal.reduced_gradient.dtype
+    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
+    eliminated_gradient = jnp.sum(inverse[:-1] * normal.point_gradient[:, None, :], axis=2)
+    eliminated_gradient = jnp.concatenate([eliminated_gradient, jnp.zeros((1, 3), dtype)])
+
+    def accumulate(totals, chunk):
+        product, rhs = totals
+        obs, local, points = chunk
+        flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
+        y = jnp.zeros((n_points * (n_r + 1), 3), dtype).at[flat].add(
+            normal.coupling[obs], mode="drop"
+        )
+        y = y.reshape(n_points, n_r + 1, 3)
+        t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+        y_flat = y.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
+        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
+        product = product - t_flat @ y_flat.T
+        rhs = rhs + y_flat @ jnp.ravel(eliminated_gradient[points])
+        return (product, rhs), None
+
+    zeros = (jnp.zeros((n_r + 1, n_r + 1), dtype), jnp.zeros(n_r + 1, dtype))
+    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
+    (product, rhs), _ = jax.lax.scan(accumulate, zeros, chunks)
+    return product[:n_r, :n_r], rhs[:n_r]
+
+
+class _BundleDescentState(eqx.Module):
+    normal: BundleNormalEquations
+
+
+class BundleSchurDescent(
+    optx.AbstractDescent[Parameters, optx.FunctionInfo.ResidualJac, _BundleDescentState]
+):
+    """Damped Newton step -(JᵀJ + λD)⁻¹ Jᵀe, λ = 1/(initial_radius · step_size), of a
+    `BundleProblem` by the Schur complement (see the module docstring). y is the full
+    Parameters tree; fixed unknowns get a zero step."""
+
+    problem: BundleProblem
+    structure: BundleStructure
+    min_diagonal: float = 1e-6
+    max_diagonal: float = 1e32
+    initial_radius: float = 1.0
+
+    def init(self, y: Parameters, f_info_struct) -> _BundleDescentState:
+        shapes = jax.eval_shape(self._normal, y)
+        return _BundleDescentState(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
+
+    def query(self, y: Parameters, f_info, state: _BundleDescentState) -> _BundleDescentState:
+        return _BundleDescentState(self._normal(y))
+
+    def step(self, step_size: Scalar, state: _BundleDescentState):
+        usable = step_size > jnp.finfo(step_size.dtype).eps
+        radius = self.initial_radius * jnp.where(usable, step_size, 1.0)
+        damping = jnp.where(usable, 1.0 / radius, jnp.finfo(step_size.dtype).max)
+        x_r, x_e = solve_bundle_damped(self.structure, state.normal, damping)
+        step = _to_parameters(self.structure, self.problem.initial, -x_r, -x_e)
+        step = jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
+        return step, optx.RESULTS.successful
+
+    def _normal(self, y: Parameters) -> BundleNormalEquations:
+        return bundle_normal_equations(
+            self.problem, self.structure, y, self.min_diagonal, self.max_diagonal
+        )
+
+
+def _silent(**info: Any) -> None:
+    del info
+
+
+class BundleSchurLevenbergMarquardt(optx.AbstractGaussNewton[Parameters, Array, Any]):
+    """Levenberg-Marquardt for a `BundleProblem` with the point unknowns eliminated.
+
+    `optx.LevenbergMarquardt` with `BundleSchurDescent` in place of the dense QR descent and
+    a Ceres-like trust region (`BAL_TRUST_REGION`, first radius `initial_radius`). Use with
+    `optx.least_squares(bundle_residuals, solver, problem.initial, args=problem)`.
+    """
+
+    rtol: float
+    atol: float
+    norm: Callable[[PyTree], Scalar]
+    descent: BundleSchurDescent
+    search: optx.ClassicalTrustRegion
+    verbose: Callable[..., None]
+
+    def __init__(
+        self,
+        problem: BundleProblem,
+        structure: BundleStructure,
+        rtol: float,
+        atol: float,
+        *,
+        norm: Callable[[PyTree], Scalar] = optx.max_norm,
+        initial_radius: float = 1e4,
+        verbose: Callable[..., None] | None = None,
+    ):
+        self.rtol = rtol
+        self.atol = atol
+        self.norm = norm
+        self.descent = BundleSchurDescent(problem, structure, initial_radius=initial_radius)
+        self.search = BAL_TRUST_REGION
+        self.verbose = verbose or _silent
+
+
+def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]:
+    """`fn(y, args)` for `optx.least_squares`: the residuals the solver minimises."""
+    return problem.residuals(problem.with_free(y))
+
+
+@eqx.filter_jit
+def _solve_schur(problem, structure, max_steps, rtol, atol, verbose):
+    from .._solve import Solution
+
+    solver = BundleSchurLevenbergMarquardt(problem, structure, rtol, atol, verbose=verbose)
+    solution = optx.least_squares(
+        bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
+    )
+    params = problem.with_free(solution.value)
+    residuals = problem.residuals(params)
+    return Solution(
+        parameters=params,
+        converged=solution.result == optx.RESULTS.successful,
+        steps=solution.stats["num_steps"],
+        cost=0.5 * sum(jnp.sum(r**2) for r in residuals),
+        result=solution.result,
+    )
+
+
+def solve_schur(
+    problem: BundleProblem,
+    free_index: Int[Array, " n_free"] | None = None,
+    *,
+    max_steps: int = 50,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    structure: BundleStructure | None = None,
+    progress: bool = True,
+) -> "Solution":  # noqa: F821
+    """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
+
+    Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
+    result). `free_index` is accepted for signature compatibility with `solve` and not
+    used: the free unknowns are `problem.free`. Not vmappable (the split is computed in
+    NumPy from the problem's indices; pass `structure=bundle_structure(problem)` to reuse
+    it). `progress=True` reports every step through `jaxba._progress.report_step` (as
+    `solve`, for `adjust`'s iteration listing); progress=False has no host callback, so
+    that the compiled solve can be stored in jax's persistent compilation cache.
+    Memory O(n_obs + n_r² + chunk), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
+    distance points.
+    """
+    del free_index
+    from .._progress import report_step
+
+    if structure is None:
+        structure = bundle_structure(problem)
+    verbose = report_step if progress else None
+    return _solve_schur(problem, structure, max_steps, rtol, atol, verbose)
+
+
+
+class BundleCofactors(eqx.Module):
+    """Cofactors (JᵀJ)⁻¹ of the whitened bundle at a solution, from the Schur split.
+
+    - `reduced`: (n_r, n_r) = S⁻¹, the full cofactor block of the reduced side (IOPs, EOPs,
+      distance points; `BundleStructure` column order), rows/columns of fixed unknowns 0;
+    - `points`: (n_points, 3, 3) the 3 x 3 cofactor block of every object point (reduced
+      ones copied from `reduced`), V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ for eliminated ones;
+    - `sigma0_squared`: σ0² eᵀe / (n_observations - n_unknowns);
+    - `std`: Parameters of σ = sqrt(σ̂0² diag Q), 0 for fixed unknowns (as `Precision.std`).
+    """
+
+    reduced: Float[Array, "n_r n_r"]
+    points: Float[Array, "n_points 3 3"]
+    sigma0_squared: Float[Array, ""]
+    std: Parameters
+
+
+def schur_cofactors(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> BundleCofactors:
+    """The precision of the unknowns at `params` without any dense n x n inverse.
+
+    With N = JᵀJ split as [[U, W], [Wᵀ, V]] (points eliminated), N⁻¹'s reduced block is S⁻¹,
+    S = U - W V⁻¹ Wᵀ (n_r x n_r, inverted by Cholesky), and the 3 x 3 diagonal block of
+    eliminated point p is V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ (Y_p = W's rows of point p), built
+    a chunk of points at a time (Triggs et al. 2000, section 6.1). Same numbers as the dense
+    `jaxba.precision` (σ̂0² = σ0² eᵀe / r) for bundles with a datum; not for free networks.
+    """
+    if structure is None:
+        structure = bundle_structure(problem)
+    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
+    return _schur_cofactors(problem, structure, params, sigma0, n_observations - n_unknowns)
+
+
+@eqx.filter_jit
+def _schur_cofactors(problem, structure, params, sigma0, redundancy):
+    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    normal = bundle_normal_equations(problem, structure, params)
+    dtype = normal.reduced_gradient.dtype
+    free_r = _reduced_vector(structure, problem.free).astype(dtype)
+    point_inverse = _small_inverse(normal.point_hessian)
+    product, _ = _schur_complement(structure, normal, point_inverse)
+    reduced = normal.reduced_hessian + product
+    factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
+    cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
+
+    def chunk_cofactors(_, chunk):
+        obs, local, points = chunk
+        flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
+        y = jnp.zeros((n_points * (n_r + 1), 3), dtype).at[flat].add(
+            normal.coupling[obs], mode="drop"
+        )
+        y = y.reshape(n_points, n_r + 1, 3)
+        t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
+        qt = (padded @ t_flat).reshape(n_r + 1, n_points, 3)
+        return None, inverse[points] + jnp.einsum("pci,cpk->pik", t, qt)
+
+    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
+    _, eliminated = jax.lax.scan(chunk_cofactors, None, chunks)
+    n_e = structure.eliminated_points.shape[0]
+    eliminated = eliminated.reshape(-1, 3, 3)[:n_e]
+    point_free = problem.free.points.astype(dtype)
+    points = jnp.zeros((problem.initial.points.shape[0], 3, 3), dtype)
+    points = points.at[structure.eliminated_points].set(eliminated)
+    start = structure.image_offset + problem.initial.images.size
+    index = start + 3 * jnp.arange(structure.reduced_points.shape[0])[:, None] + jnp.arange(3)
+    points = points.at[structure.reduced_points].set(cofactor[index[:, :, None], index[:, None, :]])
+    points = points * point_free[:, :, None] * point_free[:, None, :]
+
+    residuals = problem.residuals(problem.with_free(params))
+    sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy
+    reduced_std = jnp.sqrt(sigma0_squared * jnp.clip(jnp.diagonal(cofactor), 0.0))
+    point_std = jnp.sqrt(sigma0_squared * jnp.clip(jnp.diagonal(points, axis1=1, axis2=2), 0.0))
+    eliminated_std = point_std[structure.eliminated_points]
+    std = _to_parameters(structure, problem.initial, reduced_std, eliminated_std)
+    return BundleCofactors(cofactor, points, sigma0_squared, std)
