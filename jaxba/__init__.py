@@ -13,7 +13,9 @@ from ._camera import (
     AbstractRefraction as AbstractRefraction,
     Affine as Affine,
     AtmosphericRefraction as AtmosphericRefraction,
+    BalCamera as BalCamera,
     DecenteringSmac as DecenteringSmac,
+    FisheyeCamera as FisheyeCamera,
     NoRefraction as NoRefraction,
     OpenCVCamera as OpenCVCamera,
     PhotoModelerCamera as PhotoModelerCamera,
@@ -25,6 +27,15 @@ from ._datum import DatumError as DatumError, check_datum as check_datum
 from ._free_network import (
     InnerConstraints as InnerConstraints,
     inner_constraints as inner_constraints,
+)
+from ._io import (
+    read_colmap_model as read_colmap_model,
+    write_colmap as write_colmap,
+    write_colmap_project as write_colmap_project,
+    write_dbat_project as write_dbat_project,
+    write_opencv_yaml as write_opencv_yaml,
+    write_project_camera_yaml as write_project_camera_yaml,
+    write_zhang_project as write_zhang_project,
 )
 from ._observations import (
     AbstractObservationGroup as AbstractObservationGroup,

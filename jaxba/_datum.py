@@ -107,8 +107,10 @@ def describe_defect(problem, null_basis, index, labels, *, allow_similarity=Fals
             f"determine a similarity transformation of the network involving {similarity}."
             + hint
         )
-    unit = null_basis * np.linalg.norm(null_basis, axis=1, keepdims=True) ** -1
-    magnitude = np.max(np.abs(unit), axis=0)
+    # Rank the unknowns in Jacobi-scaled units (as the observations see them).
+    column_norms = np.linalg.norm(np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
+    scaled = null_basis * column_norms
+    magnitude = np.max(np.abs(scaled / np.linalg.norm(scaled, axis=1, keepdims=True)), axis=0)
     involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
     names = ", ".join(labels[index[k]] for k in involved)
     raise DatumError(

@@ -1,0 +1,96 @@
+"""A camera as an OpenCV YAML file (cv::FileStorage): camera matrix and distortion.
+
+The file is what OpenCV's calibration sample writes and `cv2.FileStorage(path,
+cv2.FILE_STORAGE_READ)` reads back:
+
+    %YAML:1.0
+    ---
+    camera_model: "opencv"
+    image_width: 640
+    image_height: 480
+    camera_matrix: !!opencv-matrix          # [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]
+       rows: 3
+       cols: 3
+       dt: d
+       data: [ ... ]
+    distortion_coefficients: !!opencv-matrix
+       rows: 1                              # "opencv": 1 x 5, (k1, k2, p1, p2, k3)
+       cols: 5                              # "fisheye": 4 x 1, (k1, k2, k3, k4), cv2.fisheye's D
+       dt: d
+       data: [ ... ]
+
+jaxba's "opencv" and "fisheye" models use OpenCV's pixel convention (the centre of the
+top-left pixel is (0, 0)) and OpenCV's formulas, so the values are written unchanged; the
+skew sits in camera_matrix[0, 1] (OpenCV's `calibrateCamera` keeps it 0, `projectPoints`
+ignores it). Numbers are written with Python's shortest round-trip repr, so they read back
+exactly. Plain Python; nothing here calls jax.
+"""
+
+import os
+import pathlib
+from collections.abc import Mapping
+
+import numpy as np
+
+_DISTORTION = {"opencv": (("k1", "k2", "p1", "p2", "k3"), (1, 5)),
+               "fisheye": (("k1", "k2", "k3", "k4"), (4, 1))}
+
+
+def _matrix(name: str, values, shape: tuple[int, int]) -> list[str]:
+    data = ", ".join(repr(float(v)) for v in values)
+    return [f"{name}: !!opencv-matrix", f"   rows: {shape[0]}", f"   cols: {shape[1]}",
+            "   dt: d", f"   data: [ {data} ]"]
+
+
+def opencv_camera_matrix(model: str, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(K 3x3, distortion coefficients) of an "opencv" or "fisheye" camera, OpenCV's order."""
+    if model not in _DISTORTION:
+        raise ValueError(f"camera model {model!r}: only 'opencv' and 'fisheye' write OpenCV YAML")
+    value = lambda name: float(values.get(name, 0.0))  # noqa: E731
+    k = np.array([[value("fx"), value("skew"), value("cx")], [0.0, value("fy"), value("cy")],
+                  [0.0, 0.0, 1.0]])
+    names, shape = _DISTORTION[model]
+    return k, np.array([value(n) for n in names]).reshape(shape)
+
+
+def write_opencv_yaml(
+    path: str | os.PathLike,
+    model: str,
+    values: Mapping[str, float],
+    image_size: tuple[int, int],
+) -> pathlib.Path:
+    """Write one camera as OpenCV YAML (module docstring).
+
+    **Arguments:**
+
+    - `path`: the file to write (`.yml` / `.yaml`).
+    - `model`: "opencv" or "fisheye".
+    - `values`: the model's parameters by name (pixels; missing ones 0).
+    - `image_size`: (width, height) in pixels.
+    """
+    k, distortion = opencv_camera_matrix(model, values)
+    lines = ["%YAML:1.0", "---", f'camera_model: "{model}"',
+             f"image_width: {int(image_size[0])}", f"image_height: {int(image_size[1])}",
+             *_matrix("camera_matrix", k.ravel(), (3, 3)),
+             *_matrix("distortion_coefficients", distortion.ravel(), distortion.shape)]
+    path = pathlib.Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_project_camera_yaml(project, camera_id: str, path: str | os.PathLike,
+                              parameters=None) -> pathlib.Path:
+    """Write camera `camera_id` of a `Project` with `parameters` (default: the starting values,
+    e.g. `adjust_project(project).parameters` for the adjusted ones) as OpenCV YAML."""
+    from .._camera import CAMERA_MODELS  # late: keeps importing this module free of jax
+
+    parameters = project.problem.initial if parameters is None else parameters
+    if camera_id not in project.camera_rows:
+        raise ValueError(f"{project.spec.name}: no camera {camera_id!r} used by an image")
+    model, row = project.camera_rows[camera_id]
+    names = CAMERA_MODELS[model].parameter_names
+    values = dict(zip(names, np.asarray(parameters.cameras[model][row], dtype=float)))
+    sensor = project.spec.cameras[camera_id].sensor
+    if sensor is None:
+        raise ValueError(f"camera {camera_id!r}: no sensor size (columns, rows) in cameras.toml")
+    return write_opencv_yaml(path, model, values, sensor)
