@@ -52,6 +52,10 @@ from ._parameters import (
     parameter_labels as parameter_labels,
     unflatten as unflatten,
 )
+from ._plots import (
+    plot_correlation as plot_correlation,
+    plot_image_residuals as plot_image_residuals,
+)
 from ._precision import (
     camera_correlation as camera_correlation,
     correlation as correlation,

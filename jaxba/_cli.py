@@ -70,7 +70,49 @@ def _add_adjust(subparsers) -> None:
         "--out", type=pathlib.Path, default=None, metavar="DIR",
         help="folder for the reports (default: the project file's folder)",
     )
+    parser.add_argument(
+        "--plots", action="store_true",
+        help="also write residuals.png and correlation_<camera>.png (needs matplotlib)",
+    )
     parser.set_defaults(run=_adjust)
+
+
+def _plot_name(camera_id: str) -> str:
+    return "correlation_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in camera_id)
+
+
+def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
+    """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
+
+    Skipped with a warning, not an error, when matplotlib is missing; never over an input.
+    """
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        _error(
+            "--plots: matplotlib is not installed (pip install 'jaxba[plots]'); no plots written",
+            "warning",
+        )
+        return []
+    import jaxba
+
+    out_dir = pathlib.Path(out_dir)
+    inputs = {pathlib.Path(path).resolve() for path in project.spec.input_files}
+    figures = {"residuals.png": lambda: jaxba.plot_image_residuals(project, result)}
+    for cid, (model, row) in project.camera_rows.items():
+        if bool(project.problem.free.cameras[model][row].any()):
+            figures[_plot_name(cid) + ".png"] = (
+                lambda cid=cid: jaxba.plot_correlation(result, project, cid)
+            )
+    written = []
+    for name, make in figures.items():
+        path = out_dir / name
+        if path.resolve() in inputs:
+            _error(f"--plots: {path} is an input file of the project; not written", "warning")
+            continue
+        make().savefig(path, dpi=100)
+        written.append(path)
+    return written
 
 
 def _adjust(args: argparse.Namespace) -> int:
@@ -94,6 +136,8 @@ def _adjust(args: argparse.Namespace) -> int:
         return EXIT_NOT_CONVERGED
     try:
         written = _report.write_reports(project, result, out_dir)
+        if args.plots:
+            written += _write_plots(project, result, out_dir)
     except (_report.OutputError, OSError) as error:
         raise _UsageError(str(error)) from None
 
@@ -127,6 +171,11 @@ def _add_bal(subparsers) -> None:
         help="folder for results.json (default: the current folder)",
     )
     parser.add_argument("--max-steps", type=int, default=100, metavar="N")
+    parser.add_argument(
+        "--no-progress", action="store_true",
+        help="no per-iteration output; lets jax's persistent cache store the compiled solve"
+        " (jax never caches executables with host callbacks)",
+    )
     parser.set_defaults(run=_bal)
 
 
@@ -135,7 +184,8 @@ def _bal(args: argparse.Namespace) -> int:
     from jaxba._bal import BalFormatError, run_bal
 
     try:
-        results = run_bal(args.problem, args.out, max_steps=args.max_steps)
+        quiet = {"on_iteration": None} if args.no_progress else {}
+        results = run_bal(args.problem, args.out, max_steps=args.max_steps, **quiet)
     except (OSError, BalFormatError) as error:
         _error(str(error))
         return EXIT_BAD_INPUT
@@ -145,6 +195,39 @@ def _bal(args: argparse.Namespace) -> int:
         f" {args.out / 'results.json'}"
     )
     return EXIT_OK if results["converged"] else EXIT_NOT_CONVERGED
+
+
+# --- jaxba batch ----------------------------------------------------------------------------
+
+
+def _add_batch(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "batch",
+        help="adjust many projects in one padded, vmapped solve",
+        description=(
+            "Adjust every PROJECT.toml (projects of one kind share one compiled, vmapped solve),"
+            " write each project's reports into DIR/<project name>/ and summary.csv and"
+            " summary.json into DIR. A failing project is reported in the summary and does"
+            " not stop the others. Exit codes: 0 all converged, 1 some project failed or did"
+            " not converge, 2 bad usage."
+        ),
+    )
+    parser.add_argument("projects", type=pathlib.Path, nargs="+", metavar="PROJECT.toml")
+    parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                        help="folder for the per-project reports and the summary")
+    parser.set_defaults(run=_batch)
+
+
+def _batch(args: argparse.Namespace) -> int:
+    _setup_jax()
+    from jaxba._batch_run import run_batch
+
+    if args.out.exists() and not args.out.is_dir():
+        raise _UsageError(f"{args.out}: output folder is not a folder")
+    rows = run_batch(args.projects, args.out, progress=_say)
+    ok = sum(row["status"] == "ok" for row in rows)
+    _say(f"{ok} of {len(rows)} projects converged")
+    return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED
 
 
 # --- entry point ----------------------------------------------------------------------------
@@ -157,6 +240,7 @@ def _parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_adjust(subparsers)
     _add_bal(subparsers)
+    _add_batch(subparsers)
     return parser
 
 

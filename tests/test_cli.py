@@ -10,16 +10,21 @@ import json
 import math
 import pathlib
 import shutil
+import sys
 
+import numpy as np
 import pytest
 
 import jaxba
+from jaxba import _cli
 from jaxba._cli import main
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
 OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json")
+PLOTS = ("residuals.png", "correlation_C1.png")  # written by --plots
 APPROXIMATION_DEG = 10.0  # the lab's angle approximations are within a few degrees of the result
 SIGMA_FILE_RTOL = 1e-9  # .sigma prints 11 significant digits
+REDUNDANCY_RTOL = 1e-8  # Σ r_i against n - u (two dense factorisations of the same N)
 
 
 def _copy_lab(folder: pathlib.Path) -> pathlib.Path:
@@ -51,11 +56,11 @@ def _data_lines(path: pathlib.Path) -> list[list[str]]:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    """`jaxba adjust lab.toml` (reports beside the project) on a fresh copy of the lab."""
+    """`jaxba adjust lab.toml --plots` (reports beside the project) on a fresh copy of the lab."""
     folder = tmp_path_factory.mktemp("cli") / "lab"
     project_file = _copy_lab(folder)
     inputs = _hashes(folder)
-    code, stdout, stderr = _run("adjust", str(project_file))
+    code, stdout, stderr = _run("adjust", str(project_file), "--plots")
     return {
         "folder": folder, "inputs": inputs, "code": code, "stdout": stdout, "stderr": stderr,
         "results": json.loads((folder / "results.json").read_text()),
@@ -67,12 +72,14 @@ def test_exit_code_and_files(run):
     assert run["stderr"] == ""
     for name in OUTPUTS:
         assert (run["folder"] / name).is_file()
+    for name in PLOTS:
+        assert (run["folder"] / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_inputs_untouched(run):
     after = _hashes(run["folder"])
     assert {name: after[name] for name in run["inputs"]} == run["inputs"]
-    assert set(after) == set(run["inputs"]) | set(OUTPUTS)
+    assert set(after) == set(run["inputs"]) | set(OUTPUTS) | set(PLOTS)
 
 
 def test_results_json_contract(run):
@@ -96,9 +103,39 @@ def test_results_json_contract(run):
         assert list(entry) == list(jaxba.IMAGE_PARAMETER_NAMES)
         assert all(isinstance(e["value"], float) and e["std"] > 0 for e in entry.values())
     for entry in data["points"].values():
-        assert list(entry) == list(jaxba.POINT_PARAMETER_NAMES)
-        assert all(isinstance(e["value"], float) and e["std"] >= 0 for e in entry.values())
+        coordinates = {name: entry[name] for name in jaxba.POINT_PARAMETER_NAMES}
+        assert set(entry) - set(coordinates) <= {"ellipsoid"}
+        assert all(isinstance(e["value"], float) and e["std"] >= 0 for e in coordinates.values())
     assert data["image_residuals"]["all"]["rms_x_px"] > 0
+
+
+def test_results_json_statistics(run):
+    data = run["results"]
+    correlations = data["correlations"]["C1"]
+    assert correlations["parameters"] == ["xp", "yp", "c", "K1", "K2", "K3", "P1", "P2"]
+    matrix = np.array(correlations["matrix"])
+    np.testing.assert_allclose(matrix, matrix.T, atol=1e-12)
+    np.testing.assert_allclose(np.diag(matrix), 1.0, rtol=1e-12)
+    assert np.all(np.abs(matrix) <= 1 + 1e-12)
+    assert data["variance_components"] is None and data["variance_component_iterations"] is None
+    assert data["rejections"] == []
+    reliability = data["reliability"]
+    assert reliability["redundancy_sum"] == pytest.approx(data["redundancy"], rel=REDUNDANCY_RTOL)
+    assert 0 < reliability["alpha"] < 1 and reliability["critical_value"] > 2
+    image = [o for o in data["observations"] if "type" not in o]
+    assert len(image) == len(_data_lines(run["folder"] / "image_coordinates.txt"))
+    r = np.array([[o["rx"], o["ry"]] for o in image])
+    assert np.all((r > 0) & (r < 1))
+    assert not any(o["outlier"] for o in image)
+    assert [o["type"] for o in data["observations"] if "type" in o] == ["distances"] * 4
+    for pid, entry in data["points"].items():
+        std = [entry[name]["std"] for name in jaxba.POINT_PARAMETER_NAMES]
+        if "ellipsoid" not in entry:
+            assert std == [0.0, 0.0, 0.0], pid
+            continue
+        # The semi-axes² add up to the trace of the point's covariance, Σ σ².
+        axes = entry["ellipsoid"]["axes"]
+        assert sum(a**2 for a in axes) == pytest.approx(sum(s**2 for s in std), rel=1e-9)
 
 
 def test_angles_in_degrees_near_approximations(run):
@@ -141,8 +178,25 @@ def test_progress_and_summary(run):
     assert progress[0].split()[:3] == ["iter", "0", "cost"]
     assert any(line.startswith("sigma0 ") for line in lines)
     assert any(line.strip().startswith("c ") and "+/-" in line for line in lines)
-    for name in OUTPUTS:
+    for name in OUTPUTS + PLOTS:
         assert any(line.strip().endswith(name) for line in lines)
+
+
+def test_res_statistics_columns(run):
+    rows = _data_lines(run["folder"] / "lab.res")
+    assert {len(row) for row in rows} == {13}
+    assert {row[-1] for row in rows} == {"0"}  # no outliers in the lab
+    text = (run["folder"] / "lab.out").read_text()
+    for part in ("IOP correlations of camera C1", "Reliability", "Error ellipsoids"):
+        assert part in text
+    assert "Variance components" not in text and "Data snooping" not in text
+
+
+def test_plots_without_matplotlib(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    assert _cli._write_plots(None, None, tmp_path) == []
+    assert "matplotlib is not installed" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_output_would_overwrite_input(tmp_path):

@@ -1,9 +1,12 @@
 """Tests of the report writers on a hand-made adjustment result (no solve: fast).
 
-The result holds the lab project's approximations, known standard deviations and seeded
-random residuals, so every number in the reports can be recomputed independently here.
+The result holds the lab project's approximations, known standard deviations, a seeded
+random covariance and seeded random residuals (and, where a test asks, hand-made
+reliability, variance components and a data-snooping rejection), so every number in the
+reports can be recomputed independently here.
 """
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -13,7 +16,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._parameters import Parameters
+from jaxba._parameters import Parameters, flatten, unflatten
+from jaxba._problem import free_indices
 from jaxba._report import (
     OutputError,
     out_text,
@@ -25,7 +29,8 @@ from jaxba._report import (
 )
 from jaxba._statistics import Precision
 
-LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
+CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+LAB = CONFIGS / "lab"
 PIXEL = 0.00369  # mm, the lab camera's pixel size
 STD_MM = 1e-3  # σ given to every free IOP in the fake result
 STD_RAD = 1e-4  # σ given to every free EOP angle, radians
@@ -33,6 +38,9 @@ STD_OBJ = 2e-4  # σ given to every free position and point coordinate, object u
 PRINTED_MM = 5e-7  # half a unit in the last decimal (6) of mm values in .res
 PRINTED_PX = 5e-4  # half a unit in the last decimal (3) of pixel values in .res
 FILES = ("lab.out", "lab.res", "lab.sigma", "results.json")
+MATRIX_RTOL = 1e-12  # correlations and ellipsoids against NumPy on the same covariance
+PRINTED_W = 5e-3  # half a unit in the last decimal (2) of w in .res
+CRITICAL = 3.29  # critical |w| of the hand-made reliability
 
 
 def _copy_lab(tmp_path: pathlib.Path) -> pathlib.Path:
@@ -48,7 +56,8 @@ def _edit(path: pathlib.Path, old: str, new: str) -> None:
 
 
 def _fake_result(project, *, nan_std: bool = False, seed: int = 0) -> jaxba.Adjustment:
-    """The approximations as 'adjusted' values with known σ and random residuals."""
+    """The approximations as 'adjusted' values with known σ, a random SPD covariance of the
+    free unknowns and random residuals."""
     problem = project.problem
     free = problem.free
     std = Parameters(
@@ -65,13 +74,41 @@ def _fake_result(project, *, nan_std: bool = False, seed: int = 0) -> jaxba.Adju
     )
     n, u = problem.n_observations(), problem.n_unknowns()
     iterations = [jaxba.Iteration(0, 50.0 * (n - u), 100.0), jaxba.Iteration(1, 0.5 * (n - u), 1.0)]
+    factor = rng.normal(0.0, 1e-4, (u, u + 5))
     precision = Precision(
         sigma0_squared=1.0, redundancy=n - u, n_observations=n, n_unknowns=u,
-        free_index=np.zeros(0, dtype=int), covariance=np.zeros((0, 0)), std=std,
+        free_index=free_indices(problem), covariance=factor @ factor.T, std=std,
     )
     return jaxba.Adjustment(
         problem=problem, parameters=problem.initial, precision=precision, residuals=residuals,
         iterations=iterations, converged=True, message="converged", steps=2,
+    )
+
+
+def _with_statistics(project, result, *, removed_row: int = 5, seed: int = 1):
+    """`result` with a hand-made reliability, variance components and one image point of the
+    first group removed by 'data snooping' (σ = inf, listed in `rejections`); w of one other
+    observation (row 0, y) is set above the critical value."""
+    problem = jaxba.remove_observation(result.problem, 0, removed_row, 0)
+    rng = np.random.default_rng(seed)
+    masks = [np.asarray(group.mask()) for group in problem.groups]
+    r = tuple(np.where(m, rng.uniform(0.2, 0.9, m.shape), np.nan) for m in masks)
+    w = [np.where(m, rng.normal(0.0, 1.0, m.shape).clip(-3, 3), np.nan) for m in masks]
+    w[0][0, 1] = 4.5
+    residuals = list(result.residuals)
+    residuals[0] = np.where(masks[0], residuals[0], 0.0)
+    reliability = jaxba.Reliability(
+        redundancy_numbers=r, normalised_residuals=tuple(w), mdb=r, alpha=0.001,
+        critical_value=CRITICAL,
+    )
+    components = {
+        group.name: jaxba.VarianceComponent(1.0 + 0.1 * k, 10.0 * k + 1.5, int(m.sum()))
+        for k, (group, m) in enumerate(zip(problem.groups, masks))
+    }
+    rejection = jaxba.Rejection(problem.groups[0].name, removed_row, 0, 7.5)
+    return dataclasses.replace(
+        result, problem=problem, residuals=tuple(residuals), reliability=reliability,
+        variance_components=components, variance_iterations=3, rejections=(rejection,),
     )
 
 
@@ -194,3 +231,144 @@ def test_refuses_to_overwrite_an_input(tmp_path):
     with pytest.raises(OutputError, match="lab.sigma"):
         write_reports(project, _fake_result(project), folder)
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_json_correlations_and_ellipsoids(lab):
+    project, result = lab
+    data = results_dict(project, result)
+    covariance = np.zeros((flatten(result.parameters).size,) * 2)
+    index = result.precision.free_index
+    covariance[np.ix_(index, index)] = result.precision.covariance
+    position = unflatten(result.parameters, np.arange(covariance.shape[0]))
+    # Correlations of the estimated IOPs, in the model's parameter order.
+    free_names = ["xp", "yp", "c", "K1", "K2", "K3", "P1", "P2"]
+    entry = data["correlations"]["C1"]
+    assert entry["parameters"] == free_names
+    names = jaxba.CAMERA_MODELS["smac"].parameter_names
+    chosen = [int(position.cameras["smac"][0][names.index(n)]) for n in free_names]
+    block = covariance[np.ix_(chosen, chosen)]
+    expected = block / np.sqrt(np.outer(np.diag(block), np.diag(block)))
+    np.testing.assert_allclose(entry["matrix"], expected, rtol=MATRIX_RTOL, atol=1e-15)
+    # 1σ ellipsoids: axes² are the eigenvalues of the point's 3x3 block, axes along columns.
+    free_points = np.asarray(project.problem.free.points).any(axis=1)
+    for k, pid in enumerate(project.point_ids):
+        if not free_points[k]:
+            assert "ellipsoid" not in data["points"][pid]
+            continue
+        rows = np.asarray(position.points[k])
+        c = covariance[np.ix_(rows, rows)]
+        ellipsoid = data["points"][pid]["ellipsoid"]
+        axes, directions = np.array(ellipsoid["axes"]), np.array(ellipsoid["directions"])
+        np.testing.assert_allclose(axes**2, np.sort(np.linalg.eigvalsh(c))[::-1], rtol=1e-10)
+        for a, d in zip(axes, directions):
+            np.testing.assert_allclose(c @ d, a**2 * d, atol=1e-10 * a**2 + 1e-30)
+    assert list(data["points"][project.point_ids[-1]])[:3] == list(jaxba.POINT_PARAMETER_NAMES)
+
+
+def test_json_without_statistics(lab):
+    """No reliability, components or rejections in the result: null / empty, no outliers."""
+    project, result = lab
+    data = json.loads(results_json(project, result))
+    assert data["variance_components"] is None
+    assert data["variance_component_iterations"] is None
+    assert data["reliability"] is None and data["rejections"] == []
+    image = [o for o in data["observations"] if "type" not in o]
+    others = [o for o in data["observations"] if "type" in o]
+    assert len(image) == len(project.spec.image_points)
+    assert set(image[0]) == {"image", "point", "vx", "vy", "rx", "ry", "wx", "wy", "outlier"}
+    assert all(o["rx"] is None and o["wy"] is None and o["outlier"] is False for o in image)
+    assert len(others) == len(project.spec.distances)
+    distances = {(d.a, d.b) for d in project.spec.distances}
+    assert {(o["point_a"], o["point_b"]) for o in others} == distances
+    assert {o["type"] for o in others} == {"distances"}
+    assert data["units"]["image"] == "mm" and data["units"]["image_cameras"] == {"C1": "mm"}
+
+
+def test_statistics_in_json(lab):
+    project, result = lab
+    result = _with_statistics(project, result)
+    data = json.loads(results_json(project, result))
+    group = result.problem.groups[0]
+    removed = (project.image_ids[int(group.image[5])], project.point_ids[int(group.point[5])])
+    flagged = (project.image_ids[int(group.image[0])], project.point_ids[int(group.point[0])])
+    assert data["rejections"] == [{
+        "group": "image_points:C1", "image": removed[0], "point": removed[1],
+        "coordinate": "x", "w": 7.5,
+    }]
+    assert data["variance_component_iterations"] == 3
+    assert data["variance_components"]["image_points:C1"] == {
+        "sigma0": 1.0, "redundancy": 1.5, "n_observations": group.measured.size - 2,
+    }
+    assert data["variance_components"]["distances"]["sigma0"] == pytest.approx(1.1)
+    image = {(o["image"], o["point"]): o for o in data["observations"] if "type" not in o}
+    # The removed point: its residual at the solution (observed - computed, σ = 1), no r,
+    # w as rejected (with the sign of v), an outlier.
+    entry = image[removed]
+    unit = np.asarray(jaxba.collinearity_residual(
+        "smac", result.parameters.cameras["smac"][0],
+        result.parameters.images[int(group.image[5])],
+        result.parameters.points[int(group.point[5])], group.measured[5], np.ones(2),
+        result.problem.refraction,
+    ))
+    assert [entry["vx"], entry["vy"]] == pytest.approx(unit.tolist(), rel=1e-12)
+    assert entry["rx"] is None and entry["ry"] is None and entry["wy"] is None
+    assert entry["wx"] == math.copysign(7.5, unit[0]) and entry["outlier"] is True
+    # |w| above the critical value: an outlier too; everything else is not.
+    assert image[flagged]["wy"] == 4.5 and image[flagged]["outlier"] is True
+    assert sum(o["outlier"] for o in image.values()) == 2
+    r0 = result.reliability.redundancy_numbers[0]
+    assert image[flagged]["rx"] == r0[0, 0] and image[flagged]["ry"] == r0[0, 1]
+    reliability = data["reliability"]
+    assert reliability["alpha"] == 0.001 and reliability["critical_value"] == CRITICAL
+    total = sum(np.nansum(r) for r in result.reliability.redundancy_numbers)
+    assert reliability["redundancy_sum"] == pytest.approx(total, rel=1e-12)
+    distances = [o for o in data["observations"] if o.get("type") == "distances"]
+    k = len(result.problem.groups) - 1
+    assert [o["r"] for o in distances] == result.reliability.redundancy_numbers[k][:, 0].tolist()
+    assert [o["v"] for o in distances] == pytest.approx(result.residuals[k][:, 0].tolist())
+    # RMS summaries leave the removed point out.
+    assert data["image_residuals"]["all"]["n"] == len(project.spec.image_points) - 1
+    assert data["image_residuals"]["all"]["n_removed"] == 1
+
+
+def test_statistics_in_text_reports(lab):
+    project, result = lab
+    result = _with_statistics(project, result)
+    text = out_text(project, result)
+    for heading in (
+        "IOP correlations of camera C1", "Variance components (3 iterations",
+        "1 observation(s) rejected", "Reliability", "largest |w| 4.50",
+        "Error ellipsoids of object points",
+    ):
+        assert heading in text, heading
+    lines = res_text(project, result).splitlines()
+    header = next(line for line in lines if "image_id" in line).split()[1:]
+    assert header[-5:] == ["rx", "ry", "wx", "wy", "outlier"]
+    rows = _data_lines(res_text(project, result))
+    assert {len(row) for row in rows} == {13}
+    outliers = [row for row in rows if row[-1] == "1"]
+    assert len(outliers) == 2 and {row[-1] for row in rows} == {"0", "1"}
+    removed = next(row for row in outliers if row[8] == "-")
+    assert abs(float(removed[10])) == 7.5 and removed[11] == "-"
+    w = np.array([[float(x) for x in row[10:12]] for row in rows if row[-1] == "0"])
+    assert np.all(np.abs(w) <= CRITICAL + PRINTED_W)
+    assert "1 rejected, not counted" in lines[-1]
+
+
+def test_pixel_camera_model_reports(tmp_path):
+    """An "opencv" camera works in pixels: reports say pixels, no mm or px-conversion columns."""
+    project = jaxba.build_project(jaxba.read_project(CONFIGS / "zhang" / "zhang.toml"))
+    result = _fake_result(project)
+    data = results_dict(project, result)
+    assert data["units"]["image"] == "pixel"
+    summary = data["image_residuals"]["all"]
+    v = np.concatenate([r for r in result.residuals if r.shape[1] == 2])
+    assert summary["rms_x_mm"] is None
+    assert summary["rms_x_px"] == pytest.approx(math.sqrt(np.mean(v[:, 0] ** 2)), rel=1e-12)
+    assert data["correlations"]["C1"]["parameters"] == ["fx", "fy", "cx", "cy", "skew", "k1", "k2"]
+    text = res_text(project, result)
+    assert "in pixels" in text and "vx_px" not in text and " mm" not in text
+    rows = _data_lines(text)
+    assert {len(row) for row in rows} == {11}
+    out = out_text(project, result)
+    assert "pixel units" in out and "mm based" not in out and "rms_vx_mm" not in out

@@ -1,23 +1,30 @@
 """Gather an adjustment into plain NumPy tables keyed by the project's IDs.
 
-Everything the report writers need, in report units: IOPs in the camera's units (mm based),
-EOP positions and object points in object units, angles in decimal degrees, image residuals
-v = observed - computed in mm and, where the camera has a pixel size, in pixels. Nothing
-here calls jax beyond turning arrays into NumPy.
+Everything the report writers need, in report units: IOPs in the camera's units (mm based, or
+pixels for pixel-unit models such as "opencv"), EOP positions and object points in object
+units, angles in decimal degrees, image residuals v = observed - computed in the camera model's
+image units (mm, or pixels) and, where the camera has a pixel size, in pixels; redundancy
+numbers r, normalised residuals w and outlier flags of every observation; IOP correlations and
+point error ellipsoids. Jax is called only to evaluate the residual of an observation removed
+by data snooping (its v at the final solution) and for the covariance helpers of `_precision`.
 """
 
 import dataclasses
 import math
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from .._camera import CAMERA_MODELS
-from .._observations import ImagePoints
+from .._observations import AbstractObservationGroup, Distances, ImagePoints, ParameterObservations
 from .._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from .._precision import camera_correlation, error_ellipsoids, point_covariances
 from .._project import Project
 from .._solve import Adjustment
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
+MM, PIXEL = "mm", "pixel"  # image units of a camera model (CAMERA_MODELS[model].image_units)
 # One character per coordinate, as the σ columns of the input tables: - free, 0 fixed, w weighted.
 STATUS_CODE = {FREE: "-", FIXED: "0", WEIGHTED: "w"}
 
@@ -37,16 +44,83 @@ class ParameterTable:
 class ImageResiduals:
     """Image residuals of all image-point groups, sorted by image (file order within one).
 
-    `xy` and `v` are (n, 2) in mm; `v_px` is v divided by the pixel size (same axes, y up),
-    NaN for cameras without a pixel size.
+    `xy` and `v` are (n, 2) in the image units of each row's camera model (`units`: "mm", or
+    "pixel" for pixel-unit models such as "opencv"); `v_px` is v in pixels (v divided by the
+    pixel size for mm rows, v itself for pixel rows; same axes as xy), NaN for mm cameras
+    without a pixel size. `redundancy` (r) and `w` (normalised residuals) are (n, 2), NaN where
+    unknown (no reliability computed, or the point was removed; a removed point's w is the one
+    it was rejected with, on the rejected coordinate). `removed`: rejected by data snooping (its
+    v is the residual at the final solution, which did not use it); `outlier`: removed, or
+    |w| above the critical value on either coordinate.
     """
 
     image_ids: list[str]
     point_ids: list[str]
     camera_ids: list[str]
+    units: list[str]
     xy: np.ndarray
     v: np.ndarray
     v_px: np.ndarray
+    redundancy: np.ndarray
+    w: np.ndarray
+    removed: np.ndarray
+    outlier: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupStatistics:
+    """Per-entry statistics of one observation group, arrays shaped like its residuals (n, k).
+
+    `observed`: a real observation before data snooping; `removed`: switched off by data
+    snooping; `v`: observed - computed in the observation's units (NaN where not observed;
+    removed entries: the residual at the final solution); `r`, `w`: redundancy numbers and
+    normalised residuals (NaN where unknown; a removed entry keeps the w it was rejected with);
+    `outlier`: removed, or |w| above the critical value.
+    """
+
+    group: AbstractObservationGroup
+    kind: str
+    observed: np.ndarray
+    removed: np.ndarray
+    v: np.ndarray
+    r: np.ndarray
+    w: np.ndarray
+    outlier: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ScalarObservation:
+    """One scalar observation of a group other than image points (control, GNSS/INS, ...).
+
+    `ids`: the IDs naming it ({"point", "coordinate"}, {"image", "coordinate"}, {"camera",
+    "coordinate"} or {"point_a", "point_b"}); `v` in the observation's units (angles of GNSS/INS
+    in decimal degrees).
+    """
+
+    kind: str
+    group: str
+    ids: dict[str, str]
+    v: float
+    r: float
+    w: float
+    removed: bool
+    outlier: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class ReliabilitySummary:
+    """Redundancy numbers and normalised residuals of the observations the solution used."""
+
+    alpha: float
+    critical_value: float
+    n: int
+    redundancy_sum: float
+    min_redundancy: float
+    mean_redundancy: float
+    max_abs_w: float
+    max_abs_w_at: str
+    n_outliers: int
+    groups: dict[str, dict]
 
 
 def _status(estimated: bool, weighted: bool) -> str:
@@ -108,32 +182,259 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
     )
 
 
+def is_measurement(group: AbstractObservationGroup) -> bool:
+    """A group of real measurements (not, e.g., the inner constraints of a free network)."""
+    return isinstance(group, ImagePoints | ParameterObservations | Distances)
+
+
+def group_kind(group: AbstractObservationGroup) -> str:
+    """"image_points", "control", "gnss_ins", "camera_priors" or "distances"."""
+    if isinstance(group, ImagePoints):
+        return "image_points"
+    if isinstance(group, Distances):
+        return "distances"
+    if isinstance(group, ParameterObservations):
+        return {"points": "control", "images": "gnss_ins"}.get(group.block, "camera_priors")
+    return group.name.split(":")[0]
+
+
+def _coordinate_names(project: Project, group: AbstractObservationGroup) -> tuple[str, ...]:
+    if isinstance(group, ImagePoints):
+        return ("x", "y")
+    if isinstance(group, ParameterObservations):
+        if group.block == "points":
+            return POINT_PARAMETER_NAMES
+        if group.block == "images":
+            return IMAGE_PARAMETER_NAMES
+        return CAMERA_MODELS[group.block.removeprefix("cameras/")].parameter_names
+    return ("distance",)
+
+
+def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
+    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+    if isinstance(group, ImagePoints):
+        return {
+            "image": project.image_ids[int(group.image[row])],
+            "point": project.point_ids[int(group.point[row])],
+            "coordinate": ("x", "y")[coordinate],
+        }
+    if isinstance(group, Distances):
+        return {
+            "point_a": project.point_ids[int(group.a[row])],
+            "point_b": project.point_ids[int(group.b[row])],
+        }
+    if not isinstance(group, ParameterObservations):
+        return {"row": str(row), "coordinate": str(coordinate)}
+    names = _coordinate_names(project, group)
+    block_row = int(np.asarray(group.rows)[row])
+    if group.block == "points":
+        key, value = "point", project.point_ids[block_row]
+    elif group.block == "images":
+        key, value = "image", project.image_ids[block_row]
+    else:
+        model = group.block.removeprefix("cameras/")
+        owners = {rows: cid for cid, rows in project.camera_rows.items()}
+        key, value = "camera", owners[(model, block_row)]
+    return {key: value, "coordinate": names[coordinate]}
+
+
+def _prior_groups(project: Project, result: Adjustment) -> list:
+    """The project's groups as built, matched by name to the result's (None if not found)."""
+    by_name = {group.name: group for group in project.problem.groups}
+    return [by_name.get(group.name) for group in result.problem.groups]
+
+
+def _unit_residuals(result: Adjustment, group: AbstractObservationGroup) -> np.ndarray:
+    """observed - computed of every entry of `group` at the solution (σ set to 1)."""
+    unit = eqx.tree_at(lambda g: g.stddev, group, jnp.ones_like(group.stddev))
+    return np.asarray(unit.residuals(result.parameters, result.problem.refraction), dtype=float)
+
+
+def group_statistics(project: Project, result: Adjustment) -> list[GroupStatistics]:
+    """v, r, w and outlier flags of every entry of every observation group of the result."""
+    reliability = result.reliability
+    critical = reliability.critical_value if reliability is not None else math.inf
+    rejected = {(rej.group, rej.row, rej.coordinate): rej.w for rej in result.rejections}
+    statistics = []
+    for k, (group, prior) in enumerate(zip(result.problem.groups, _prior_groups(project, result))):
+        final = np.isfinite(np.asarray(group.stddev))
+        observed = final if prior is None else final | np.isfinite(np.asarray(prior.stddev))
+        removed = observed & ~final
+        v = np.where(final, np.asarray(result.residuals[k], dtype=float), np.nan)
+        if removed.any():
+            v = np.where(removed, _unit_residuals(result, group), v)
+        if reliability is not None:
+            r = np.array(reliability.redundancy_numbers[k], dtype=float)
+            w = np.array(reliability.normalised_residuals[k], dtype=float)
+        else:
+            r, w = np.full(v.shape, np.nan), np.full(v.shape, np.nan)
+        r[~final], w[~final] = np.nan, np.nan
+        for (name, row, coordinate), size in rejected.items():
+            if name == group.name and removed[row, coordinate]:
+                w[row, coordinate] = math.copysign(size, v[row, coordinate])  # w has v's sign
+        with np.errstate(invalid="ignore"):
+            outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
+        statistics.append(GroupStatistics(
+            group, group_kind(group), observed, removed, v, r, w, outlier & observed))
+    return statistics
+
+
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
-    """All image residuals, one row per measured image point."""
-    image_rows, point_rows, xy, v = [], [], [], []
-    for group, residual in zip(result.problem.groups, result.residuals):
-        if isinstance(group, ImagePoints):
-            image_rows.append(np.asarray(group.image))
-            point_rows.append(np.asarray(group.point))
-            xy.append(np.asarray(group.measured, dtype=float))
-            v.append(np.asarray(residual, dtype=float))
-    if not image_rows:
-        empty = np.zeros((0, 2))
-        return ImageResiduals([], [], [], empty, empty, empty)
-    image_rows, point_rows = np.concatenate(image_rows), np.concatenate(point_rows)
+    """All image residuals, one row per measured image point (removed ones included)."""
+    parts = [s for s in group_statistics(project, result) if isinstance(s.group, ImagePoints)]
+    if not parts:
+        empty, none = np.zeros((0, 2)), np.zeros(0, dtype=bool)
+        return ImageResiduals([], [], [], [], empty, empty, empty, empty, empty, none, none)
+
+    def stack(get):
+        return np.concatenate([np.asarray(get(part)) for part in parts])
+
+    image_rows, point_rows = stack(lambda s: s.group.image), stack(lambda s: s.group.point)
     order = np.argsort(image_rows, kind="stable")
     image_ids = [project.image_ids[k] for k in image_rows[order]]
     camera_ids = [project.spec.images[iid].camera for iid in image_ids]
-    pixel_size = np.array([_pixel_size(project, cid) for cid in camera_ids]).reshape(-1, 2)
-    v = np.concatenate(v)[order]
+    units = [camera_units(project, cid) for cid in camera_ids]
+    pixel_size = np.array([
+        (1.0, 1.0) if unit == PIXEL else _pixel_size(project, cid)
+        for cid, unit in zip(camera_ids, units)
+    ]).reshape(-1, 2)
+    v = stack(lambda s: s.v)[order]
     return ImageResiduals(
         image_ids=image_ids,
         point_ids=[project.point_ids[k] for k in point_rows[order]],
         camera_ids=camera_ids,
-        xy=np.concatenate(xy)[order],
+        units=units,
+        xy=stack(lambda s: np.asarray(s.group.measured, dtype=float))[order],
         v=v,
         v_px=v / pixel_size,
+        redundancy=stack(lambda s: s.r)[order],
+        w=stack(lambda s: s.w)[order],
+        removed=stack(lambda s: s.removed.any(axis=1))[order],
+        outlier=stack(lambda s: s.outlier.any(axis=1))[order],
     )
+
+
+def other_observations(project: Project, result: Adjustment) -> list[ScalarObservation]:
+    """Every scalar observation that is not an image coordinate, group by group.
+
+    GNSS/INS angle residuals are converted to decimal degrees (r and w have no unit).
+    """
+    rows = []
+    for stats in group_statistics(project, result):
+        if isinstance(stats.group, ImagePoints) or not is_measurement(stats.group):
+            continue
+        names = _coordinate_names(project, stats.group)
+        for row, coordinate in zip(*np.nonzero(stats.observed)):
+            v = float(stats.v[row, coordinate])
+            if stats.kind == "gnss_ins" and names[coordinate] in ANGLE_NAMES:
+                v = math.degrees(v)
+            rows.append(ScalarObservation(
+                kind=stats.kind,
+                group=stats.group.name,
+                ids=observation_ids(project, stats.group, int(row), int(coordinate)),
+                v=v,
+                r=float(stats.r[row, coordinate]),
+                w=float(stats.w[row, coordinate]),
+                removed=bool(stats.removed[row, coordinate]),
+                outlier=bool(stats.outlier[row, coordinate]),
+            ))
+    return rows
+
+
+def rejections(project: Project, result: Adjustment) -> list[dict]:
+    """Data-snooping rejections in order of removal: group, IDs, coordinate, w."""
+    groups = {group.name: group for group in result.problem.groups}
+    return [
+        {
+            "group": rej.group,
+            **observation_ids(project, groups[rej.group], rej.row, rej.coordinate),
+            "w": float(rej.w),
+        }
+        for rej in result.rejections
+    ]
+
+
+def describe(ids: dict[str, str]) -> str:
+    """`image img03 point 12 x`, `point_a 1 point_b 7`: IDs of an observation as text."""
+    words = [f"{key} {value}" for key, value in ids.items() if key != "coordinate"]
+    return " ".join(words + ([ids["coordinate"]] if "coordinate" in ids else []))
+
+
+def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySummary | None:
+    """Min/mean/sum of the redundancy numbers and the largest |w|, overall and per group.
+
+    Over the measurements the final solution used (data-snooping rejections and constraint
+    groups excluded); None when the result holds no reliability.
+    """
+    reliability = result.reliability
+    if reliability is None:
+        return None
+    parts, groups, worst = [], {}, (-1.0, "")
+    for stats in group_statistics(project, result):
+        if not is_measurement(stats.group):
+            continue
+        used = stats.observed & ~stats.removed
+        r, w = stats.r[used], np.abs(stats.w[used])
+        finite_w = w[np.isfinite(w)]
+        groups[stats.group.name] = {
+            "n": int(np.count_nonzero(used)),
+            "redundancy_sum": float(np.nansum(r)),
+            "min_redundancy": float(np.nanmin(r)) if np.isfinite(r).any() else math.nan,
+            "mean_redundancy": float(np.nanmean(r)) if np.isfinite(r).any() else math.nan,
+            "max_abs_w": float(finite_w.max()) if finite_w.size else math.nan,
+            "n_outliers": int(np.count_nonzero(stats.outlier & used)),
+            "n_removed": int(np.count_nonzero(stats.removed)),
+        }
+        parts.append(r)
+        if finite_w.size and finite_w.max() > worst[0]:
+            abs_w = np.where(used, np.abs(np.nan_to_num(stats.w, nan=0.0)), -1.0)
+            row, coordinate = np.unravel_index(np.argmax(abs_w), abs_w.shape)
+            ids = observation_ids(project, stats.group, int(row), int(coordinate))
+            worst = (float(finite_w.max()), f"{stats.group.name} {describe(ids)}")
+    r = np.concatenate(parts) if parts else np.zeros(0)
+    finite = np.isfinite(r)
+    return ReliabilitySummary(
+        alpha=float(reliability.alpha),
+        critical_value=float(reliability.critical_value),
+        n=int(r.size),
+        redundancy_sum=float(np.sum(r[finite])),
+        min_redundancy=float(np.min(r[finite])) if finite.any() else math.nan,
+        mean_redundancy=float(np.mean(r[finite])) if finite.any() else math.nan,
+        max_abs_w=worst[0] if worst[1] else math.nan,
+        max_abs_w_at=worst[1],
+        n_outliers=sum(g["n_outliers"] for g in groups.values()),
+        groups=groups,
+    )
+
+
+def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple[list, np.ndarray]]:
+    """Per camera: the names of its estimated IOPs and their correlation matrix ρ."""
+    return {
+        cid: camera_correlation(result, model, row)
+        for cid, (model, row) in project.camera_rows.items()
+    }
+
+
+def point_ellipsoids(project: Project, result: Adjustment):
+    """1σ error ellipsoids of the object points: semi-axes (n, 3) descending, object units;
+    directions (n, 3, 3) with the unit axis k in column k; `has` (n,) True for points with
+    a free (estimated) coordinate."""
+    axes, directions = error_ellipsoids(point_covariances(result))
+    has = np.asarray(project.problem.free.points).any(axis=1)
+    return axes, directions, has
+
+
+def camera_units(project: Project, camera_id: str) -> str:
+    """"mm" or "pixel": the image units of the camera's model."""
+    model = project.camera_rows[camera_id][0] if camera_id in project.camera_rows else (
+        project.spec.cameras[camera_id].model)
+    return CAMERA_MODELS[model].image_units
+
+
+def project_units(project: Project) -> str:
+    """The image units of all used cameras: "mm", "pixel", or "mixed"."""
+    units = {camera_units(project, cid) for cid in project.camera_rows}
+    return units.pop() if len(units) == 1 else ("mm" if not units else "mixed")
 
 
 def _pixel_size(project: Project, camera_id: str) -> tuple[float, float]:
@@ -150,11 +451,17 @@ def rms(values: np.ndarray) -> np.ndarray:
 
 
 def residual_summary(residuals: ImageResiduals, selected: np.ndarray) -> dict:
-    """n and RMS of vx, vy (mm, and pixels where every selected row has a pixel size)."""
-    rms_mm = rms(residuals.v[selected])
-    rms_px = rms(residuals.v_px[selected])
+    """n and RMS of vx, vy in mm and in pixels, over the selected rows not removed by data
+    snooping (`n_removed` of them were). The mm RMS is NaN when a selected row is in pixels
+    (pixel-unit model); the pixel RMS is NaN when a row has no pixel size.
+    """
+    used = np.asarray(selected, dtype=bool) & ~residuals.removed
+    units = np.asarray(residuals.units, dtype=object)
+    rms_mm = rms(residuals.v[used]) if np.all(units[used] == MM) else np.full(2, math.nan)
+    rms_px = rms(residuals.v_px[used])
     return {
-        "n": int(np.count_nonzero(selected)),
+        "n": int(np.count_nonzero(used)),
+        "n_removed": int(np.count_nonzero(selected & residuals.removed)),
         "rms_x_mm": float(rms_mm[0]),
         "rms_y_mm": float(rms_mm[1]),
         "rms_x_px": float(rms_px[0]),

@@ -5,7 +5,7 @@ import math
 from .._progress import Iteration
 from .._project import Project
 from .._solve import Adjustment
-from ._collect import FIXED, camera_tables
+from ._collect import FIXED, camera_tables, describe, rejections
 
 
 def iteration_line(iteration: Iteration) -> str:
@@ -47,6 +47,18 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         f"sigma0 {math.sqrt(precision.sigma0_squared):.6g}"
         f" (sigma0^2 {precision.sigma0_squared:.6g}, redundancy {precision.redundancy})"
     )
+    if result.variance_components is not None:
+        parts = ", ".join(
+            f"{name} {component.sigma0:.3f}"
+            for name, component in result.variance_components.items()
+        )
+        lines.append(f"variance components (sigma / prior sigma): {parts}")
+    found = rejections(project, result)
+    if found:
+        lines.append(f"data snooping rejected {len(found)} observation(s):")
+        for entry in found:
+            ids = {key: value for key, value in entry.items() if key not in ("group", "w")}
+            lines.append(f"  {entry['group']} {describe(ids)}  |w| {entry['w']:.2f}")
     n_iterations = max(len(result.iterations) - 1, 0)
     if result.converged:
         lines.append(f"converged after {n_iterations} iterations ({result.steps} solver steps)")

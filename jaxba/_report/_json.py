@@ -9,11 +9,18 @@ from .._project import Project
 from .._solve import Adjustment
 from ._collect import (
     ParameterTable,
+    camera_correlations,
     camera_tables,
+    camera_units,
     group_summaries,
     image_residuals,
     image_table,
+    other_observations,
+    point_ellipsoids,
     point_table,
+    project_units,
+    rejections,
+    reliability_summary,
     residual_summaries,
 )
 
@@ -36,12 +43,92 @@ def _entries(table: ParameterTable, row: int) -> dict[str, dict]:
 
 
 def _nulls(tree):
-    """Replace non-finite floats anywhere in a nested dict by None."""
+    """Replace non-finite floats anywhere in nested dicts and lists by None."""
     if isinstance(tree, dict):
         return {key: _nulls(value) for key, value in tree.items()}
+    if isinstance(tree, list | tuple):
+        return [_nulls(value) for value in tree]
     if isinstance(tree, float | np.floating):
         return _number(tree)
     return tree
+
+
+def _points(project: Project, result: Adjustment) -> dict[str, dict]:
+    """X, Y, Z entries per point, plus the 1σ "ellipsoid" for points with free coordinates:
+    semi-axes descending (object units) and "directions", the unit vector of each axis."""
+    points = point_table(project, result)
+    axes, directions, has = point_ellipsoids(project, result)
+    entries = {}
+    for k, pid in enumerate(points.ids):
+        entries[pid] = _entries(points, k)
+        if has[k]:
+            entries[pid]["ellipsoid"] = _nulls({
+                "axes": [float(a) for a in axes[k]],
+                "directions": [[float(x) for x in column] for column in directions[k].T],
+            })
+    return entries
+
+
+def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:
+    return {
+        cid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
+        for cid, (names, matrix) in camera_correlations(project, result).items()
+    }
+
+
+def _variance_components(result: Adjustment) -> dict[str, dict] | None:
+    if result.variance_components is None:
+        return None
+    return _nulls({
+        name: {
+            "sigma0": float(component.sigma0),
+            "redundancy": float(component.redundancy),
+            "n_observations": int(component.n_observations),
+        }
+        for name, component in result.variance_components.items()
+    })
+
+
+def _observations(project: Project, result: Adjustment) -> list[dict]:
+    """One entry per image point (sorted by image), then the other observations by group."""
+    residuals = image_residuals(project, result)
+    entries = [
+        {
+            "image": iid,
+            "point": pid,
+            "vx": float(residuals.v[k, 0]),
+            "vy": float(residuals.v[k, 1]),
+            "rx": float(residuals.redundancy[k, 0]),
+            "ry": float(residuals.redundancy[k, 1]),
+            "wx": float(residuals.w[k, 0]),
+            "wy": float(residuals.w[k, 1]),
+            "outlier": bool(residuals.outlier[k]),
+        }
+        for k, (iid, pid) in enumerate(zip(residuals.image_ids, residuals.point_ids))
+    ]
+    entries += [
+        {
+            "type": row.kind, "group": row.group, **row.ids,
+            "v": row.v, "r": row.r, "w": row.w, "outlier": row.outlier,
+        }
+        for row in other_observations(project, result)
+    ]
+    return _nulls(entries)
+
+
+def _reliability(project: Project, result: Adjustment) -> dict | None:
+    summary = reliability_summary(project, result)
+    if summary is None:
+        return None
+    return _nulls({
+        "alpha": summary.alpha,
+        "critical_value": summary.critical_value,
+        "redundancy_sum": summary.redundancy_sum,
+        "min_redundancy": summary.min_redundancy,
+        "mean_redundancy": summary.mean_redundancy,
+        "max_abs_w": summary.max_abs_w,
+        "n_outliers": summary.n_outliers,
+    })
 
 
 def results_dict(project: Project, result: Adjustment) -> dict:
@@ -49,14 +136,22 @@ def results_dict(project: Project, result: Adjustment) -> dict:
 
     Keys of FORMATS.md (converged, sigma0, redundancy, iterations, cameras, images, points;
     angles and their σ in decimal degrees) plus: project, message, steps, n_observations,
-    n_unknowns, sigma0_squared, sigma0_prior, units, image_cameras, image_residuals (RMS in mm
-    and px: overall, per camera, per image) and observation_groups (n, vᵀPv). Iteration 0 is
-    the approximations. Every parameter carries "status": free, fixed or weighted.
+    n_unknowns, sigma0_squared, sigma0_prior, units (image: "mm", "pixel" for pixel-unit
+    camera models, or "mixed"; image_cameras: per camera), image_cameras, image_residuals (RMS
+    in mm and px: overall, per camera, per image; data-snooping rejections left out),
+    observation_groups (n, vᵀPv), correlations (per camera: the estimated IOPs and their
+    correlation matrix), variance_components ({group: sigma0, redundancy, n_observations}) and
+    variance_component_iterations (null when not estimated), observations (one entry per image
+    point: image, point, vx, vy in the camera's image units, redundancy numbers rx, ry,
+    normalised residuals wx, wy, outlier; then the other observations with type, group, their
+    IDs, v, r, w, outlier), rejections (data snooping, in order of removal), reliability
+    (alpha, critical_value, redundancy_sum, ...; null when not computed) and per point with a
+    free coordinate its 1σ "ellipsoid". Iteration 0 is the approximations. Every parameter
+    carries "status": free, fixed or weighted.
     """
     precision = result.precision
     cameras = camera_tables(project, result)
     images = image_table(project, result)
-    points = point_table(project, result)
     return {
         "project": project.spec.name,
         "converged": bool(result.converged),
@@ -69,7 +164,10 @@ def results_dict(project: Project, result: Adjustment) -> dict:
         "n_observations": int(precision.n_observations),
         "n_unknowns": int(precision.n_unknowns),
         "units": {
-            "image": "mm", "angles": "degrees", "object": "object units of the input files",
+            "image": project_units(project),
+            "image_cameras": {cid: camera_units(project, cid) for cid in cameras},
+            "angles": "degrees",
+            "object": "object units of the input files",
         },
         "iterations": [
             {
@@ -82,9 +180,17 @@ def results_dict(project: Project, result: Adjustment) -> dict:
         "cameras": {cid: _entries(table, 0) for cid, table in cameras.items()},
         "images": {iid: _entries(images, k) for k, iid in enumerate(images.ids)},
         "image_cameras": {iid: project.spec.images[iid].camera for iid in images.ids},
-        "points": {pid: _entries(points, k) for k, pid in enumerate(points.ids)},
+        "points": _points(project, result),
         "image_residuals": _nulls(residual_summaries(image_residuals(project, result))),
         "observation_groups": _nulls(group_summaries(project, result)),
+        "correlations": _correlations(project, result),
+        "variance_components": _variance_components(result),
+        "variance_component_iterations": (
+            int(result.variance_iterations) if result.variance_components is not None else None
+        ),
+        "observations": _observations(project, result),
+        "rejections": _nulls(rejections(project, result)),
+        "reliability": _reliability(project, result),
     }
 
 

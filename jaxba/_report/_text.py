@@ -11,14 +11,23 @@ import numpy as np
 from .._project import Project
 from .._solve import Adjustment
 from ._collect import (
+    MM,
+    PIXEL,
     STATUS_CODE,
     ImageResiduals,
     ParameterTable,
+    camera_correlations,
     camera_tables,
+    camera_units,
+    describe,
     group_summaries,
     image_residuals,
     image_table,
+    point_ellipsoids,
     point_table,
+    project_units,
+    rejections,
+    reliability_summary,
     residual_summaries,
 )
 
@@ -93,19 +102,110 @@ def _header(project: Project, result: Adjustment) -> list[str]:
 def _camera_section(project: Project, cid: str, camera: ParameterTable) -> list[str]:
     spec = project.spec.cameras[cid]
     model = project.camera_rows[cid][0]
+    pixel_model = camera_units(project, cid) == PIXEL
     details = [f"model {model}"]
-    if spec.pixel_size is not None:
+    if spec.pixel_size is not None and not pixel_model:
         details.append(f"pixel size {spec.pixel_size[0]:g} x {spec.pixel_size[1]:g} mm")
     if spec.sensor is not None:
         details.append(f"sensor {spec.sensor[0]} x {spec.sensor[1]} px")
+    details.append("pixel units" if pixel_model else "mm based units")
     rows = [
         [name, scientific(camera.values[0, k], 9), scientific(camera.stds[0, k], 3),
          camera.status[0][k]]
         for k, name in enumerate(camera.names)
     ]
     return [
-        f"Camera {cid} ({', '.join(details)}; mm based units)",
+        f"Camera {cid} ({', '.join(details)})",
         *table(["parameter", "value", "std", "status"], rows, "lrrl"),
+    ]
+
+
+def _correlation_section(cid: str, names: list[str], matrix: np.ndarray) -> list[str]:
+    """Lower triangle of the correlation matrix of the estimated IOPs, two decimals."""
+    if not names:
+        return [f"IOP correlations of camera {cid}: no estimated parameters"]
+    rows = [
+        [name, *(f"{matrix[i, j]:.2f}" for j in range(i + 1)), *([""] * (len(names) - i - 1))]
+        for i, name in enumerate(names)
+    ]
+    return [
+        f"IOP correlations of camera {cid} (estimated parameters; |rho| near 1: hard to separate)",
+        *table(["", *names], rows, "l" + "r" * len(names)),
+    ]
+
+
+def _variance_component_section(result: Adjustment) -> list[str]:
+    components = result.variance_components
+    rows = [
+        [name, str(c.n_observations), f"{c.redundancy:.2f}", f"{c.sigma0:.4f}",
+         f"{c.sigma0**2:.4f}"]
+        for name, c in components.items()
+    ]
+    return [
+        f"Variance components ({result.variance_iterations} iterations; sigma0 of a group ="
+        " its estimated sigma / a priori sigma, 1 = prior right)",
+        *table(["group", "n", "redundancy", "sigma0", "sigma0^2"], rows, "lrrrr"),
+    ]
+
+
+def _rejection_section(project: Project, result: Adjustment) -> list[str]:
+    found = rejections(project, result)
+    settings = project.spec.settings
+    alpha = f"alpha {settings.snooping_alpha:g}"
+    if getattr(settings, "snooping_familywise", False):
+        alpha += " family-wise"
+    if not found:
+        return [f"Data snooping ({alpha}): no observation rejected"]
+    rows = [
+        [str(k + 1), entry["group"],
+         describe({key: value for key, value in entry.items() if key not in ("group", "w")}),
+         f"{entry['w']:.2f}"]
+        for k, entry in enumerate(found)
+    ]
+    return [
+        f"Data snooping ({alpha}): {len(found)} observation(s) rejected, in order of"
+        " removal (|w| when rejected; an image point is removed whole)",
+        *table(["#", "group", "observation", "|w|"], rows, "rllr"),
+    ]
+
+
+def _reliability_section(project: Project, result: Adjustment) -> list[str]:
+    summary = reliability_summary(project, result)
+    if summary is None:
+        return []
+    rows = [
+        [name, str(g["n"]), f"{g['redundancy_sum']:.2f}", _optional(g["min_redundancy"], 3),
+         _optional(g["mean_redundancy"], 3), _optional(g["max_abs_w"], 2), str(g["n_outliers"])]
+        for name, g in summary.groups.items()
+    ]
+    rows.append([
+        "all", str(summary.n), f"{summary.redundancy_sum:.2f}",
+        _optional(summary.min_redundancy, 3), _optional(summary.mean_redundancy, 3),
+        _optional(summary.max_abs_w, 2), str(summary.n_outliers),
+    ])
+    header = ["group", "n", "sum_r", "min_r", "mean_r", "max_|w|", "|w|>crit"]
+    lines = [
+        f"Reliability (redundancy numbers r in [0, 1] sum to the redundancy; normalised"
+        f" residuals w, critical |w| {summary.critical_value:.2f} at per-test alpha"
+        f" {summary.alpha:.3g})",
+        *table(header, rows, "lrrrrrr"),
+    ]
+    if summary.max_abs_w_at:
+        lines.append(f"  largest |w| {summary.max_abs_w:.2f}: {summary.max_abs_w_at}")
+    return lines
+
+
+def _ellipsoid_section(project: Project, result: Adjustment) -> list[str]:
+    axes, _, has = point_ellipsoids(project, result)
+    decimals = decimals_for(axes[has], low=4)
+    rows = [
+        [pid, *(fixed(a, decimals) for a in axes[k])]
+        for k, pid in enumerate(project.point_ids) if has[k]
+    ]
+    return [
+        "Error ellipsoids of object points (1 sigma semi-axes, largest first, object units;"
+        " points with free coordinates)",
+        *table(["point", "a1", "a2", "a3"], rows, "lrrr"),
     ]
 
 
@@ -144,19 +244,23 @@ def _point_section(points: ParameterTable) -> list[str]:
 
 def _residual_summary_section(project: Project, result: Adjustment) -> list[str]:
     summaries = residual_summaries(image_residuals(project, result))
+    in_pixels = project_units(project) == PIXEL
     rows = []
     for name, summary in [*summaries["cameras"].items(), ("all", summaries["all"])]:
-        rows.append([
-            name, str(summary["n"]),
-            fixed(summary["rms_x_mm"], _MM_DECIMALS), fixed(summary["rms_y_mm"], _MM_DECIMALS),
-            _optional(summary["rms_x_px"]), _optional(summary["rms_y_px"]),
-        ])
-    header = ["camera", "n", "rms_vx_mm", "rms_vy_mm", "rms_vx_px", "rms_vy_px"]
+        mm = [] if in_pixels else [
+            _optional(summary[key], _MM_DECIMALS) for key in ("rms_x_mm", "rms_y_mm")
+        ]
+        px = [_optional(summary["rms_x_px"]), _optional(summary["rms_y_px"])]
+        rows.append([name, str(summary["n"]), *mm, *px])
+    header = ["camera", "n", *([] if in_pixels else ["rms_vx_mm", "rms_vy_mm"])]
+    header += ["rms_vx_px", "rms_vy_px"]
+    removed = summaries["all"]["n_removed"]
+    note = f"; {removed} rejected by data snooping left out" if removed else ""
     groups = group_summaries(project, result)
     group_rows = [[name, str(g["n"]), f"{g['vtpv']:.4f}"] for name, g in groups.items()]
     return [
-        "Image residuals (RMS of v = observed - computed; details in the .res file)",
-        *table(header, rows, "lrrrrr"),
+        f"Image residuals (RMS of v = observed - computed{note}; details in the .res file)",
+        *table(header, rows, "l" + "r" * (len(header) - 1)),
         "",
         "Observation groups (vTPv with P = sigma0^2 inv(Sigma); the parts add up to"
         " sigma0^2 * redundancy)",
@@ -176,11 +280,21 @@ def out_text(project: Project, result: Adjustment) -> str:
     w weighted.
     """
     lines = _header(project, result)
+    correlations = camera_correlations(project, result)
     for cid, camera in camera_tables(project, result).items():
         lines += ["", *_camera_section(project, cid, camera)]
+        lines += ["", *_correlation_section(cid, *correlations[cid])]
     lines += ["", *_residual_summary_section(project, result)]
+    if result.variance_components is not None:
+        lines += ["", *_variance_component_section(result)]
+    if project.spec.settings.data_snooping or result.rejections:
+        lines += ["", *_rejection_section(project, result)]
+    reliability = _reliability_section(project, result)
+    if reliability:
+        lines += ["", *reliability]
     lines += ["", *_image_section(project, image_table(project, result))]
     lines += ["", *_point_section(point_table(project, result))]
+    lines += ["", *_ellipsoid_section(project, result)]
     lines += ["", "status per coordinate: - free, 0 fixed, w weighted (observed with a prior σ)"]
     return "\n".join(lines) + "\n"
 
@@ -188,47 +302,79 @@ def out_text(project: Project, result: Adjustment) -> str:
 # --- NAME.res -------------------------------------------------------------------------------
 
 
-def _rms_comment(label: str, v: np.ndarray, v_px: np.ndarray) -> str:
-    rms_mm = np.sqrt(np.mean(v**2, axis=0)) if len(v) else np.full(2, math.nan)
-    text = f"# RMS {label}  n {len(v)}  vx {fixed(rms_mm[0], _MM_DECIMALS)}"
-    text += f"  vy {fixed(rms_mm[1], _MM_DECIMALS)} mm"
+def _rms_comment(label: str, residuals: ImageResiduals, selected: np.ndarray) -> str:
+    used = selected & ~residuals.removed
+    v, v_px = residuals.v[used], residuals.v_px[used]
+    units = set(np.asarray(residuals.units, dtype=object)[used])
+    text = f"# RMS {label}  n {len(v)}"
+    if units == {MM}:
+        rms_mm = np.sqrt(np.mean(v**2, axis=0))
+        text += f"  vx {fixed(rms_mm[0], _MM_DECIMALS)}  vy {fixed(rms_mm[1], _MM_DECIMALS)} mm"
     if len(v_px) and np.all(np.isfinite(v_px)):
         rms_px = np.sqrt(np.mean(v_px**2, axis=0))
         text += f"  vx {fixed(rms_px[0], _PX_DECIMALS)}  vy {fixed(rms_px[1], _PX_DECIMALS)} px"
-    return text
+    removed = int(np.count_nonzero(selected & residuals.removed))
+    return text + (f"  ({removed} rejected, not counted)" if removed else "")
 
 
 def res_text(project: Project, result: Adjustment) -> str:
     """NAME.res: one line per measured image point, then RMS per image and overall.
 
-    Columns: image_id point_id x y vx vy (mm) vx_px vy_px (v / pixel size, same axes as x, y;
-    `-` for a camera without a pixel size). v = observed - computed.
+    Columns: image_id point_id x y vx vy, in mm (or in pixels when every camera model works in
+    pixels, e.g. "opencv"; the vx_px vy_px columns are then left out), vx_px vy_px (v / pixel
+    size, same axes as x, y; `-` for a camera without a pixel size), rx ry (redundancy
+    numbers), wx wy (normalised residuals), outlier (1: rejected by data snooping or |w| above
+    the critical value). v = observed - computed; `-` where a statistic is not available.
     """
     residuals = image_residuals(project, result)
-    rows = _residual_rows(residuals)
-    header = ["image_id", "point_id", "x", "y", "vx", "vy", "vx_px", "vy_px"]
+    units = project_units(project)
+    in_pixels = units == PIXEL
+    rows = _residual_rows(residuals, with_px=not in_pixels)
+    header = ["image_id", "point_id", "x", "y", "vx", "vy"]
+    header += [] if in_pixels else ["vx_px", "vy_px"]
+    header += ["rx", "ry", "wx", "wy", "outlier"]
+    if in_pixels:
+        unit_line = "x y vx vy in pixels (col, row: row down)"
+    elif units == MM:
+        unit_line = "x y vx vy in mm, vx_px vy_px in pixels (x right, y up)"
+    else:
+        unit_line = (
+            "x y vx vy in mm (x right, y up), or pixels (col, row) for cameras "
+            + ", ".join(cid for cid in project.camera_rows if camera_units(project, cid) == PIXEL)
+            + "; vx_px vy_px in pixels"
+        )
+    reliability = result.reliability
+    test = (
+        f"critical |w| {reliability.critical_value:.2f} at per-test alpha {reliability.alpha:.3g}"
+        if reliability is not None else "no reliability computed"
+    )
     lines = [
         f"# jaxba image residuals: {project.spec.name}",
-        "# v = observed - computed; x y vx vy in mm, vx_px vy_px in pixels (x right, y up)",
-        *table(header, rows, "llrrrrrr", prefix="# "),
+        f"# v = observed - computed; {unit_line}",
+        f"# r redundancy numbers, w normalised residuals ({test}); outlier 1: rejected by data"
+        " snooping (its v at the final solution, which did not use it) or |w| > critical",
+        *table(header, rows, "ll" + "r" * (len(header) - 2), prefix="# "),
         "#",
     ]
     images = np.asarray(residuals.image_ids, dtype=object)
     for iid in dict.fromkeys(residuals.image_ids):
-        selected = images == iid
-        lines.append(_rms_comment(f"image {iid}", residuals.v[selected], residuals.v_px[selected]))
-    lines.append(_rms_comment("all", residuals.v, residuals.v_px))
+        lines.append(_rms_comment(f"image {iid}", residuals, images == iid))
+    lines.append(_rms_comment("all", residuals, np.ones(len(images), dtype=bool)))
     return "\n".join(lines) + "\n"
 
 
-def _residual_rows(residuals: ImageResiduals) -> list[list[str]]:
+def _residual_rows(residuals: ImageResiduals, *, with_px: bool = True) -> list[list[str]]:
     rows = []
     for k, (iid, pid) in enumerate(zip(residuals.image_ids, residuals.point_ids)):
+        decimals = _MM_DECIMALS if residuals.units[k] == MM else _PX_DECIMALS + 1
         rows.append([
             iid, pid,
-            *(fixed(value, _MM_DECIMALS) for value in residuals.xy[k]),
-            *(fixed(value, _MM_DECIMALS) for value in residuals.v[k]),
-            *(_optional(value) for value in residuals.v_px[k]),
+            *(fixed(value, decimals) for value in residuals.xy[k]),
+            *(fixed(value, decimals) for value in residuals.v[k]),
+            *((_optional(value) for value in residuals.v_px[k]) if with_px else ()),
+            *(_optional(value, 3) for value in residuals.redundancy[k]),
+            *(_optional(value, 2) for value in residuals.w[k]),
+            "1" if residuals.outlier[k] else "0",
         ])
     return rows
 
