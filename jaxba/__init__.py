@@ -6,6 +6,14 @@ from ._bal import (
     read_bal as read_bal,
     run_bal as run_bal,
 )
+from ._batch import (
+    PaddedBatch as PaddedBatch,
+    adjust_batch as adjust_batch,
+    check_datum_batch as check_datum_batch,
+    pad_problems as pad_problems,
+    solve_batch as solve_batch,
+)
+from ._batch_run import run_batch as run_batch
 from ._camera import (
     CAMERA_MODELS as CAMERA_MODELS,
     AbstractCamera as AbstractCamera,
@@ -24,6 +32,12 @@ from ._camera import (
     SmacCamera as SmacCamera,
 )
 from ._datum import DatumError as DatumError, check_datum as check_datum
+from ._differentiable import (
+    adjusted as adjusted,
+    covariance as covariance,
+    iop_trace_gradient as iop_trace_gradient,
+    sensitivity as sensitivity,
+)
 from ._free_network import (
     InnerConstraints as InnerConstraints,
     inner_constraints as inner_constraints,
@@ -36,6 +50,11 @@ from ._io import (
     write_opencv_yaml as write_opencv_yaml,
     write_project_camera_yaml as write_project_camera_yaml,
     write_zhang_project as write_zhang_project,
+)
+from ._montecarlo import (
+    Replicates as Replicates,
+    bootstrap as bootstrap,
+    monte_carlo as monte_carlo,
 )
 from ._observations import (
     AbstractObservationGroup as AbstractObservationGroup,

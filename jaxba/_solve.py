@@ -106,16 +106,21 @@ def solve(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    progress: bool = True,
+    linear_solver: lx.AbstractLinearSolver | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
 
-    Pure and jitted (dense Jacobian, QR): no datum check, no statistics, so it can be
-    `jax.vmap`ped over problems of one structure (Monte Carlo, batches).
+    Pure and jitted (dense Jacobian, QR by default): no datum check, no statistics, so it
+    can be `jax.vmap`ped over problems of one structure (Monte Carlo, batches).
     `free_index` = `free_indices(problem)`, the free positions in `flatten` order.
+    `progress=False` leaves out the per-step host callback: jax then caches the compiled
+    solve persistently, and under vmap the callback is not unrolled per batch element.
     """
     scale = _column_scale(problem, free_index)
     solver = optx.LevenbergMarquardt(
-        rtol=rtol, atol=atol, linear_solver=lx.QR(), verbose=report_step
+        rtol=rtol, atol=atol, linear_solver=linear_solver or lx.QR(),
+        verbose=report_step if progress else False,
     )
     solution = optx.least_squares(
         _residual_fn, solver, jnp.zeros_like(scale), args=(problem, free_index, scale),

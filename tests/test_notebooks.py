@@ -10,7 +10,8 @@ NOTEBOOKS = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
 TIMEOUT_S = 600  # per cell
 
 
-PLOTTING = {"01_calibrate_lab.ipynb", "02_statistics.ipynb"}
+PLOTTING = {"01_calibrate_lab.ipynb", "02_statistics.ipynb", "03_batch.ipynb",
+            "04_differentiable.ipynb"}
 
 
 @pytest.mark.parametrize("name", [
@@ -18,6 +19,8 @@ PLOTTING = {"01_calibrate_lab.ipynb", "02_statistics.ipynb"}
     "02_statistics.ipynb",
     "05_zhang_vs_opencv.ipynb",
     pytest.param("06_dbat_camcal.ipynb", marks=pytest.mark.slow),  # ~2 min: 4148 observations
+    pytest.param("03_batch.ipynb", marks=pytest.mark.slow),  # ~1 min: 8 projects, one batch
+    pytest.param("04_differentiable.ipynb", marks=pytest.mark.slow),  # ~1.5 min: gradients
 ])
 def test_notebook_runs(name):
     notebook = nbformat.read(NOTEBOOKS / name, as_version=4)

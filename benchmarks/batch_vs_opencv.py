@@ -1,0 +1,137 @@
+"""Calibrations per second: jaxba's batched (vmapped) solve against cv2.calibrateCamera.
+
+N replicates of Zhang's calibration (5 images x 256 corners of a planar target, one "opencv"
+camera; configs/zhang): the image points are recomputed from the adjusted solution of the real
+data (the "truth"), the truth's fx, fy, cx, cy varied by N(0, 5 px) per replicate and Gaussian
+noise of `--noise` px added. jaxba solves all N in chunks of `--chunk` with one compiled,
+vmapped Levenberg-Marquardt (`jaxba._batch.solve_batch`) from the project's approximations
+(Zhang's closed form, rounded intrinsics); OpenCV calibrates each replicate in a loop from its
+own initialisation (CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST: fx, fy, cx, cy, k1, k2 and the
+poses; jaxba also estimates the skew). Both in the same process, one after the other.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/batch_vs_opencv.py [--n 1000] [--chunk 250]
+"""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import pathlib  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import jaxba  # noqa: E402
+from jaxba._batch import solve_batch  # noqa: E402
+from jaxba._observations import collinearity_residual  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def replicates(n: int, noise_px: float, seed: int):
+    """The zhang problem, its truth, and per replicate the noisy image points (n, 1280, 2)
+    and the true intrinsics."""
+    project = jaxba.build_project(jaxba.read_project(ROOT / "configs/zhang/zhang.toml"))
+    problem = project.problem
+    truth = jaxba.adjust(problem, check=False).parameters
+    group = problem.groups[0]
+    rng = np.random.default_rng(seed)
+    iops = np.repeat(np.asarray(truth.cameras["opencv"])[None], n, axis=0)
+    iops[:, 0, :4] += rng.normal(0.0, 5.0, (n, 4))
+
+    def computed(iop):
+        def one(eop, point):
+            return collinearity_residual("opencv", iop, eop, point, jnp.zeros(2), jnp.ones(2),
+                                         problem.refraction)
+        # residual with measured 0 and σ 1 is -computed
+        return -jax.vmap(one)(truth.images[group.image], truth.points[group.point])
+
+    ideal = np.asarray(jax.jit(jax.vmap(computed))(jnp.asarray(iops[:, 0])))
+    measured = ideal + rng.normal(0.0, noise_px, ideal.shape)
+    return project, problem, truth, measured, iops[:, 0]
+
+
+def run_jaxba(problem, measured, chunk: int):
+    index = jnp.asarray(jaxba.free_indices(problem))
+
+    def stack(block):
+        problems = jax.vmap(lambda m: eqx.tree_at(lambda p: p.groups[0].measured, problem, m))(
+            jnp.asarray(block))
+        return problems, jnp.broadcast_to(index, (block.shape[0], index.size))
+
+    start = time.perf_counter()
+    first = jax.block_until_ready(solve_batch(*stack(measured[:chunk]), max_steps=100))
+    first_seconds = time.perf_counter() - start
+    start = time.perf_counter()
+    solutions = []
+    for k in range(0, measured.shape[0], chunk):
+        solutions.append(jax.block_until_ready(
+            solve_batch(*stack(measured[k:k + chunk]), max_steps=100)))
+    seconds = time.perf_counter() - start
+    del first
+    iops = np.concatenate([np.asarray(s.parameters.cameras["opencv"][:, 0]) for s in solutions])
+    converged = np.concatenate([np.asarray(s.converged) for s in solutions])
+    steps = np.concatenate([np.asarray(s.steps) for s in solutions])
+    # Compile = first call minus one chunk's share of the steady-state time.
+    compile_seconds = first_seconds - seconds * chunk / measured.shape[0]
+    return iops, converged, steps, seconds, compile_seconds
+
+
+def run_opencv(problem, measured):
+    group = problem.groups[0]
+    image_rows = np.asarray(group.image)
+    object_points = np.asarray(problem.initial.points)[np.asarray(group.point)]
+    n_images = int(image_rows.max()) + 1
+    objects = [object_points[image_rows == i].astype(np.float32) for i in range(n_images)]
+    flags = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
+    out = []
+    start = time.perf_counter()
+    for replicate in measured:
+        images = [replicate[image_rows == i].astype(np.float32).reshape(-1, 1, 2)
+                  for i in range(n_images)]
+        rms, k, dist, _, _ = cv2.calibrateCamera(objects, images, (640, 480), None, None,
+                                                 flags=flags)
+        out.append([k[0, 0], k[1, 1], k[0, 2], k[1, 2], dist.ravel()[0], dist.ravel()[1], rms])
+    return np.array(out), time.perf_counter() - start
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=1000)
+    parser.add_argument("--chunk", type=int, default=250)
+    parser.add_argument("--noise", type=float, default=0.5, help="image noise σ, px")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    project, problem, truth, measured, true_iops = replicates(args.n, args.noise, args.seed)
+    iops, converged, steps, seconds, compile_seconds = run_jaxba(problem, measured, args.chunk)
+    cv, cv_seconds = run_opencv(problem, measured)
+    names = jaxba.OpenCVCamera.parameter_names
+    print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f};"
+          f" jax {jax.__version__}, OpenCV {cv2.__version__}")
+    print(f"{args.n} Zhang-size calibrations (5 images x 256 points), noise {args.noise} px")
+    print("| solver | calibrations/s | ms per calibration | compile s | converged |")
+    print("|---|---|---|---|---|")
+    print(f"| jaxba solve_batch (chunks of {args.chunk}) | {args.n / seconds:.1f} |"
+          f" {1e3 * seconds / args.n:.2f} | {compile_seconds:.1f} |"
+          f" {int(converged.sum())}/{args.n} (steps median {int(np.median(steps))}) |")
+    print(f"| cv2.calibrateCamera loop, 1 thread | {args.n / cv_seconds:.1f} |"
+          f" {1e3 * cv_seconds / args.n:.2f} | - | - |")
+    print(f"throughput ratio jaxba / OpenCV: {cv_seconds / seconds:.2f}")
+    for j, name in enumerate(("fx", "fy", "cx", "cy", "k1", "k2")):
+        k = names.index(name)
+        true = true_iops[:, k] if k < 4 else np.asarray(truth.cameras["opencv"][0, k])
+        err_j, err_cv = iops[:, k] - true, cv[:, j] - true
+        print(f"  {name}: rms error jaxba {np.sqrt(np.mean(err_j**2)):.4g},"
+              f" OpenCV {np.sqrt(np.mean(err_cv**2)):.4g}")
+
+
+if __name__ == "__main__":
+    main()

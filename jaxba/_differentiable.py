@@ -1,0 +1,164 @@
+"""The adjusted bundle as a differentiable function of its data.
+
+`adjusted(problem)` returns the least-squares solution x̂(θ) of a BundleProblem as a jax
+function of every array in the problem θ: image measurements, control coordinates, prior
+values, σ. Derivatives come from the implicit function theorem at the optimum,
+g(x̂, θ) = ∇ₓ ½‖e(x, θ)‖² = 0  ⇒  dx̂/dθ = -H⁻¹ ∂g/∂θ,  H = ∂g/∂x (the full Hessian, not
+only JᵀJ), which `optx.least_squares` does with `adjoint=optx.ImplicitAdjoint()`: no
+differentiation through the iterations. The linear solver of the adjoint is dense QR on the
+(n_free, n_free) Hessian of the Jacobi-scaled unknowns: fine at calibration sizes (a few
+hundred unknowns); a block needs a Schur or CG solver there instead (lineax `CG` on a
+positive-definite tagged operator), which this module does not yet provide.
+
+The Jacobi column scale of the solver is held constant (`stop_gradient`): the optimum does
+not depend on it, so its derivative would only cancel.
+
+Only gauge-invariant outputs are meaningful: with a datum defect the solution is not a
+function of θ. With a fixed datum (control, fixed coordinates) all unknowns are.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float, Int
+
+from ._camera import CAMERA_MODELS
+from ._parameters import Parameters, flatten, unflatten
+from ._problem import BundleProblem, free_indices, params_from_free
+from ._solve import _column_scale, _params, _residual_fn
+
+
+@eqx.filter_jit
+def adjusted(
+    problem: BundleProblem,
+    free_index: Int[Array, " n_free"],
+    *,
+    max_steps: int = 100,
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+) -> Parameters:
+    """The adjusted Parameters x̂(θ), differentiable w.r.t. every array of `problem`.
+
+    Levenberg-Marquardt (dense QR) as in `solve`, with an implicit adjoint (dense QR on
+    the Hessian of the scaled unknowns). Tolerances default tighter than `solve`'s, since
+    a derivative is only as good as the optimality of x̂. `free_index` =
+    `free_indices(problem)` (a static structure, passed as an array so it can vmap).
+    """
+    scale = jax.lax.stop_gradient(_column_scale(problem, free_index))
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.QR())
+    solution = optx.least_squares(
+        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, free_index, scale),
+        has_aux=True, max_steps=max_steps, throw=False,
+        adjoint=optx.ImplicitAdjoint(linear_solver=lx.QR()),
+    )
+    return _params(solution.value, problem, free_index, scale)
+
+
+def covariance(
+    problem: BundleProblem,
+    params: Parameters,
+    free_index: Int[Array, " n_free"],
+    *,
+    sigma0: float | Float[Array, ""] = 1.0,
+) -> Float[Array, "n_free n_free"]:
+    """Predicted covariance σ0² (JᵀJ)⁻¹ of the free unknowns at `params`, as a jax function.
+
+    J is the whitened Jacobian at `params`: for network design, `params` holds the planned
+    (true) geometry and σ0 the a priori variance factor; for a posteriori precision pass
+    σ̂0. Differentiable w.r.t. `params` (second derivatives of the model) and the σ in
+    `problem`. Dense Cholesky on the column-equilibrated normal matrix.
+    """
+    at = eqx.tree_at(lambda p: p.initial, problem, params)
+
+    def whitened(x_free):
+        values = params_from_free(at, x_free, free_index)
+        return jnp.concatenate([jnp.ravel(e) for e in problem.whitened(values)])
+
+    x_free = ravel_pytree(params)[0][free_index]
+    jacobian = jax.jacfwd(whitened)(x_free)
+    column_scale = 1.0 / jnp.linalg.norm(jacobian, axis=0)
+    scaled = jacobian * column_scale
+    factor = jax.scipy.linalg.cho_factor(scaled.T @ scaled)
+    inverse = jax.scipy.linalg.cho_solve(factor, jnp.eye(x_free.shape[0]))
+    return sigma0**2 * column_scale[:, None] * inverse * column_scale[None, :]
+
+
+def camera_positions(problem: BundleProblem, model: str, row: int = 0):
+    """Positions within the free vector (`free_indices` order) of the free IOPs of camera
+    `row` of `model`, and their parameter names."""
+    index = free_indices(problem)
+    marker = jax.tree.map(lambda leaf: np.zeros(np.shape(leaf)), problem.initial)
+    camera = np.zeros(np.shape(problem.initial.cameras[model]))
+    camera[row] = 1 + np.arange(camera.shape[1])
+    marker = unflatten(problem.initial, flatten(eqx.tree_at(
+        lambda p: p.cameras[model], marker, camera)))
+    flat = flatten(marker)[index]
+    positions = np.flatnonzero(flat > 0)
+    names = [CAMERA_MODELS[model].parameter_names[int(flat[p]) - 1] for p in positions]
+    return positions, names
+
+
+def sensitivity(
+    problem: BundleProblem,
+    *,
+    group: int = 0,
+    model: str | None = None,
+    row: int = 0,
+    **solver_options,
+) -> tuple[Float[Array, "n_iop n_obs 2"], list[str]]:
+    """d(adjusted IOPs)/d(image coordinates) of the ImagePoints group `group`.
+
+    Returns (S, names): S[i, k, j] = ∂ IOP_i / ∂ measured[k, j] for the free IOPs of camera
+    `row` of `model` (default: the group's model), units IOP unit per image unit. External
+    reliability: a blunder ∇ in observation (k, j) moves IOP i by S[i, k, j] ∇ (to first
+    order); S ∇ with ∇ the MDB gives the IOPs' external reliability. One reverse pass per
+    IOP through the implicit adjoint (jax.jacrev).
+    """
+    model = model if model is not None else problem.groups[group].model
+    index = jnp.asarray(free_indices(problem))
+
+    def iops(measured):
+        moved = eqx.tree_at(lambda p: p.groups[group].measured, problem, measured)
+        return adjusted(moved, index, **solver_options).cameras[model][row]
+
+    _, names = camera_positions(problem, model, row)
+    keep = jnp.asarray([CAMERA_MODELS[model].parameter_names.index(n) for n in names])
+    return jax.jacrev(iops)(problem.groups[group].measured)[keep], names
+
+
+def iop_trace_gradient(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    model: str | None = None,
+    row: int = 0,
+    sigma0: float = 1.0,
+    weights: Float[Array, " n_iop"] | None = None,
+) -> tuple[Float[Array, ""], Float[Array, "n_images 3"]]:
+    """Network design: trace(W C_IOP) and its gradient w.r.t. the camera-station positions.
+
+    C_IOP is the block of `covariance(problem, params)` of the free IOPs of camera `row`
+    (the planned geometry `params`, a priori σ0); `weights` (one per free IOP, default 1)
+    weigh it, e.g. 1/c² for relative precision. The gradient (n_images, 3) says how to
+    move every station X0, Y0, Z0 to make the IOPs more precise (descent: minus it).
+    """
+    model = model if model is not None else sorted(problem.initial.cameras)[0]
+    index = jnp.asarray(free_indices(problem))
+    positions, _ = camera_positions(problem, model, row)
+    positions = jnp.asarray(positions)
+    w = jnp.ones(positions.shape[0]) if weights is None else jnp.asarray(weights)
+
+    def objective(stations):
+        images = params.images.at[:, :3].set(stations)
+        moved = eqx.tree_at(lambda p: p.images, params, images)
+        c = covariance(problem, moved, index, sigma0=sigma0)
+        return jnp.sum(w * jnp.diag(c)[positions])
+
+    return jax.value_and_grad(objective)(params.images[:, :3])
+
+
+__all__ = ["adjusted", "camera_positions", "covariance", "iop_trace_gradient", "sensitivity"]

@@ -1,0 +1,123 @@
+"""Batch adjustment: padded, vmapped solves equal single adjustments; `jaxba batch` with
+failing projects; Monte Carlo and bootstrap replicates against the formal precision."""
+
+import json
+import math
+
+import jax
+import numpy as np
+import pytest
+
+import jaxba
+from jaxba._batch import adjust_batch, pad_problems
+from jaxba._batch_run import run_batch
+from jaxba._cli import main
+from jaxba._montecarlo import bootstrap, monte_carlo
+
+BATCH_RTOL = 1e-8  # issue 6: each batch result equals the single adjustment to 1e-8 relative
+SIZES = ((6, 20), (8, 26), (7, 30))  # (images, targets): three shapes padded to one
+MC_STD_RTOL = 0.45  # empirical σ from 40 replicates: ±11 % (1σ) sampling error, 4σ
+
+
+def _flat_close(a, b, rtol):
+    a, b = jaxba.flatten(a), jaxba.flatten(b)
+    scale = np.maximum(np.abs(b), 1e-12)
+    return float(np.max(np.abs(a - b) / scale)) <= rtol
+
+
+@pytest.fixture(scope="module")
+def projects(tmp_path_factory):
+    root = tmp_path_factory.mktemp("batch")
+    paths = []
+    for k, (n_images, n_targets) in enumerate(SIZES):
+        truth = jaxba.write_synthetic_project(
+            root / f"p{k}", name=f"p{k}", seed=40 + k, n_images=n_images, n_targets=n_targets
+        )
+        paths.append(truth.project_file)
+    built = [jaxba.build_project(jaxba.read_project(p)) for p in paths]
+    return root, paths, built
+
+
+@pytest.fixture(scope="module")
+def batch_and_single(projects):
+    _, _, built = projects
+    settings = built[0].spec.settings
+    batch = adjust_batch(
+        [p.problem for p in built], sigma0=settings.sigma0, max_steps=settings.max_iterations,
+        rtol=settings.rtol, atol=settings.atol, alpha=settings.snooping_alpha,
+        familywise=settings.snooping_familywise,
+    )
+    single = [jaxba.adjust_project(p) for p in built]
+    return batch, single
+
+
+def test_padding_keeps_structure(projects):
+    _, _, built = projects
+    batch = pad_problems([p.problem for p in built])
+    assert batch.problem.initial.points.shape[:2] == (3, max(t for _, t in SIZES) + 1)
+    assert list(batch.n_free) == [p.problem.n_unknowns() for p in built]
+    assert list(batch.n_observations) == [p.problem.n_observations() for p in built]
+
+
+@pytest.mark.slow  # three single adjustments: one compilation each
+def test_batch_equals_single_adjustment(batch_and_single):
+    batch, single = batch_and_single
+    for b, s in zip(batch, single):
+        assert b.converged and s.converged
+        assert _flat_close(b.parameters, s.parameters, BATCH_RTOL)
+        assert _flat_close(b.precision.std, s.precision.std, BATCH_RTOL)
+        assert b.precision.redundancy == s.precision.redundancy
+        assert b.sigma0 == pytest.approx(s.sigma0, rel=BATCH_RTOL)
+        covariance = s.precision.covariance
+        np.testing.assert_allclose(b.precision.covariance, covariance, rtol=1e-6,
+                                   atol=BATCH_RTOL * np.abs(covariance).max())
+        for rb, rs in zip(b.reliability.redundancy_numbers, s.reliability.redundancy_numbers):
+            np.testing.assert_allclose(rb, rs, rtol=0, atol=BATCH_RTOL)
+        for vb, vs in zip(b.residuals, s.residuals):
+            np.testing.assert_allclose(vb, vs, rtol=0, atol=BATCH_RTOL * np.abs(vs).max())
+
+
+def test_run_batch_reports_and_failures(projects, tmp_path):
+    root, paths, _ = projects
+    broken = root / "broken.toml"
+    broken.write_text("[project\nname = 'x'\n")
+    defect = jaxba.write_synthetic_project(root / "free", name="free", seed=3, n_images=6,
+                                           n_targets=20, datum="none", n_distances=0)
+    out = tmp_path / "out"
+    lines = []
+    rows = run_batch([*paths, broken, defect.project_file], out, progress=lines.append)
+    assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed", "failed"]
+    assert "datum" in rows[4]["reason"] and "broken.toml" in rows[3]["reason"]
+    for k in range(3):
+        assert (out / f"p{k}" / "results.json").exists() and (out / f"p{k}" / f"p{k}.out").exists()
+        assert rows[k]["C1.c.std"] > 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert [r["name"] for r in summary[:3]] == ["p0", "p1", "p2"]
+    header = (out / "summary.csv").read_text().splitlines()[0].split(",")
+    assert {"name", "status", "converged", "sigma0", "C1.c", "C1.c.std"} <= set(header)
+    assert any(line.startswith("[3/4]") or line.startswith("[4/4]") for line in lines)
+
+
+@pytest.mark.slow
+def test_cli_batch_exit_code(projects, tmp_path, capsys):
+    _, paths, _ = projects
+    assert main(["batch", *map(str, paths[:2]), "--out", str(tmp_path / "cli")]) == 0
+    assert "2 of 2 projects converged" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_monte_carlo_and_bootstrap_against_formal(projects):
+    _, _, built = projects
+    problem = built[1].problem
+    formal = jaxba.adjust(problem, check=False)
+    index = jaxba.free_indices(problem)
+    formal_std = jaxba.flatten(formal.precision.std)[index]
+    for replicates in (monte_carlo(problem, 40, jax.random.key(0)),
+                       bootstrap(problem, 40, jax.random.key(1))):
+        assert bool(np.all(replicates.solutions.converged))
+        empirical = jaxba.flatten(replicates.std)[index]
+        ratio = empirical / formal_std
+        # Monte Carlo noise has σ; σ̂0 of this sample is ≈ 1, so formal ≈ empirical.
+        assert np.median(ratio) == pytest.approx(1.0, rel=0.15)
+        assert np.all(np.abs(ratio - 1) < MC_STD_RTOL), ratio
+    assert math.isfinite(formal.sigma0)
