@@ -27,16 +27,15 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
-import scipy.stats
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
-from ._datum import DatumError, describe_defect, null_space
+from ._datum import DatumError, check_datum_with_jacobian
 from ._observations import AbstractObservationGroup
-from ._parameters import Parameters, flatten, parameter_labels, unflatten
+from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, observation_mask, params_from_free
 from ._progress import Iteration
-from ._reliability import Reliability, _split, per_test_alpha
+from ._reliability import reliability_from_redundancy
 from ._solve import Adjustment, Solution, solve
 from ._statistics import Precision
 
@@ -286,34 +285,12 @@ def check_datum_batch(
         padded = _take(batch.problem, k)
         real = jacobian[k][_real_rows(padded, problem)][:, : batch.n_free[k]]
         try:
-            _check_with_jacobian(problem, real, labels[k], rtol)
+            check_datum_with_jacobian(problem, real, labels=labels[k], rtol=rtol)
         except DatumError as error:
             found.append(error)
         else:
             found.append(None)
     return found
-
-
-def _check_with_jacobian(problem, jacobian, labels, rtol) -> None:
-    """The checks of `check_datum`, given the Jacobian at the approximations."""
-    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    if n_observations <= n_unknowns:
-        raise DatumError(
-            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
-            "(redundancy must be positive)"
-        )
-    labels = labels or parameter_labels(problem.initial)
-    index = free_indices(problem)
-    if not np.all(np.isfinite(jacobian)):
-        bad = sorted({labels[index[k]] for k in np.flatnonzero(~np.isfinite(jacobian).all(0))})
-        raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
-    unobserved = np.flatnonzero(np.linalg.norm(jacobian, axis=0) == 0)
-    if unobserved.size:
-        names = ", ".join(labels[index[k]] for k in unobserved[:8])
-        raise DatumError(f"datum defect: no observation depends on {names}")
-    basis = null_space(problem, rtol=rtol, jacobian=jacobian)
-    if basis is not None:
-        describe_defect(problem, basis, index, labels)
 
 
 def adjust_batch(
@@ -398,24 +375,9 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
     flat_e = np.concatenate([np.ravel(e) for e in whitened])
     mask = observation_mask(problem)
     r, e = 1.0 - leverage[mask], flat_e[mask]
-    return dataclasses.replace(result, reliability=_reliability(problem, r, e, alpha, familywise))
-
-
-def _reliability(problem, r, whitened, alpha, familywise, power: float = 0.8) -> Reliability:
-    """`reliability` from given redundancy numbers (same formulas, _reliability.py)."""
-    alpha = per_test_alpha(alpha, problem.n_observations(), familywise=familywise)
-    safe_r = np.where(r > 1e-12, r, np.nan)
-    critical = float(scipy.stats.norm.ppf(1 - alpha / 2))
-    delta0 = critical + float(scipy.stats.norm.ppf(power))
-    sigma = np.concatenate([np.ravel(np.asarray(g.stddev)) for g in problem.groups])
-    sigma = sigma[observation_mask(problem)]
-    return Reliability(
-        redundancy_numbers=_split(problem, r),
-        normalised_residuals=_split(problem, whitened / np.sqrt(safe_r)),
-        mdb=_split(problem, delta0 * sigma / np.sqrt(safe_r)),
-        alpha=alpha,
-        critical_value=critical,
-    )
+    return dataclasses.replace(result, reliability=reliability_from_redundancy(
+        problem, r, e, alpha=alpha, familywise=familywise
+    ))
 
 
 __all__ = [

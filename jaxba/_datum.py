@@ -128,6 +128,19 @@ def check_datum(
     translation, rotation, scale) or the unknowns that can change together without
     changing any observation.
     """
+    jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
+    check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
+
+
+def check_datum_with_jacobian(
+    problem: BundleProblem,
+    jacobian: np.ndarray,
+    *,
+    labels: list[str] | None = None,
+    rtol: float = 1e-9,
+) -> None:
+    """`check_datum`, given the whitened Jacobian (real observations x free unknowns) at
+    the approximations (e.g. from a batched computation)."""
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
     if n_observations <= n_unknowns:
         raise DatumError(
@@ -136,7 +149,6 @@ def check_datum(
         )
     labels = labels or parameter_labels(problem.initial)
     index = free_indices(problem)
-    jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
     if not np.all(np.isfinite(jacobian)):
         bad = sorted({labels[index[k]] for k in np.flatnonzero(~np.isfinite(jacobian).all(0))})
         raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")

@@ -75,9 +75,24 @@ def reliability(
     `alpha` is the significance of each w-test, or with `familywise=True` that of the
     whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
     """
-    problem = result.problem
+    r, whitened = redundancy_numbers(result.problem, result.parameters)
+    return reliability_from_redundancy(
+        result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
+    )
+
+
+def reliability_from_redundancy(
+    problem: BundleProblem,
+    r: np.ndarray,
+    whitened: np.ndarray,
+    *,
+    alpha: float = 0.001,
+    power: float = 0.8,
+    familywise: bool = False,
+) -> Reliability:
+    """`reliability` from the redundancy numbers r_i and whitened residuals e_i of the real
+    observations (flat, `observation_mask` order), e.g. from a batched computation."""
     alpha = per_test_alpha(alpha, problem.n_observations(), familywise=familywise)
-    r, whitened = redundancy_numbers(problem, result.parameters)
     safe_r = np.where(r > 1e-12, r, np.nan)
     critical = float(scipy.stats.norm.ppf(1 - alpha / 2))
     delta0 = critical + float(scipy.stats.norm.ppf(power))
