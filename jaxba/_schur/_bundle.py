@@ -456,6 +456,19 @@ def solve_bundle_damped(
     return x_r, x_e
 
 
+def _chunk_coupling(structure, normal, inverse, obs, local, points):
+    """Y (points of the chunk, n_r + 1, 3) = the coupling blocks W of the chunk's
+    observations summed per point (last column: padding), and T = Y V_λ⁻¹ per point."""
+    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
+    y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
+        normal.coupling[obs], mode="drop"
+    )
+    y = y.reshape(n_points, n_r + 1, 3)
+    t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+    return y, t
+
+
 def _schur_complement(
     structure: BundleStructure, normal: BundleNormalEquations, point_inverse: Array
 ) -> tuple[Float[Array, "n_r n_r"], Float[Array, " n_r"]]:
@@ -469,12 +482,7 @@ def _schur_complement(
     def accumulate(totals, chunk):
         product, rhs = totals
         obs, local, points = chunk
-        flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
-        y = jnp.zeros((n_points * (n_r + 1), 3), dtype).at[flat].add(
-            normal.coupling[obs], mode="drop"
-        )
-        y = y.reshape(n_points, n_r + 1, 3)
-        t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+        y, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
         y_flat = y.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
         t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
         product = product - t_flat @ y_flat.T
@@ -674,12 +682,7 @@ def _schur_cofactors(problem, structure, params, sigma0, redundancy):
 
     def chunk_cofactors(_, chunk):
         obs, local, points = chunk
-        flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
-        y = jnp.zeros((n_points * (n_r + 1), 3), dtype).at[flat].add(
-            normal.coupling[obs], mode="drop"
-        )
-        y = y.reshape(n_points, n_r + 1, 3)
-        t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+        _, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
         t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
         qt = (padded @ t_flat).reshape(n_r + 1, n_points, 3)
         return None, inverse[points] + jnp.einsum("pci,cpk->pik", t, qt)
