@@ -59,12 +59,12 @@ def replicates(n: int, noise_px: float, seed: int):
 
 
 def run_jaxba(problem, measured, chunk: int):
-    index = jnp.asarray(jaxba.free_indices(problem))
+    plan = jaxba.linearisation_plan(problem)
 
     def stack(block):
         problems = jax.vmap(lambda m: eqx.tree_at(lambda p: p.groups[0].measured, problem, m))(
             jnp.asarray(block))
-        return problems, jnp.broadcast_to(index, (block.shape[0], index.size))
+        return problems, jaxba.broadcast_plan(plan, block.shape[0])
 
     start = time.perf_counter()
     first = jax.block_until_ready(solve_batch(*stack(measured[:chunk]), max_steps=100))

@@ -9,6 +9,7 @@ from ._bal import (
 from ._batch import (
     PaddedBatch as PaddedBatch,
     adjust_batch as adjust_batch,
+    broadcast_plan as broadcast_plan,
     check_datum_batch as check_datum_batch,
     pad_problems as pad_problems,
     solve_batch as solve_batch,
@@ -50,6 +51,12 @@ from ._io import (
     write_opencv_yaml as write_opencv_yaml,
     write_project_camera_yaml as write_project_camera_yaml,
     write_zhang_project as write_zhang_project,
+)
+from ._levenberg_marquardt import NormalLevenbergMarquardt as NormalLevenbergMarquardt
+from ._linearisation import (
+    LinearisationPlan as LinearisationPlan,
+    linearisation_plan as linearisation_plan,
+    pad_plans as pad_plans,
 )
 from ._montecarlo import (
     Replicates as Replicates,

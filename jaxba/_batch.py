@@ -24,13 +24,13 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from ._datum import DatumError, check_datum_with_jacobian
+from ._linearisation import LinearisationPlan, linearisation_plan, pad_plans
 from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, observation_mask, params_from_free
@@ -45,13 +45,14 @@ class PaddedBatch:
     """Problems padded to one shape and stacked along a leading batch axis.
 
     - `problem`: a BundleProblem whose every array leaf has a leading axis of `n_batch`;
-    - `free_index`: (n_batch, n_free_max) free positions in `flatten` order, padded;
+    - `plan`: the stacked `LinearisationPlan`s of the padded problems; `plan.free_index`
+      (n_batch, n_free_max) the free positions in `flatten` order, padded;
     - `problems`: the original (unpadded) problems;
     - `n_free`, `n_observations`: per problem, real unknowns and observations.
     """
 
     problem: BundleProblem
-    free_index: Int[Array, "n_batch n_free_max"]
+    plan: LinearisationPlan
     problems: tuple[BundleProblem, ...]
     n_free: np.ndarray
     n_observations: np.ndarray
@@ -59,6 +60,10 @@ class PaddedBatch:
     @property
     def n_batch(self) -> int:
         return len(self.problems)
+
+    @property
+    def free_index(self) -> Int[Array, "n_batch n_free_max"]:
+        return self.plan.free_index
 
 
 def _signature(problem: BundleProblem) -> tuple:
@@ -157,7 +162,7 @@ def pad_problems(problems) -> PaddedBatch:
     stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
     return PaddedBatch(
         problem=stacked,
-        free_index=jnp.asarray(free_index),
+        plan=pad_plans([linearisation_plan(one, index) for one, index in zip(padded, free_index)]),
         problems=problems,
         n_free=n_free,
         n_observations=np.array([p.n_observations() for p in problems]),
@@ -167,22 +172,24 @@ def pad_problems(problems) -> PaddedBatch:
 @eqx.filter_jit
 def solve_batch(
     problem: BundleProblem,
-    free_index: Int[Array, "n_batch n_free"],
+    plan: LinearisationPlan,
     *,
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
-    linear_solver: lx.AbstractLinearSolver | None = None,
 ) -> Solution:
-    """`solve` vmapped over a leading batch axis of `problem` and `free_index`: one
+    """`solve` vmapped over a leading batch axis of `problem` and `plan` (`pad_plans`, or
+    one plan broadcast with `broadcast_plan` for problems of one structure): one
     compilation per padded shape. Returns a Solution with a leading batch axis."""
-    def one(problem, index):
-        return solve(
-            problem, index, max_steps=max_steps, rtol=rtol, atol=atol, progress=False,
-            linear_solver=linear_solver,
-        )
+    def one(problem, plan):
+        return solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol, progress=False)
 
-    return jax.vmap(one)(problem, free_index)
+    return jax.vmap(one)(problem, plan)
+
+
+def broadcast_plan(plan: LinearisationPlan, n: int) -> LinearisationPlan:
+    """`plan` repeated along a new leading batch axis of length `n`."""
+    return jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (n, *jnp.shape(leaf))), plan)
 
 
 class BatchStatistics(eqx.Module):
@@ -318,8 +325,7 @@ def adjust_batch(
     sigma0s = [sigma0] * n if np.ndim(sigma0) == 0 else list(sigma0)
     alphas = [alpha] * n if alpha is None or np.ndim(alpha) == 0 else list(alpha)
     familywises = [familywise] * n if np.ndim(familywise) == 0 else list(familywise)
-    solution = solve_batch(batch.problem, batch.free_index, max_steps=max_steps, rtol=rtol,
-                           atol=atol)
+    solution = solve_batch(batch.problem, batch.plan, max_steps=max_steps, rtol=rtol, atol=atol)
     stats = batch_statistics(batch.problem, solution.parameters, batch.free_index,
                              jnp.asarray(batch.n_free))
     solution, stats = jax.device_get((solution, stats))

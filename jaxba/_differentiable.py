@@ -27,15 +27,16 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from ._camera import CAMERA_MODELS
+from ._levenberg_marquardt import NormalLevenbergMarquardt
+from ._linearisation import LinearisationPlan, linearisation_plan
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, params_from_free
-from ._solve import _column_scale, _params, _residual_fn
+from ._solve import _params, _residual_fn, column_scale
 
 
-@eqx.filter_jit
 def adjusted(
     problem: BundleProblem,
-    free_index: Int[Array, " n_free"],
+    plan: LinearisationPlan | None = None,
     *,
     max_steps: int = 100,
     rtol: float = 1e-12,
@@ -43,19 +44,27 @@ def adjusted(
 ) -> Parameters:
     """The adjusted Parameters x̂(θ), differentiable w.r.t. every array of `problem`.
 
-    Levenberg-Marquardt (dense QR) as in `solve`, with an implicit adjoint (dense QR on
-    the Hessian of the scaled unknowns). Tolerances default tighter than `solve`'s, since
-    a derivative is only as good as the optimality of x̂. `free_index` =
-    `free_indices(problem)` (a static structure, passed as an array so it can vmap).
+    Levenberg-Marquardt as in `solve`, with an implicit adjoint (dense QR on the Hessian
+    of the scaled unknowns). Tolerances default tighter than `solve`'s, since a
+    derivative is only as good as the optimality of x̂. `plan` =
+    `linearisation_plan(problem)` (static structure as arrays, so it can vmap), computed
+    here when not given.
     """
-    scale = jax.lax.stop_gradient(_column_scale(problem, free_index))
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.QR())
+    if plan is None:
+        plan = linearisation_plan(problem)
+    return _adjusted(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+
+
+@eqx.filter_jit
+def _adjusted(problem, plan, *, max_steps, rtol, atol) -> Parameters:
+    scale = jax.lax.stop_gradient(column_scale(problem, plan))
+    solver = NormalLevenbergMarquardt(problem, plan, scale, rtol, atol)
     solution = optx.least_squares(
-        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, free_index, scale),
+        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, plan.free_index, scale),
         has_aux=True, max_steps=max_steps, throw=False,
         adjoint=optx.ImplicitAdjoint(linear_solver=lx.QR()),
     )
-    return _params(solution.value, problem, free_index, scale)
+    return _params(solution.value, problem, plan.free_index, scale)
 
 
 def covariance(
@@ -119,11 +128,11 @@ def sensitivity(
     IOP through the implicit adjoint (jax.jacrev).
     """
     model = model if model is not None else problem.groups[group].model
-    index = jnp.asarray(free_indices(problem))
+    plan = linearisation_plan(problem)
 
     def iops(measured):
         moved = eqx.tree_at(lambda p: p.groups[group].measured, problem, measured)
-        return adjusted(moved, index, **solver_options).cameras[model][row]
+        return adjusted(moved, plan, **solver_options).cameras[model][row]
 
     _, names = camera_positions(problem, model, row)
     keep = jnp.asarray([CAMERA_MODELS[model].parameter_names.index(n) for n in names])

@@ -24,10 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
-from ._batch import solve_batch
+from ._batch import broadcast_plan, solve_batch
+from ._linearisation import linearisation_plan
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, free_indices
+from ._problem import BundleProblem
 from ._solve import Solution, adjust
 
 
@@ -68,9 +69,10 @@ def _replicate(problem: BundleProblem, measured: list[Array]) -> BundleProblem:
 def _solve_replicates(problem, measured, *, max_steps, rtol, atol) -> Replicates:
     n = measured[0].shape[0]
     stacked = jax.vmap(lambda m: _replicate(problem, m))(measured)
-    index = np.asarray(free_indices(problem))
-    indices = jnp.broadcast_to(jnp.asarray(index), (n, index.size))
-    solutions = solve_batch(stacked, indices, max_steps=max_steps, rtol=rtol, atol=atol)
+    plan = linearisation_plan(problem)
+    index = np.asarray(plan.free_index)
+    solutions = solve_batch(stacked, broadcast_plan(plan, n), max_steps=max_steps, rtol=rtol,
+                            atol=atol)
     flat = np.stack([flatten(jax.tree.map(lambda leaf: leaf[r], solutions.parameters))
                      for r in range(n)])
     free = flat[:, index]

@@ -5,7 +5,6 @@ Residuals are whitened, e = (observed - computed) / σ, so that the solver minim
 (`mask`), so that padding entries (a coordinate with no observation) count nowhere.
 """
 
-import abc
 
 import equinox as eqx
 import jax
@@ -24,14 +23,42 @@ class AbstractObservationGroup(eqx.Module):
     `stddev` holds the a priori σ of every residual entry (units of the observation);
     σ = inf marks an entry that is not an observation (an unobserved coordinate, or a
     measurement removed as a blunder): it is whitened to 0 and counted nowhere.
+
+    A row-local group (every group here but the inner constraints) says which unknowns
+    each row depends on (`local_values`) and computes one row from them
+    (`row_residual`); `residuals` vmaps that row function and `row_jacobians`
+    differentiates it (reverse mode: k outputs, few inputs). A group that is not
+    row-local overrides `residuals` and leaves `local_values` None.
     """
 
     name: eqx.AbstractVar[str]
     stddev: eqx.AbstractVar[Float[Array, "n k"]]
 
-    @abc.abstractmethod
+    def local_values(self, params: Parameters) -> Array | None:
+        """(n, width): the values of the unknowns row i depends on, taken from `params`
+        by indexing only (so a Parameters of flat positions gives their positions).
+        None: rows may depend on any unknown."""
+        del params
+        return None
+
+    def row_residual(self, values: Array, row: Array, refraction: AbstractRefraction) -> Array:
+        """Whitened residual (k,) of row `row` from its unknowns `values` (width,)."""
+        raise NotImplementedError(f"{type(self).__name__} has no row function")
+
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
         """Whitened residuals (observed - computed) / σ, shape (n, k)."""
+        values = self.local_values(params)
+        rows = jnp.arange(values.shape[0])
+        return jax.vmap(lambda v, i: self.row_residual(v, i, refraction))(values, rows)
+
+    def row_jacobians(
+        self, params: Parameters, refraction: AbstractRefraction
+    ) -> Float[Array, "n k width"]:
+        """d residual row / d its unknowns, for every row (row-local groups only)."""
+        values = self.local_values(params)
+        rows = jnp.arange(values.shape[0])
+        derivative = jax.jacrev(lambda v, i: self.row_residual(v, i, refraction))
+        return jax.vmap(derivative)(values, rows)
 
     def mask(self) -> Bool[Array, "n k"]:
         """True where the residual entry is an observation."""
@@ -74,17 +101,19 @@ class ImagePoints(AbstractObservationGroup):
     measured: Float[Array, "n 2"]
     stddev: Float[Array, "n 2"]
 
-    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
-        def one(iop, eop, point, measured, sigma):
-            return collinearity_residual(self.model, iop, eop, point, measured, sigma, refraction)
+    def local_values(self, params: Parameters) -> Float[Array, "n width"]:
+        """IOPs of the camera, EOPs of the image, XYZ of the point, per row."""
+        return jnp.concatenate([
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jnp.asarray(params.images)[self.image],
+            jnp.asarray(params.points)[self.point],
+        ], axis=1)
 
-        return jax.vmap(one)(
-            params.cameras[self.model][self.camera],
-            params.images[self.image],
-            params.points[self.point],
-            self.measured,
-            self.stddev,
-        )
+    def row_residual(self, values, row, refraction) -> Vector2:
+        n_iop = values.shape[0] - 9
+        iop, eop, point = values[:n_iop], values[n_iop:n_iop + 6], values[n_iop + 6:]
+        return collinearity_residual(
+            self.model, iop, eop, point, self.measured[row], self.stddev[row], refraction)
 
 
 class ParameterObservations(AbstractObservationGroup):
@@ -100,9 +129,13 @@ class ParameterObservations(AbstractObservationGroup):
     observed: Float[Array, "n k"]
     stddev: Float[Array, "n k"]
 
-    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n k"]:
+    def local_values(self, params: Parameters) -> Float[Array, "n k"]:
+        """The observed block row of every row."""
+        return jnp.asarray(params.block(self.block))[self.rows]
+
+    def row_residual(self, values, row, refraction) -> Float[Array, " k"]:
         del refraction
-        return (self.observed - params.block(self.block)[self.rows]) / self.stddev
+        return (self.observed[row] - values) / self.stddev[row]
 
 
 class Distances(AbstractObservationGroup):
@@ -114,8 +147,12 @@ class Distances(AbstractObservationGroup):
     observed: Float[Array, "n 1"]
     stddev: Float[Array, "n 1"]
 
-    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 1"]:
+    def local_values(self, params: Parameters) -> Float[Array, "n 6"]:
+        """XYZ of both end points of every distance."""
+        points = jnp.asarray(params.points)
+        return jnp.concatenate([points[self.a], points[self.b]], axis=1)
+
+    def row_residual(self, values, row, refraction) -> Float[Array, " 1"]:
         del refraction
-        difference = params.points[self.a] - params.points[self.b]
-        computed = jnp.sqrt(jnp.sum(difference**2, axis=1, keepdims=True))
-        return (self.observed - computed) / self.stddev
+        computed = jnp.sqrt(jnp.sum((values[:3] - values[3:]) ** 2, keepdims=True))
+        return (self.observed[row] - computed) / self.stddev[row]

@@ -6,15 +6,16 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float, Int
 
 from ._datum import check_datum
+from ._levenberg_marquardt import FUNCTION_TOLERANCE, NormalLevenbergMarquardt
+from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
-from ._problem import BundleProblem, free_indices, params_from_free
+from ._problem import BundleProblem, params_from_free
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
 
@@ -83,50 +84,58 @@ def _flat_residuals(problem: BundleProblem, params: Parameters) -> Float[Array, 
     return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(params)])
 
 
-def _column_scale(problem: BundleProblem, index) -> Float[Array, " n_free"]:
-    """Jacobi scaling: 1/‖column‖ of the whitened Jacobian at the approximations.
+def column_scale(problem: BundleProblem, plan: LinearisationPlan) -> Float[Array, " n_free"]:
+    """Jacobi scaling: 1/‖column‖ of the residuals' Jacobian at the approximations.
 
     The solver works on z with x_free = x_free,0 + scale ⊙ z, so every column has unit
     norm at the start and the Levenberg-Marquardt damping λI treats all unknowns alike.
     Masked residual entries are exactly 0 and add nothing to the norms.
     """
-    x_free = ravel_pytree(problem.initial)[0][index]
-    jacobian = jax.jacfwd(
-        lambda x: _flat_residuals(problem, params_from_free(problem, x, index))
-    )(x_free)
-    norms = jnp.linalg.norm(jacobian, axis=0)
+    norms = jnp.sqrt(jnp.diag(normal_equations(problem, problem.initial, plan)[0]))
     return 1.0 / jnp.where(norms > 0, norms, 1.0)
 
 
-@eqx.filter_jit
 def solve(
     problem: BundleProblem,
-    free_index: Int[Array, " n_free"],
+    plan: LinearisationPlan | None = None,
     *,
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    function_tolerance: float = FUNCTION_TOLERANCE,
     progress: bool = True,
-    linear_solver: lx.AbstractLinearSolver | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
 
-    Pure and jitted (dense Jacobian, QR by default): no datum check, no statistics, so it
-    can be `jax.vmap`ped over problems of one structure (Monte Carlo, batches).
-    `free_index` = `free_indices(problem)`, the free positions in `flatten` order.
+    Converged: optimistix's Cauchy test (step and residual change within `rtol`, `atol`,
+    elementwise, in the scaled unknowns), reached at once after an accepted step changed
+    the cost by less than `function_tolerance` times the cost (0: Cauchy test only).
+    Pure and jitted (normal equations from per-row Jacobian blocks, Cholesky per trial
+    step: `NormalLevenbergMarquardt`): no datum check, no statistics, so it can be `jax.vmap`ped
+    over problems of one structure (Monte Carlo, batches). `plan` =
+    `linearisation_plan(problem)`, computed here when not given (it must be given under
+    `jax.vmap` or `jax.jit`, where the problem's index arrays are traced).
     `progress=False` leaves out the per-step host callback: jax then caches the compiled
     solve persistently, and under vmap the callback is not unrolled per batch element.
     """
-    scale = _column_scale(problem, free_index)
-    solver = optx.LevenbergMarquardt(
-        rtol=rtol, atol=atol, linear_solver=linear_solver or lx.QR(),
-        verbose=report_step if progress else False,
-    )
+    if plan is None:
+        plan = linearisation_plan(problem)
+    return _solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol,
+                  function_tolerance=function_tolerance, progress=progress)
+
+
+@eqx.filter_jit
+def _solve(problem, plan, *, max_steps, rtol, atol, function_tolerance, progress) -> Solution:
+    index = plan.free_index
+    scale = column_scale(problem, plan)
+    solver = NormalLevenbergMarquardt(
+        problem, plan, scale, rtol, atol, function_tolerance=function_tolerance,
+        verbose=report_step if progress else None)
     solution = optx.least_squares(
-        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, free_index, scale),
+        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
         has_aux=True, max_steps=max_steps, throw=False,
     )
-    params = _params(solution.value, problem, free_index, scale)
+    params = _params(solution.value, problem, index, scale)
     return Solution(
         parameters=params,
         converged=solution.result == optx.RESULTS.successful,
@@ -148,7 +157,7 @@ def adjust(
     throw: bool = False,
     check: bool = True,
 ) -> Adjustment:
-    """Adjust `problem` by Levenberg-Marquardt (optx.least_squares, dense QR).
+    """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
     `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
@@ -160,9 +169,8 @@ def adjust(
         check_datum(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
-    index = jnp.asarray(free_indices(problem))
     with listening(recorder):
-        solution = solve(problem, index, max_steps=max_steps, rtol=rtol, atol=atol)
+        solution = solve(problem, max_steps=max_steps, rtol=rtol, atol=atol)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     final_cost = float(solution.cost)
