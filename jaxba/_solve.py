@@ -12,7 +12,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float, Int
 
 from ._datum import check_datum
-from ._levenberg_marquardt import FUNCTION_TOLERANCE, NormalLevenbergMarquardt
+from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
 from ._problem import BundleProblem, params_from_free
@@ -102,14 +102,15 @@ def solve(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
-    function_tolerance: float = FUNCTION_TOLERANCE,
+    decrement_tolerance: float = DECREMENT_TOLERANCE,
     progress: bool = True,
 ) -> Solution:
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
 
     Converged: optimistix's Cauchy test (step and residual change within `rtol`, `atol`,
-    elementwise, in the scaled unknowns), reached at once after an accepted step changed
-    the cost by less than `function_tolerance` times the cost (0: Cauchy test only).
+    elementwise, in the scaled unknowns), reached at once when the Gauss-Newton step from
+    an accepted iterate would lower the cost by less than `decrement_tolerance` times the
+    cost (0: Cauchy test only; see `NormalDampedNewtonDescent`).
     Pure and jitted (normal equations from per-row Jacobian blocks, Cholesky per trial
     step: `NormalLevenbergMarquardt`): no datum check, no statistics, so it can be `jax.vmap`ped
     over problems of one structure (Monte Carlo, batches). `plan` =
@@ -121,15 +122,15 @@ def solve(
     if plan is None:
         plan = linearisation_plan(problem)
     return _solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol,
-                  function_tolerance=function_tolerance, progress=progress)
+                  decrement_tolerance=decrement_tolerance, progress=progress)
 
 
 @eqx.filter_jit
-def _solve(problem, plan, *, max_steps, rtol, atol, function_tolerance, progress) -> Solution:
+def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance, progress) -> Solution:
     index = plan.free_index
     scale = column_scale(problem, plan)
     solver = NormalLevenbergMarquardt(
-        problem, plan, scale, rtol, atol, function_tolerance=function_tolerance,
+        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance,
         verbose=report_step if progress else None)
     solution = optx.least_squares(
         _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),

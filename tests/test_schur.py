@@ -18,6 +18,7 @@ import optimistix as optx
 import pytest
 
 from jaxba._bal import bal_residual
+from jaxba._cholesky import cholesky_solve
 from jaxba._schur import (
     SchurDampedNewtonDescent,
     SchurLevenbergMarquardt,
@@ -27,7 +28,6 @@ from jaxba._schur import (
     solve_two_block,
     two_block_residuals,
 )
-from jaxba._schur._cholesky import cholesky_solve
 from jaxba._schur._problem import _same_point_pairs
 
 N_CAMERAS, N_POINTS = 5, 60

@@ -118,10 +118,10 @@ def test_solve_schur_matches_dense_solve(block, variant):
     # slowly in both (dense: ~310 steps); the Schur LM then reaches the dense cost to
     # ~1e-14 but its Cauchy test (1e-10 in metres/radians) is not met within 200 steps,
     # so only the plain variant must report convergence. The dense solve runs to its
-    # Cauchy test alone (no function tolerance), for coordinates equal to 1e-8.
+    # Cauchy test alone (no decrement tolerance), for coordinates equal to 1e-8.
     max_steps = 50 if variant == "plain" else 200
     schur = solve_schur(problem, index, max_steps=max_steps, progress=False)
-    dense = jaxba.solve(problem, rtol=1e-10, atol=1e-10, function_tolerance=0.0,
+    dense = jaxba.solve(problem, rtol=1e-10, atol=1e-10, decrement_tolerance=0.0,
                         max_steps=max_steps + 200)
     assert isinstance(schur, jaxba.Solution)
     assert bool(dense.converged)

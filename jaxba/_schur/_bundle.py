@@ -36,10 +36,10 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int, PyTree, Scalar
 
+from .._cholesky import cholesky_solve
 from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
 from .._parameters import Parameters
 from .._problem import BundleProblem
-from ._cholesky import cholesky_solve
 from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
 from ._solver import BAL_TRUST_REGION
 

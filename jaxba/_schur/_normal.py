@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Scalar
 
-from ._cholesky import cholesky_solve
+from .._cholesky import cholesky_solve
 from ._problem import TwoBlockProblem, TwoBlockY
 
 

@@ -1,13 +1,17 @@
 """Dense Cholesky solve written in XLA operations (no LAPACK call).
 
-The reduced camera system is small (n_cameras n_c, a few hundred) and is solved once per
-trial step. On CPU, `jnp.linalg.cholesky` calls OpenBLAS's threaded `potrf` from inside
-an XLA computation; when OpenBLAS's threads and XLA's compete for the cores this takes
-~500 ms instead of ~2 ms for a 441 x 441 matrix (measured on 2 cores; the known OpenBLAS
-oversubscription problem, OpenMathLib/OpenBLAS#5517) unless OPENBLAS_NUM_THREADS=1 is
-set before numpy loads. Blocked right-looking Cholesky with matrix products (XLA's own
-kernels) costs ~3 ms with or without that setting (block size 128: compiles in ~1 s;
-64 runs 0.8 ms faster but compiles ~2 s longer, 32 slower on both counts).
+The solvers' damped normal systems are small (the reduced camera system of the Schur
+solver, the normal equations of a calibration: a few hundred unknowns) and are solved once
+per trial step. LAPACK is avoided for two reasons. Under `jax.vmap` XLA calls a batched
+`potrf` from its own worker threads, and with OPENBLAS_NUM_THREADS=1 (OpenBLAS then keeps
+one unlocked buffer) that deadlocked a batched solve inside pytest. And on CPU,
+`jnp.linalg.cholesky` calls OpenBLAS's threaded `potrf` from inside an XLA computation;
+when OpenBLAS's threads and XLA's compete for the cores this takes ~500 ms instead of
+~2 ms for a 441 x 441 matrix (measured on 2 cores; the known OpenBLAS oversubscription
+problem, OpenMathLib/OpenBLAS#5517) unless OPENBLAS_NUM_THREADS=1 is set before numpy
+loads. Blocked right-looking Cholesky with matrix products (XLA's own kernels) costs
+~3 ms with or without that setting (block size 128: compiles in ~1 s; 64 runs 0.8 ms
+faster but compiles ~2 s longer, 32 slower on both counts).
 """
 
 import jax
