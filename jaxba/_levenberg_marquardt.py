@@ -35,6 +35,13 @@ INITIAL_RADIUS = 1e4
 DECREMENT_TOLERANCE = 1e-12
 
 
+def _block_size(n: int) -> int:
+    """Cholesky block for an n x n system: small blocks run faster under vmap (Zhang's 37
+    unknowns, batch 250: 6 ms with 16, 23 ms with 128; 279 unknowns, batch 20: 31 ms with
+    32, 145 ms with 128) but unroll more code; at most 8 blocks keeps compiles short."""
+    return 16 if n <= 64 else max(32, -(-n // 8))
+
+
 class _NormalState(eqx.Module):
     normal: Float[Array, "n n"]
     gradient: Float[Array, " n"]
@@ -82,7 +89,7 @@ class NormalDampedNewtonDescent(
         gradient = self.scale * gradient
         # Unknowns no row depends on (padding in a batch) have empty rows: regularise.
         regular = normal + 1e-12 * jnp.max(jnp.diag(normal)) * jnp.eye(normal.shape[0])
-        newton = cholesky_solve(regular, gradient)
+        newton = cholesky_solve(regular, gradient, _block_size(gradient.shape[0]))
         converged = 0.5 * gradient @ newton <= self.decrement_tolerance * f_info.as_min()
         return _NormalState(normal, gradient, converged)
 
@@ -92,7 +99,7 @@ class NormalDampedNewtonDescent(
                             jnp.finfo(step_size.dtype).max)
         n = state.gradient.shape[0]
         damped = state.normal + damping * jnp.eye(n, dtype=state.normal.dtype)
-        step = cholesky_solve(damped, state.gradient)
+        step = cholesky_solve(damped, state.gradient, _block_size(n))
         finite = jnp.all(jnp.isfinite(step))
         result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.singular)
         return -jnp.where(finite & ~state.converged, step, 0.0), result

@@ -96,9 +96,13 @@ def linearisation_plan(
             key_rows.append(None)
             key_columns.append(None)
             continue
-        columns = column_of[np.asarray(group.local_values(positions))[:, list(slots)]]
+        # Rows that are no observation at all (padding, rejected blunders) add nothing and
+        # join no key: all padded rows repeat row 0, and would make its key hundreds long.
+        observed = np.flatnonzero(np.asarray(group.mask()).any(axis=1))
+        columns = column_of[np.asarray(group.local_values(positions))[observed][:, list(slots)]]
         unique, key = np.unique(columns, axis=0, return_inverse=True)
-        key_rows.append(jnp.asarray(_rows_by_key(key.ravel(), unique.shape[0])))
+        rows = _rows_by_key(key.ravel(), unique.shape[0])
+        key_rows.append(jnp.asarray(np.where(rows >= 0, observed[rows], -1)))
         key_columns.append(jnp.asarray(unique))
     return LinearisationPlan(jnp.asarray(free_index), tuple(key_rows), tuple(key_columns),
                              tuple(live))
