@@ -30,7 +30,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from ._datum import DatumError, check_datum_with_jacobian
-from ._linearisation import LinearisationPlan, linearisation_plan, pad_plans
+from ._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
 from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, observation_mask, params_from_free
@@ -159,10 +159,14 @@ def pad_problems(problems) -> PaddedBatch:
     free_index = np.full((len(problems), n_free.max()), spare)
     for k, index in enumerate(indices):
         free_index[k, : len(index)] = index
+    # One set of live slots for all: problems may free different IOPs.
+    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
+    live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
     stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
     return PaddedBatch(
         problem=stacked,
-        plan=pad_plans([linearisation_plan(one, index) for one, index in zip(padded, free_index)]),
+        plan=pad_plans([linearisation_plan(one, index, live)
+                        for one, index in zip(padded, free_index)]),
         problems=problems,
         n_free=n_free,
         n_observations=np.array([p.n_observations() for p in problems]),

@@ -4,7 +4,9 @@ failing projects; Monte Carlo and bootstrap replicates against the formal precis
 import json
 import math
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -57,6 +59,27 @@ def test_padding_keeps_structure(projects):
     assert batch.problem.initial.points.shape[:2] == (3, max(t for _, t in SIZES) + 1)
     assert list(batch.n_free) == [p.problem.n_unknowns() for p in built]
     assert list(batch.n_observations) == [p.problem.n_observations() for p in built]
+
+
+def test_problems_freeing_different_iops_batch_like_single_solves(projects):
+    """One padded plan serves problems whose free IOPs differ (P2 fixed in one)."""
+    _, _, built = projects
+    problems = [p.problem for p in built[:2]]
+    free = np.array(problems[1].free.cameras["smac"])
+    p2 = list(jaxba.SmacCamera.parameter_names).index("P2")
+    assert free[0, p2]
+    free[0, p2] = False
+    problems[1] = eqx.tree_at(lambda p: p.free.cameras["smac"], problems[1], jnp.asarray(free))
+    batch = pad_problems(problems)
+    solutions = jaxba.solve_batch(batch.problem, batch.plan)
+    for k, problem in enumerate(problems):
+        single = jaxba.solve(problem, progress=False)
+        padded = jax.tree.map(lambda leaf: leaf[k], solutions.parameters)
+        np.testing.assert_allclose(
+            np.asarray(padded.cameras["smac"]), np.asarray(single.parameters.cameras["smac"]),
+            rtol=BATCH_RTOL, atol=0)
+    assert float(solutions.parameters.cameras["smac"][1, 0, p2]) == float(
+        problems[1].initial.cameras["smac"][0, p2])
 
 
 @pytest.mark.slow  # three single adjustments: one compilation each
