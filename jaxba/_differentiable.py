@@ -30,8 +30,8 @@ from ._camera import CAMERA_MODELS
 from ._levenberg_marquardt import NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan
 from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, free_indices, params_from_free
-from ._solve import _params, _residual_fn, column_scale
+from ._problem import BundleProblem, free_indices, params_from_free, params_from_scaled
+from ._solve import _residual_fn, column_scale
 
 
 def adjusted(
@@ -64,7 +64,7 @@ def _adjusted(problem, plan, *, max_steps, rtol, atol) -> Parameters:
         has_aux=True, max_steps=max_steps, throw=False,
         adjoint=optx.ImplicitAdjoint(linear_solver=lx.QR()),
     )
-    return _params(solution.value, problem, plan.free_index, scale)
+    return params_from_scaled(problem, solution.value, plan.free_index, scale)
 
 
 def covariance(

@@ -13,20 +13,13 @@ from collections.abc import Callable
 import equinox as eqx
 import jax.numpy as jnp
 import optimistix as optx
-from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float, Scalar
 
 from ._cholesky import cholesky_solve
 from ._linearisation import LinearisationPlan, normal_equations
-from ._problem import BundleProblem, params_from_free
+from ._problem import BundleProblem, params_from_scaled
+from ._trust_region import CERES_INITIAL_RADIUS, CERES_TRUST_REGION, silent
 
-# Ceres-like trust-region update (accept on a ratio >= 1e-3, radius x3 above 0.75, halved
-# on rejection) from radius 1e4 (λ = 1e-4 on unit-norm columns). With optimistix's
-# defaults (0.99, 0.01, 3.5, 0.25) from radius 1, 100 replicates of Zhang's calibration
-# took a median of 19 and at most 26 steps; with these, 10 and 12 (benchmarks/README.md).
-TRUST_REGION = optx.ClassicalTrustRegion(
-    high_cutoff=0.75, low_cutoff=1e-3, high_constant=3.0, low_constant=0.5)
-INITIAL_RADIUS = 1e4
 # Stop when the Gauss-Newton step from an accepted iterate would lower the cost by less
 # than this fraction of it. Then the unknowns are within √(1e-12 r) σ of the optimum
 # (5e-5 σ for r = 2500: ½δᵀNδ = decrement, σ̂0² = 2 cost / r), and the steps that got
@@ -69,7 +62,7 @@ class NormalDampedNewtonDescent(
     problem: BundleProblem
     plan: LinearisationPlan
     scale: Float[Array, " n_free"]
-    initial_radius: float = INITIAL_RADIUS
+    initial_radius: float = CERES_INITIAL_RADIUS
     decrement_tolerance: float = DECREMENT_TOLERANCE
 
     def init(self, y: Array, f_info_struct: optx.FunctionInfo.ResidualJac) -> _NormalState:
@@ -81,9 +74,7 @@ class NormalDampedNewtonDescent(
         self, y: Array, f_info: optx.FunctionInfo.ResidualJac, state: _NormalState
     ) -> _NormalState:
         del state
-        index = self.plan.free_index
-        x_free = jnp.take(ravel_pytree(self.problem.initial)[0], index)
-        params = params_from_free(self.problem, x_free + self.scale * y, index)
+        params = params_from_scaled(self.problem, y, self.plan.free_index, self.scale)
         normal, gradient = normal_equations(self.problem, params, self.plan)
         normal = self.scale[:, None] * normal * self.scale[None, :]
         gradient = self.scale * gradient
@@ -107,7 +98,7 @@ class NormalDampedNewtonDescent(
 
 class NormalLevenbergMarquardt(optx.AbstractGaussNewton[Array, Array, None]):
     """Levenberg-Marquardt through optimistix with `NormalDampedNewtonDescent` and a
-    Ceres-like trust region (`TRUST_REGION`). Use with `optx.least_squares` on `solve`'s
+    Ceres-like trust region (`CERES_TRUST_REGION`). Use with `optx.least_squares` on `solve`'s
     residual function of the scaled unknowns (args: problem, free index, scale)."""
 
     rtol: float
@@ -133,9 +124,5 @@ class NormalLevenbergMarquardt(optx.AbstractGaussNewton[Array, Array, None]):
         self.norm = optx.max_norm
         self.descent = NormalDampedNewtonDescent(
             problem, plan, scale, decrement_tolerance=decrement_tolerance)
-        self.search = TRUST_REGION
-        self.verbose = verbose or _silent
-
-
-def _silent(**info) -> None:
-    del info
+        self.search = CERES_TRUST_REGION
+        self.verbose = verbose or silent

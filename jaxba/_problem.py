@@ -79,6 +79,15 @@ def params_from_free(
     return unravel(flat.at[index].set(x_free))
 
 
+def params_from_scaled(
+    problem: BundleProblem, z: Float[Array, " n_free"], index: Array, scale: Float[Array, " n_free"]
+) -> Parameters:
+    """The Parameters at the solvers' Jacobi-scaled unknowns z: x_free = x_free,0 + scale ⊙ z
+    (x_free,0 from `problem.initial`), all other scalars as in `problem.initial`."""
+    x_free = ravel_pytree(problem.initial)[0][index]
+    return params_from_free(problem, x_free + scale * z, index)
+
+
 def dense_jacobian(
     problem: BundleProblem, params: Parameters
 ) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:

@@ -8,14 +8,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Bool, Float, Int
 
 from ._datum import check_datum
 from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
-from ._problem import BundleProblem, params_from_free
+from ._problem import BundleProblem, params_from_scaled
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
 
@@ -70,14 +69,9 @@ class Solution(eqx.Module):
     result: optx.RESULTS
 
 
-def _params(z, problem: BundleProblem, index, scale) -> Parameters:
-    x_free = ravel_pytree(problem.initial)[0][index]
-    return params_from_free(problem, x_free + scale * z, index)
-
-
 def _residual_fn(z, args):
     problem, index, scale = args
-    return problem.residuals(_params(z, problem, index, scale)), None
+    return problem.residuals(params_from_scaled(problem, z, index, scale)), None
 
 
 def _flat_residuals(problem: BundleProblem, params: Parameters) -> Float[Array, " n"]:
@@ -136,7 +130,7 @@ def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance, progres
         _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
         has_aux=True, max_steps=max_steps, throw=False,
     )
-    params = _params(solution.value, problem, index, scale)
+    params = params_from_scaled(problem, solution.value, index, scale)
     return Solution(
         parameters=params,
         converged=solution.result == optx.RESULTS.successful,

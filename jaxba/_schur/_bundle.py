@@ -40,8 +40,8 @@ from .._cholesky import cholesky_solve
 from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
 from .._parameters import Parameters
 from .._problem import BundleProblem
+from .._trust_region import CERES_INITIAL_RADIUS, CERES_TRUST_REGION, silent
 from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
-from ._solver import BAL_TRUST_REGION
 
 
 class BundleStructure(eqx.Module):
@@ -534,15 +534,11 @@ class BundleSchurDescent(
         )
 
 
-def _silent(**info: Any) -> None:
-    del info
-
-
 class BundleSchurLevenbergMarquardt(optx.AbstractGaussNewton[Parameters, Array, Any]):
     """Levenberg-Marquardt for a `BundleProblem` with the point unknowns eliminated.
 
     `optx.LevenbergMarquardt` with `BundleSchurDescent` in place of the dense QR descent and
-    a Ceres-like trust region (`BAL_TRUST_REGION`, first radius `initial_radius`). Use with
+    a Ceres-like trust region (`CERES_TRUST_REGION`, first radius `initial_radius`). Use with
     `optx.least_squares(bundle_residuals, solver, problem.initial, args=problem)`.
     """
 
@@ -561,15 +557,15 @@ class BundleSchurLevenbergMarquardt(optx.AbstractGaussNewton[Parameters, Array, 
         atol: float,
         *,
         norm: Callable[[PyTree], Scalar] = optx.max_norm,
-        initial_radius: float = 1e4,
+        initial_radius: float = CERES_INITIAL_RADIUS,
         verbose: Callable[..., None] | None = None,
     ):
         self.rtol = rtol
         self.atol = atol
         self.norm = norm
         self.descent = BundleSchurDescent(problem, structure, initial_radius=initial_radius)
-        self.search = BAL_TRUST_REGION
-        self.verbose = verbose or _silent
+        self.search = CERES_TRUST_REGION
+        self.verbose = verbose or silent
 
 
 def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]:

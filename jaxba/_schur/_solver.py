@@ -17,16 +17,9 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, PyTree, Scalar
 
+from .._trust_region import CERES_INITIAL_RADIUS, CERES_TRUST_REGION, silent
 from ._normal import NormalEquations, normal_equations, solve_damped
 from ._problem import TwoBlockProblem, TwoBlockY, two_block_residuals
-
-# Ceres-like trust-region update (Ceres: min_relative_decrease 1e-3, radius x <= 3 on
-# success, / 2 on failure). optx's defaults (0.99, 0.01, 3.5, 0.25) grow the radius only
-# when the model predicts the decrease to 1%: on BAL's Ladybug-49 λ then stalls and 200
-# steps end at cost 13345.07; with these, 25 steps reach 13344.27 (benchmarks/README.md).
-BAL_TRUST_REGION = optx.ClassicalTrustRegion(
-    high_cutoff=0.75, low_cutoff=1e-3, high_constant=3.0, low_constant=0.5
-)
 
 
 class _SchurDescentState(eqx.Module):
@@ -98,10 +91,6 @@ class SchurDampedNewtonDescent(
         return normal_equations(self.problem, y, residual, self.min_diagonal, self.max_diagonal)
 
 
-def _silent(**info: Any) -> None:
-    del info
-
-
 class SchurLevenbergMarquardt(optx.AbstractGaussNewton[TwoBlockY, Array, Any]):
     """Levenberg-Marquardt for two-block (bundle-adjustment) problems, Schur-complement step.
 
@@ -116,7 +105,7 @@ class SchurLevenbergMarquardt(optx.AbstractGaussNewton[TwoBlockY, Array, Any]):
     criterion; 0 = off); `min_diagonal`, `max_diagonal`: damping clamps (Ceres'
     defaults); `initial_radius`: first trust-region radius 1/λ (Ceres' default 1e4;
     from 1, Dubrovnik-16 takes 19 steps instead of 9); `search`: the trust-region update
-    (default `BAL_TRUST_REGION`);
+    (default `CERES_TRUST_REGION`);
     `verbose`: False, or a callable `**info -> None` as for optimistix solvers (see
     `jaxba._progress.report_step`).
     """
@@ -138,8 +127,8 @@ class SchurLevenbergMarquardt(optx.AbstractGaussNewton[TwoBlockY, Array, Any]):
         norm: Callable[[PyTree], Scalar] = optx.max_norm,
         min_diagonal: float = 1e-6,
         max_diagonal: float = 1e32,
-        initial_radius: float = 1e4,
-        search: optx.ClassicalTrustRegion = BAL_TRUST_REGION,
+        initial_radius: float = CERES_INITIAL_RADIUS,
+        search: optx.ClassicalTrustRegion = CERES_TRUST_REGION,
         verbose: bool | Callable[..., None] = False,
     ):
         if verbose is True:
@@ -155,7 +144,7 @@ class SchurLevenbergMarquardt(optx.AbstractGaussNewton[TwoBlockY, Array, Any]):
             problem, min_diagonal, max_diagonal, function_tolerance, initial_radius
         )
         self.search = search
-        self.verbose = verbose if verbose else _silent
+        self.verbose = verbose if verbose else silent
 
 
 def solve_two_block(
