@@ -161,15 +161,16 @@ def normal_equations(
     normal = jnp.zeros((n + 1, n + 1), dtype)
     gradient = jnp.zeros(n + 1, dtype)
     whole_groups = []
-    for group, whitened, rows, columns, slots in zip(
-        problem.groups, problem.whitened(params), plan.key_rows, plan.key_columns, plan.live
+    for group, rows, columns, slots in zip(
+        problem.groups, plan.key_rows, plan.key_columns, plan.live
     ):
         if slots is None:
             whole_groups.append(group)
             continue
         mask = group.mask()
-        e, chain = _robust(problem, group, whitened)
-        blocks = group.row_jacobians(params, problem.refraction)[:, :, list(slots)]
+        residuals, blocks = group.row_jacobians(params, problem.refraction)
+        e, chain = _robust(problem, group, jnp.where(mask, residuals, 0.0))  # as `whitened`
+        blocks = blocks[:, :, list(slots)]
         blocks = jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)  # (n, k, n_live)
         # Gather every key's rows into (n_keys, max_rows·k, ·); row -1 is an appended zero.
         blocks = jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]

@@ -53,12 +53,18 @@ class AbstractObservationGroup(eqx.Module):
 
     def row_jacobians(
         self, params: Parameters, refraction: AbstractRefraction
-    ) -> Float[Array, "n k width"]:
-        """d residual row / d its unknowns, for every row (row-local groups only)."""
+    ) -> tuple[Float[Array, "n k"], Float[Array, "n k width"]]:
+        """The residuals (as `residuals`, unmasked) and d residual row / d its unknowns,
+        for every row (row-local groups only): one forward and k backward passes a row."""
         values = self.local_values(params)
         rows = jnp.arange(values.shape[0])
-        derivative = jax.jacrev(lambda v, i: self.row_residual(v, i, refraction))
-        return jax.vmap(derivative)(values, rows)
+
+        def row(v, i):
+            e = self.row_residual(v, i, refraction)
+            return e, e
+
+        jacobians, residuals = jax.vmap(jax.jacrev(row, has_aux=True))(values, rows)
+        return residuals, jacobians
 
     def mask(self) -> Bool[Array, "n k"]:
         """True where the residual entry is an observation."""
