@@ -32,12 +32,18 @@ from jaxtyping import Array, Float, Int
 from ._datum import DatumError, check_datum_with_jacobian
 from ._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
 from ._observations import AbstractObservationGroup
-from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, free_indices, observation_mask, params_from_free
+from ._parameters import Parameters, flatten
+from ._problem import (
+    BundleProblem,
+    free_indices,
+    observation_mask,
+    observed_minus_computed,
+    params_from_free,
+)
 from ._progress import Iteration
 from ._reliability import reliability_from_redundancy
 from ._solve import Adjustment, Solution, solve
-from ._statistics import Precision
+from ._statistics import precision_from_covariance
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,17 +357,9 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
     sigma0_squared = sigma0**2 * 2 * final_cost / redundancy
     covariance = (sigma0_squared / sigma0**2) * stats.cofactor[:n_free, :n_free]
-    index = free_indices(problem)
-    std = np.zeros(flatten(params).shape)
-    std[index] = np.sqrt(np.diag(covariance))
-    prec = Precision(
-        sigma0_squared=sigma0_squared, redundancy=redundancy, n_observations=n_obs,
-        n_unknowns=n_free, free_index=index, covariance=covariance, std=unflatten(params, std),
-    )
-    residuals = tuple(
-        e * np.where(np.asarray(g.mask()), np.asarray(g.sigma()), 0.0)
-        for e, g in zip(whitened, problem.groups)
-    )
+    prec = precision_from_covariance(problem, params, covariance, sigma0_squared, redundancy,
+                                     n_obs)
+    residuals = observed_minus_computed(problem, whitened)
     iterations = [
         Iteration(0, float(stats.initial_cost),
                   sigma0**2 * 2 * float(stats.initial_cost) / max(redundancy, 1)),

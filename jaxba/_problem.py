@@ -60,6 +60,15 @@ class BundleProblem(eqx.Module):
         return int(np.sum(flatten(self.free)))
 
 
+def observed_minus_computed(problem: BundleProblem, whitened) -> tuple[np.ndarray, ...]:
+    """Residuals v = observed - computed in each group's units from its whitened e = v/σ
+    (masked entries 0), as NumPy arrays of the groups' shapes."""
+    return tuple(
+        np.asarray(e) * np.where(np.asarray(g.mask()), np.asarray(g.sigma()), 0.0)
+        for e, g in zip(whitened, problem.groups)
+    )
+
+
 def free_indices(problem: BundleProblem) -> np.ndarray:
     """Positions of the free scalars in `flatten(Parameters)` order."""
     return np.flatnonzero(flatten(problem.free))

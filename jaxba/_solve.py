@@ -14,7 +14,7 @@ from ._datum import check_datum
 from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
-from ._problem import BundleProblem, params_from_scaled
+from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
 
@@ -177,10 +177,7 @@ def adjust(
     message = "converged" if converged else optx.RESULTS[result]
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
-    residuals = tuple(
-        np.asarray(e) * np.where(np.asarray(g.mask()), np.asarray(g.sigma()), 0.0)
-        for e, g in zip(whitened, problem.groups)
-    )
+    residuals = observed_minus_computed(problem, whitened)
     return Adjustment(
         problem=problem,
         parameters=params,

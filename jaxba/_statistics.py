@@ -68,6 +68,19 @@ def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0
     covariance = (sigma0_squared / sigma0**2) * (
         column_scale[:, None] * cofactor * column_scale[None, :]
     )
+    return precision_from_covariance(
+        problem, params, covariance, sigma0_squared, redundancy, n_observations)
+
+
+def precision_from_covariance(
+    problem: BundleProblem,
+    params: Parameters,
+    covariance: np.ndarray,
+    sigma0_squared: float,
+    redundancy: int,
+    n_observations: int,
+) -> Precision:
+    """The `Precision` of Cxx (n_free, n_free) of `problem`'s free unknowns at `params`."""
     index = free_indices(problem)
     std = np.zeros(flatten(params).shape)
     std[index] = np.sqrt(np.diag(covariance))
@@ -75,7 +88,7 @@ def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0
         sigma0_squared=sigma0_squared,
         redundancy=redundancy,
         n_observations=n_observations,
-        n_unknowns=n_unknowns,
+        n_unknowns=index.size,
         free_index=index,
         covariance=covariance,
         std=unflatten(params, std),
