@@ -3,13 +3,14 @@
 N replicates of Zhang's calibration (5 images x 256 corners of a planar target, one "opencv"
 camera; configs/zhang): the image points are recomputed from the adjusted solution of the real
 data (the "truth"), the truth's fx, fy, cx, cy varied by N(0, 5 px) per replicate and Gaussian
-noise of `--noise` px added. jaxba solves all N in chunks of `--chunk` with one compiled,
-vmapped Levenberg-Marquardt (`jaxba._batch.solve_batch`) from the project's approximations
+noise of `--noise` px added. jaxba solves all N in one compiled call
+(`jaxba._batch.solve_batch`: the Levenberg-Marquardt of `solve`, vmapped over chunks of
+`--chunk` replicates, the chunks one after the other) from the project's approximations
 (Zhang's closed form, rounded intrinsics); OpenCV calibrates each replicate in a loop from its
 own initialisation (CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST: fx, fy, cx, cy, k1, k2 and the
 poses; jaxba also estimates the skew). Both in the same process, one after the other.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/batch_vs_opencv.py [--n 1000] [--chunk 250]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/batch_vs_opencv.py [--n 1000] [--chunk 10]
 """
 
 import os
@@ -59,29 +60,26 @@ def replicates(n: int, noise_px: float, seed: int):
 
 
 def run_jaxba(problem, measured, chunk: int):
+    """All replicates in one `solve_batch` call (chunks of `chunk`, vmapped, one after the
+    other); timed twice: compile = the first call less the second."""
     plan = jaxba.linearisation_plan(problem)
+    problems = jax.vmap(lambda m: eqx.tree_at(lambda p: p.groups[0].measured, problem, m))(
+        jnp.asarray(measured))
+    plans = jaxba.broadcast_plan(plan, measured.shape[0])
 
-    def stack(block):
-        problems = jax.vmap(lambda m: eqx.tree_at(lambda p: p.groups[0].measured, problem, m))(
-            jnp.asarray(block))
-        return problems, jaxba.broadcast_plan(plan, block.shape[0])
+    def run():
+        return jax.block_until_ready(
+            solve_batch(problems, plans, max_steps=100, chunk_size=chunk))
 
     start = time.perf_counter()
-    first = jax.block_until_ready(solve_batch(*stack(measured[:chunk]), max_steps=100))
+    run()
     first_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    solutions = []
-    for k in range(0, measured.shape[0], chunk):
-        solutions.append(jax.block_until_ready(
-            solve_batch(*stack(measured[k:k + chunk]), max_steps=100)))
+    solutions = run()
     seconds = time.perf_counter() - start
-    del first
-    iops = np.concatenate([np.asarray(s.parameters.cameras["opencv"][:, 0]) for s in solutions])
-    converged = np.concatenate([np.asarray(s.converged) for s in solutions])
-    steps = np.concatenate([np.asarray(s.steps) for s in solutions])
-    # Compile = first call minus one chunk's share of the steady-state time.
-    compile_seconds = first_seconds - seconds * chunk / measured.shape[0]
-    return iops, converged, steps, seconds, compile_seconds
+    iops = np.asarray(solutions.parameters.cameras["opencv"][:, 0])
+    return iops, np.asarray(solutions.converged), np.asarray(solutions.steps), seconds, \
+        first_seconds - seconds
 
 
 def run_opencv(problem, measured):
@@ -105,7 +103,8 @@ def run_opencv(problem, measured):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=1000)
-    parser.add_argument("--chunk", type=int, default=250)
+    parser.add_argument("--chunk", type=int, default=10,
+                        help="problems per vmapped chunk (solve_batch's chunk_size)")
     parser.add_argument("--noise", type=float, default=0.5, help="image noise σ, px")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

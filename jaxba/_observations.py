@@ -27,8 +27,9 @@ class AbstractObservationGroup(eqx.Module):
     A row-local group (every group here but the inner constraints) says which unknowns
     each row depends on (`local_values`) and computes one row from them
     (`row_residual`); `residuals` vmaps that row function and `row_jacobians`
-    differentiates it (reverse mode: k outputs, few inputs). A group that is not
-    row-local overrides `residuals` and leaves `local_values` None.
+    differentiates it (reverse mode: k outputs, few inputs). `ImagePoints` overrides
+    both, to compute each image's rotation once rather than once per row. A group that
+    is not row-local overrides `residuals` and leaves `local_values` None.
     """
 
     name: eqx.AbstractVar[str]
@@ -85,9 +86,23 @@ def collinearity_residual(
     refraction: AbstractRefraction,
 ) -> Vector2:
     """Whitened image residual (x_obs - x, y_obs - y) / σ of one measured image point."""
+    return _rotated_collinearity_residual(
+        model, iop, eop[:3], opk_to_matrix(eop[3:]), point, measured, sigma, refraction)
+
+
+def _rotated_collinearity_residual(
+    model: str,
+    iop: Float[Array, " n_iop"],
+    station: Vector3,
+    rotation: Float[Array, "3 3"],
+    point: Vector3,
+    measured: Vector2,
+    sigma: Vector2,
+    refraction: AbstractRefraction,
+) -> Vector2:
+    """`collinearity_residual` with the image's rotation matrix M(ω, φ, κ) given."""
     camera = CAMERA_MODELS[model].from_parameters(iop)
-    station = eop[:3]
-    p_camera = opk_to_matrix(eop[3:]) @ (point - station)
+    p_camera = rotation @ (point - station)
     k = refraction.coefficient(station, point)
     return (measured - camera.image_point(p_camera, measured, k)) / sigma
 
@@ -115,11 +130,43 @@ class ImagePoints(AbstractObservationGroup):
             jnp.asarray(params.points)[self.point],
         ], axis=1)
 
-    def row_residual(self, values, row, refraction) -> Vector2:
-        n_iop = values.shape[0] - 9
-        iop, eop, point = values[:n_iop], values[n_iop:n_iop + 6], values[n_iop + 6:]
-        return collinearity_residual(
-            self.model, iop, eop, point, self.measured[row], self.stddev[row], refraction)
+    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
+        """Whitened residuals (n, 2), each image's rotation matrix computed once."""
+        rotation = jax.vmap(opk_to_matrix)(jnp.asarray(params.images)[:, 3:])
+        return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, 0, None))(
+            *self._row_inputs(params, rotation), refraction)
+
+    def row_jacobians(
+        self, params: Parameters, refraction: AbstractRefraction
+    ) -> tuple[Float[Array, "n 2"], Float[Array, "n 2 width"]]:
+        """The residuals and d residual row / d `local_values` row, in reverse mode as the
+        base class does, but by the rotation matrix M of the row's image (computed once
+        per image, with dM/d(ω, φ, κ)), chained: de/d(ω, φ, κ) = Σ de/dM · dM/d(ω, φ, κ)."""
+        angles = jnp.asarray(params.images)[:, 3:]
+        rotation = jax.vmap(opk_to_matrix)(angles)
+        rotation_derivative = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)[self.image]
+
+        def row(*inputs):
+            e = self._row_residual(*inputs, refraction)
+            return e, e
+
+        jacobian = jax.jacrev(row, argnums=(0, 1, 2, 3), has_aux=True)
+        (d_iop, d_station, d_rotation, d_point), residuals = jax.vmap(jacobian)(
+            *self._row_inputs(params, rotation))
+        d_angles = sum(d_rotation[:, :, a, b, None] * rotation_derivative[:, None, a, b, :]
+                       for a in range(3) for b in range(3))
+        return residuals, jnp.concatenate([d_iop, d_station, d_angles, d_point], axis=2)
+
+    def _row_inputs(self, params: Parameters, rotation: Float[Array, "n_images 3 3"]) -> tuple:
+        """Per row: IOPs, station, rotation matrix, point, measured, σ."""
+        images = jnp.asarray(params.images)
+        return (jnp.asarray(params.cameras[self.model])[self.camera], images[self.image, :3],
+                rotation[self.image], jnp.asarray(params.points)[self.point], self.measured,
+                self.stddev)
+
+    def _row_residual(self, iop, station, rotation, point, measured, sigma, refraction):
+        return _rotated_collinearity_residual(
+            self.model, iop, station, rotation, point, measured, sigma, refraction)
 
 
 class ParameterObservations(AbstractObservationGroup):

@@ -1,10 +1,11 @@
 """Per-step reporting from inside the jitted optimistix loop to Python listeners.
 
-optimistix's Gauss-Newton solvers call `verbose(**info)` on every step with the loss of
-the point evaluated in that step and the number of accepted steps so far. `report_step`
-forwards these to the host with `jax.debug.callback`; `listening` routes them to the
-`StepRecorder` of the adjustment currently running. The function passed to the solver
-is the same object on every call, so it never causes a recompilation.
+jaxba's Levenberg-Marquardt (`_trust_region.LevenbergMarquardt`) calls `verbose(**info)`
+on every step with the cost of the point evaluated in that step and whether it was
+accepted. `report_step` forwards these to the host with `jax.debug.callback`;
+`listening` routes them to the `StepRecorder` of the adjustment currently running. The
+function passed to the solver is the same object on every call, so it never causes a
+recompilation.
 """
 
 import contextlib
@@ -28,34 +29,17 @@ class Iteration:
 
 @dataclasses.dataclass
 class StepRecorder:
-    """Turns the solver's step reports into accepted iterations.
-
-    A step report carries the loss of the point evaluated in that step and the number
-    of steps accepted *before* it, so step s reveals whether step s-1 was accepted.
-    σ̂0² = σ0² · 2 cost / redundancy.
-    """
+    """Turns the solver's step reports into accepted iterations (step 0 evaluates and
+    accepts the approximations). σ̂0² = σ0² · 2 cost / redundancy."""
 
     redundancy: int
     sigma0_prior: float = 1.0
     on_iteration: Callable[[Iteration], None] | None = None
     iterations: list[Iteration] = dataclasses.field(default_factory=list)
-    _accepted: int = 0
-    _last_loss: float = np.nan
 
-    def record(self, accepted_before: int, loss_this_step: float) -> None:
-        if not self.iterations:  # step 0 evaluates (and accepts) the approximations
-            self._add(loss_this_step)
-        elif accepted_before > max(self._accepted, 1):
-            self._add(self._last_loss)
-        self._accepted = max(self._accepted, accepted_before)
-        self._last_loss = loss_this_step
-
-    def finish(self, final_cost: float) -> None:
-        """Add the final iterate if the last step was accepted and not yet reported."""
-        if not np.isclose(self.iterations[-1].cost, final_cost, rtol=1e-14, atol=0):
-            self._add(final_cost)
-
-    def _add(self, cost: float) -> None:
+    def record(self, accepted: bool, cost: float) -> None:
+        if not accepted:
+            return
         sigma0_squared = self.sigma0_prior**2 * 2 * cost / max(self.redundancy, 1)
         iteration = Iteration(len(self.iterations), float(cost), float(sigma0_squared))
         self.iterations.append(iteration)
@@ -63,14 +47,14 @@ class StepRecorder:
             self.on_iteration(iteration)
 
 
-def _dispatch(accepted_before, loss_this_step) -> None:
-    if _listeners and np.ndim(loss_this_step) == 0:
-        _listeners[-1].record(int(accepted_before), float(loss_this_step))
+def _dispatch(accepted, cost) -> None:
+    if _listeners and np.ndim(cost) == 0:
+        _listeners[-1].record(bool(accepted), float(cost))
 
 
-def report_step(**info: tuple[str, jax.Array]) -> None:
-    """The `verbose` callable handed to optimistix."""
-    jax.debug.callback(_dispatch, info["accepted_steps"][1], info["loss_this_step"][1])
+def report_step(**info: jax.Array) -> None:
+    """The `verbose` callable handed to `_trust_region.LevenbergMarquardt`."""
+    jax.debug.callback(_dispatch, info["accepted"], info["cost"])
 
 
 @contextlib.contextmanager

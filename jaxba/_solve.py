@@ -17,6 +17,7 @@ from ._parameters import Parameters
 from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder, listening, report_step
 from ._statistics import Precision, precision
+from ._trust_region import silent
 
 
 class NotConvergedError(RuntimeError):
@@ -125,7 +126,7 @@ def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance, progres
     scale = column_scale(problem, plan)
     solver = NormalLevenbergMarquardt(
         problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance,
-        verbose=report_step if progress else None)
+        verbose=report_step if progress else silent)
     solution = optx.least_squares(
         _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
         has_aux=True, max_steps=max_steps, throw=False,
@@ -172,7 +173,6 @@ def adjust(
     whitened = problem.whitened(params)
     if not np.isfinite(final_cost):
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
-    recorder.finish(final_cost)
     converged = result == optx.RESULTS.successful
     message = "converged" if converged else optx.RESULTS[result]
     if throw and not converged:

@@ -1,19 +1,222 @@
-"""The trust region shared by jaxba's Levenberg-Marquardt solvers, and their silent hook."""
+"""The trust-region loop shared by jaxba's Levenberg-Marquardt solvers, as an optimistix solver.
 
+`optx.AbstractGaussNewton` linearises the residual function (`jax.linearize`) at every trial
+point and carries the linearisation in its state, only to predict the trust region's
+reduction with one Jacobian-vector product. jaxba's descents already hold the Gauss-Newton
+model in their normal equations (JᵀJ and Jᵀr, from per-row Jacobian blocks), so
+`LevenbergMarquardt` evaluates nothing but the residuals at a trial point and asks the
+descent for the predicted reduction: for Zhang-size calibrations the linearisation was a
+third of every step. It is an `optx.AbstractLeastSquaresSolver`, driven by
+`optx.least_squares` (and so differentiable by its implicit adjoint).
+
+Per step: evaluate the residuals at the trial point y + δ; accept it when the actual
+reduction is at least `low_cutoff` of the predicted one (a trial point with non-finite cost
+is rejected), grow the radius x`high_constant` above `high_cutoff`, shrink it x`low_constant`
+on rejection (`TrustRegionUpdate`, Ceres' rule by default); at an accepted point the descent
+linearises (`query`: the Jacobian-dependent work), then proposes the damped step for the
+current radius (`step`: the damping-dependent work).
+
+Stops as converged at an accepted point where optimistix's Cauchy test passes (the step and
+the residual change within rtol/atol elementwise), where the step to it lowered the cost by
+at most `function_tolerance` times the cost before it (Ceres' function tolerance), where the
+descent's own test passes (`AbstractNormalDescent.converged`), or when the radius falls below
+`MIN_RADIUS` (every step, however short, is rejected: Ceres' `min_trust_region_radius`,
+also a convergence).
+"""
+
+import abc
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int, PyTree, Scalar
 
-# Ceres' trust-region update: accept a step whose actual/predicted reduction ratio is at
-# least 1e-3 (min_relative_decrease), grow the radius x3 above 0.75, halve it on rejection;
-# first radius 1e4 (initial_trust_region_radius: λ = 1e-4 on unit-norm columns).
-# optimistix's defaults (0.99, 0.01, 3.5, 0.25) from radius 1 grow the radius only when the
-# model predicts the decrease to 1%: on BAL's Ladybug-49 λ then stalls (200 steps end at
-# cost 13345.07; with these, 25 steps reach 13344.27), and 100 replicates of Zhang's
-# calibration took a median of 19 steps (10 with these). See benchmarks/README.md.
-CERES_TRUST_REGION = optx.ClassicalTrustRegion(
-    high_cutoff=0.75, low_cutoff=1e-3, high_constant=3.0, low_constant=0.5)
+Y = TypeVar("Y")
+DescentState = TypeVar("DescentState")
+
+# Ceres' first radius (initial_trust_region_radius): λ = 1e-4 on unit-norm columns.
 CERES_INITIAL_RADIUS = 1e4
+# Below this radius, stop (Ceres' min_trust_region_radius).
+MIN_RADIUS = 1e-32
+
+
+class TrustRegionUpdate(eqx.Module):
+    """Accept a step whose actual/predicted reduction ratio is at least `low_cutoff`, grow
+    the radius x`high_constant` above `high_cutoff`, multiply it by `low_constant` on
+    rejection. The defaults are Ceres' (min_relative_decrease 1e-3, radius x3 for a good
+    model, halved on rejection). optimistix's defaults (0.99, 0.01, 3.5, 0.25, from radius
+    1) grow the radius only when the model predicts the decrease to 1 %: on BAL's
+    Ladybug-49 λ then stalls (200 steps end at cost 13345.07; with these, 25 steps reach
+    13344.27); see benchmarks/README.md."""
+
+    high_cutoff: float = 0.75
+    low_cutoff: float = 1e-3
+    high_constant: float = 3.0
+    low_constant: float = 0.5
+
+
+class AbstractNormalDescent(eqx.Module, Generic[Y, DescentState]):
+    """The linear algebra of a Levenberg-Marquardt solver: a Gauss-Newton model of ½|r|²
+    held as normal equations, and its damped steps."""
+
+    @abc.abstractmethod
+    def init(self, y: Y, residual: PyTree[Array]) -> DescentState:
+        """A state of the right structure (`residual`: zeros of the residuals' shape)."""
+
+    @abc.abstractmethod
+    def query(
+        self, y: Y, residual: PyTree[Array], cost: Scalar, state: DescentState
+    ) -> DescentState:
+        """Linearise at the accepted point `y`, where the residuals are `residual` and the
+        cost ½|residual|² is `cost`."""
+
+    @abc.abstractmethod
+    def step(self, radius: Scalar, state: DescentState) -> tuple[Y, optx.RESULTS]:
+        """The damped step for trust-region radius `radius` (damping λ = 1 / radius)."""
+
+    @abc.abstractmethod
+    def predicted_reduction(self, y_diff: Y, state: DescentState) -> Scalar:
+        """The model's change of the cost for the step `y_diff`, ½|r + Jδ|² - ½|r|² =
+        δᵀJᵀr + ½ δᵀJᵀJδ (negative for a descent step)."""
+
+    def converged(self, state: DescentState) -> Bool[Array, ""]:
+        """Whether the accepted point of the last `query` is a solution by the descent's
+        own test (e.g. the Gauss-Newton decrement is negligible); none by default."""
+        del state
+        return jnp.array(False)
 
 
 def silent(**info) -> None:
     """A solver `verbose` hook that reports nothing."""
     del info
+
+
+def _cost(residual: PyTree[Array]) -> Scalar:
+    return 0.5 * sum(jnp.sum(r**2) for r in jax.tree.leaves(residual))
+
+
+def _tree_sub(a, b):
+    return jax.tree.map(lambda x, y: x - y, a, b)
+
+
+class _LevenbergMarquardtState(eqx.Module, Generic[Y, DescentState]):
+    first_step: Bool[Array, ""]
+    y_eval: Y  # the trial point of the next step
+    residual: PyTree[Array]  # at the accepted point
+    cost: Float[Array, ""]  # ½|residual|²
+    aux: Any
+    radius: Float[Array, ""]
+    descent_state: DescentState
+    terminate: Bool[Array, ""]
+    result: optx.RESULTS
+    num_steps: Int[Array, ""]
+    num_accepted_steps: Int[Array, ""]
+
+
+class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
+    """Levenberg-Marquardt with an `AbstractNormalDescent`; see the module docstring.
+
+    `rtol`, `atol`, `norm`: optimistix's Cauchy termination; `function_tolerance`: stop
+    once an accepted step lowers the cost by at most this fraction (0: off);
+    `initial_radius`: the first trust-region radius (1/λ in the descent's units); `update`:
+    the radius rule;
+    `verbose`: called every step as `verbose(step=, accepted=, cost=, radius=)` with
+    (traced) scalars: the step number (0 evaluates the starting point), whether the point
+    evaluated in it was accepted, its cost ½|r|², the radius for the next step.
+    """
+
+    rtol: float
+    atol: float
+    descent: AbstractNormalDescent
+    norm: Callable[[PyTree], Scalar] = optx.max_norm
+    function_tolerance: float = 0.0
+    initial_radius: float = CERES_INITIAL_RADIUS
+    update: TrustRegionUpdate = TrustRegionUpdate()
+    verbose: Callable[..., None] = silent
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LevenbergMarquardtState:
+        del fn, args, options, tags
+        residual = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), f_struct)
+        dtype = jax.tree.leaves(f_struct)[0].dtype
+        return _LevenbergMarquardtState(
+            first_step=jnp.array(True),
+            y_eval=y,
+            residual=residual,
+            cost=jnp.array(jnp.inf, dtype),
+            aux=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), aux_struct),
+            radius=jnp.array(self.initial_radius, dtype),
+            descent_state=self.descent.init(y, residual),
+            terminate=jnp.array(False),
+            result=optx.RESULTS.successful,
+            num_steps=jnp.array(0),
+            num_accepted_steps=jnp.array(0),
+        )
+
+    def step(self, fn, y, args, options, state: _LevenbergMarquardtState, tags):
+        del options, tags
+        residual_eval, aux_eval = fn(state.y_eval, args)
+        cost_eval = _cost(residual_eval)
+        y_diff = _tree_sub(state.y_eval, y)
+        predicted = self.descent.predicted_reduction(y_diff, state.descent_state)
+        actual = cost_eval - state.cost
+        update = self.update
+        accept = state.first_step | ((predicted < 0) & (actual <= update.low_cutoff * predicted))
+        good = ~state.first_step & (predicted < 0) & (actual < update.high_cutoff * predicted)
+        factor = jnp.where(accept, jnp.where(good, update.high_constant, 1.0), update.low_constant)
+        radius = jnp.where(state.first_step, state.radius, factor * state.radius)
+
+        def accepted(descent_state):
+            descent_state = self.descent.query(
+                state.y_eval, residual_eval, cost_eval, descent_state)
+            cauchy = self._cauchy_test(
+                state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
+            small_change = state.cost - cost_eval <= self.function_tolerance * state.cost
+            terminate = ((cauchy | small_change) & ~state.first_step) | self.descent.converged(
+                descent_state)
+            return state.y_eval, residual_eval, cost_eval, aux_eval, descent_state, terminate
+
+        def rejected(descent_state):
+            return y, state.residual, state.cost, state.aux, descent_state, radius < MIN_RADIUS
+
+        y, residual, cost, aux, descent_state, terminate = jax.lax.cond(
+            accept, accepted, rejected, state.descent_state)
+        result = optx.RESULTS.where(
+            jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
+        self.verbose(step=state.num_steps, accepted=accept, cost=cost_eval, radius=radius)
+        y_descent, descent_result = self.descent.step(radius, descent_state)
+        result = optx.RESULTS.where(result == optx.RESULTS.successful, descent_result, result)
+        state = _LevenbergMarquardtState(
+            first_step=jnp.array(False),
+            y_eval=jax.tree.map(lambda a, b: a + b, y, y_descent),
+            residual=residual,
+            cost=cost,
+            aux=aux,
+            radius=radius,
+            descent_state=descent_state,
+            terminate=terminate | (result != optx.RESULTS.successful),
+            result=result,
+            num_steps=state.num_steps + 1,
+            num_accepted_steps=state.num_accepted_steps + jnp.where(accept, 1, 0),
+        )
+        return y, state, aux
+
+    def _cauchy_test(self, y, y_diff, residual, residual_diff) -> Bool[Array, ""]:
+        """optimistix's Cauchy termination: |Δy| < atol + rtol |y| and |Δr| < atol + rtol
+        |r|, elementwise in `norm`."""
+
+        def small(x, dx):
+            return self.norm(jax.tree.map(
+                lambda a, da: jnp.abs(da) / (self.atol + self.rtol * jnp.abs(a)), x, dx)) < 1
+
+        return small(y, y_diff) & small(residual, residual_diff)
+
+    def terminate(self, fn, y, args, options, state: _LevenbergMarquardtState, tags):
+        del fn, y, args, options, tags
+        return state.terminate, state.result
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        del fn, args, options, state, tags, result
+        return y, aux, {}

@@ -39,8 +39,8 @@ def _solve(
     """The whole solve, jitted: final (cameras, points), cost, iterations, steps, result,
     accepted steps.
 
-    iterations = trial steps, as Ceres counts them: optimistix's steps less step 0 (the
-    evaluation of y0) and less the zero step that ends a function-tolerance convergence.
+    iterations = trial steps, as Ceres counts them: the solver's steps less step 0 (the
+    evaluation of y0).
     `progress`: report every step to the host (`report_step`, a `jax.debug.callback`).
     Executables with host callbacks are never written to jax's persistent compilation
     cache (jax/_src/compiler.py `_cache_write`: "Not writing persistent cache entry ...
@@ -59,9 +59,8 @@ def _solve(
     )
     final_cost = 0.5 * jnp.sum(two_block_residuals(solution.value, problem) ** 2)
     steps = solution.stats["num_steps"]
-    zero_step = solution.state.descent_state.converged.astype(steps.dtype)
-    iterations = jnp.maximum(steps - 1 - zero_step, 0)
-    accepted = solution.state.num_accepted_steps - 1 - zero_step  # less step 0
+    iterations = jnp.maximum(steps - 1, 0)
+    accepted = solution.state.num_accepted_steps - 1  # less step 0
     return solution.value, final_cost, iterations, steps, solution.result, accepted
 
 
@@ -145,7 +144,6 @@ def run_bal(
         solve_seconds = time.perf_counter() - start
     final_cost = float(final_cost)
     if progress:
-        recorder.finish(final_cost)
         cost_history = [iteration.cost for iteration in recorder.iterations]
     else:
         cost_history = [initial_cost, final_cost]

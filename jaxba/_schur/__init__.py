@@ -2,7 +2,6 @@
 
 from ._bundle import (
     BundleCofactors as BundleCofactors,
-    BundleSchurLevenbergMarquardt as BundleSchurLevenbergMarquardt,
     bundle_structure as bundle_structure,
     schur_cofactors as schur_cofactors,
     solve_schur as solve_schur,

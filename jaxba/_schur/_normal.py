@@ -158,6 +158,23 @@ def solve_damped(
     return camera_step, _matvec(point_inverse, point_rhs)
 
 
+def predicted_reduction(
+    problem: TwoBlockProblem, normal: NormalEquations, y_diff: TwoBlockY
+) -> Scalar:
+    """δᵀJᵀr + ½ δᵀJᵀJδ for the step δ = `y_diff` = (δ_c, δ_p): the Gauss-Newton model's
+    change of ½|r|², with δᵀJᵀJδ = δ_cᵀUδ_c + δ_pᵀVδ_p + 2 Σ_i δ_p,iᵀ W_iᵀ δ_c,i."""
+    camera_step, point_step = y_diff
+    coupled = _matvec(normal.coupling, camera_step[problem.camera_index])
+    quadratic = (
+        jnp.sum(camera_step * _matvec(normal.camera_hessian, camera_step))
+        + jnp.sum(point_step * _matvec(normal.point_hessian, point_step))
+        + 2.0 * jnp.sum(point_step[problem.point_index] * coupled)
+    )
+    linear = jnp.sum(camera_step * normal.camera_gradient) + jnp.sum(
+        point_step * normal.point_gradient)
+    return linear + 0.5 * quadratic
+
+
 def _reduced_camera_matrix(
     problem: TwoBlockProblem,
     normal: NormalEquations,
