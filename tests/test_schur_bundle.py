@@ -20,6 +20,7 @@ from jaxba._schur._bundle import (
     FUNCTION_TOLERANCE,
     _to_parameters,
     bundle_normal_equations,
+    bundle_predicted_reduction,
     bundle_structure,
     schur_cofactors,
     solve_bundle_damped,
@@ -109,6 +110,12 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     fixed = ~flatten(problem.free)
     all_steps = flatten(_to_parameters(structure, params, x_r, x_e))
     assert np.all(all_steps[fixed] == 0.0)
+    # The trust region's prediction for the step δ = -x: ½|r + Jδ|² - ½|r|².
+    delta = jax.tree.map(jnp.negative, _to_parameters(structure, params, x_r, x_e))
+    predicted = bundle_predicted_reduction(structure, normal, delta)
+    model = 0.5 * np.sum((residual - jacobian @ step) ** 2) - 0.5 * np.sum(residual**2)
+    assert model < 0
+    assert float(predicted) == pytest.approx(float(model), rel=STEP_RTOL)
 
 
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])

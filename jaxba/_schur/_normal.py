@@ -164,11 +164,13 @@ def predicted_reduction(
     """δᵀJᵀr + ½ δᵀJᵀJδ for the step δ = `y_diff` = (δ_c, δ_p): the Gauss-Newton model's
     change of ½|r|², with δᵀJᵀJδ = δ_cᵀUδ_c + δ_pᵀVδ_p + 2 Σ_i δ_p,iᵀ W_iᵀ δ_c,i."""
     camera_step, point_step = y_diff
-    coupled = _matvec(normal.coupling, camera_step[problem.camera_index])
+    # One einsum: the sum of gathered products written out ran ~5x slower on the CPU.
+    coupled = jnp.einsum("npc,nc,np->", normal.coupling, camera_step[problem.camera_index],
+                         point_step[problem.point_index])
     quadratic = (
         jnp.sum(camera_step * _matvec(normal.camera_hessian, camera_step))
         + jnp.sum(point_step * _matvec(normal.point_hessian, point_step))
-        + 2.0 * jnp.sum(point_step[problem.point_index] * coupled)
+        + 2.0 * coupled
     )
     linear = jnp.sum(camera_step * normal.camera_gradient) + jnp.sum(
         point_step * normal.point_gradient)
