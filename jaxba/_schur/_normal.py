@@ -198,7 +198,9 @@ def _reduced_camera_matrix(
         rows = first.shape[0]
         left = eliminated.at[first].get(mode="fill", fill_value=0.0).reshape(rows, -1, n_c)
         right = normal.coupling.at[second].get(mode="fill", fill_value=0.0).reshape(rows, -1, n_c)
-        products = jnp.einsum("rka,rkb->rab", left, right)
+        # A sum of broadcast products, not an einsum: 20 ms against 29 ms per S on
+        # Dubrovnik-16 (XLA's batched dot of tiny matrices is slow on the CPU).
+        products = _matmul(left.transpose(0, 2, 1), right)
         return total.at[block].add(products, mode="drop", indices_are_sorted=True), None
 
     zero = jnp.zeros((n_cameras * n_cameras, n_c, n_c), normal.coupling.dtype)
