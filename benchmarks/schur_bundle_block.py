@@ -115,7 +115,7 @@ def synthetic_block(
 
 
 def main() -> None:
-    from jaxba._schur._bundle import _solve_schur, bundle_structure
+    from jaxba._schur._bundle import FUNCTION_TOLERANCE, _solve_schur, bundle_structure
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=200)
@@ -130,7 +130,7 @@ def main() -> None:
     build_seconds = time.perf_counter() - start
     print(f"{n_residuals} residuals, {problem.n_unknowns()} unknowns,"
           f" reduced side {structure.n_reduced}; built in {build_seconds:.1f} s", flush=True)
-    settings = (args.max_steps, 1e-10, 1e-10, None)
+    settings = (args.max_steps, 1e-10, 1e-10, FUNCTION_TOLERANCE, None)
     start, cpu = time.perf_counter(), time.process_time()
     compiled = _solve_schur.lower(problem, structure, *settings).compile()
     compile_seconds, compile_cpu = time.perf_counter() - start, time.process_time() - cpu

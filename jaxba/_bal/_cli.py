@@ -103,8 +103,7 @@ def run_bal(
     Returns the dict written to results.json: "problem", "n_cameras", "n_points",
     "n_observations", "initial_cost", "final_cost" (½Σr², pixels²), "iterations" (trial
     steps, accepted or not, as Ceres counts them), "solver_steps" (optimistix's count:
-    also step 0, the evaluation of the start, and the closing zero step of a
-    function-tolerance convergence), "accepted_iterations", "converged", "message",
+    also step 0, the evaluation of the start), "accepted_iterations", "converged", "message",
     "cost_history" (accepted iterates), "read_seconds", "compile_seconds",
     "solve_seconds" (the compiled solve alone), "peak_rss_mib" (the process's peak
     resident memory so far, JAX runtime and compiler included), "xla_buffers_mib" (the
