@@ -74,6 +74,11 @@ def _add_adjust(subparsers) -> None:
         "--plots", action="store_true",
         help="also write residuals.png and correlation_<camera>.png (needs matplotlib)",
     )
+    parser.add_argument(
+        "--solver", choices=("auto", "dense", "schur"), default=None,
+        help="dense normal equations, or object points eliminated (Schur complement); auto:"
+             " schur above 2000 unknowns (default: the project's solver setting, auto)",
+    )
     parser.set_defaults(run=_adjust)
 
 
@@ -127,7 +132,8 @@ def _adjust(args: argparse.Namespace) -> int:
         project = jaxba.build_project(spec)
         _say(_report.start_line(project))
         result = jaxba.adjust_project(
-            project, on_iteration=lambda it: _say(_report.iteration_line(it))
+            project, on_iteration=lambda it: _say(_report.iteration_line(it)),
+            solver=args.solver,
         )
     except (jaxba.ProjectError, jaxba.DatumError, _report.OutputError) as error:
         raise _UsageError(str(error)) from None

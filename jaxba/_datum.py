@@ -85,11 +85,14 @@ def null_space(
     return vt[null_rows] / column_norms if null_rows.any() else None
 
 
-def describe_defect(problem, null_basis, index, labels, *, allow_similarity=False) -> None:
+def describe_defect(
+    problem, null_basis, index, labels, *, allow_similarity=False, column_norms=None
+) -> None:
     """Raise `DatumError` naming the defect spanned by `null_basis` (d, n_free).
 
     With `allow_similarity`, a defect that is a similarity transformation of the
-    network (what inner constraints fix) passes silently.
+    network (what inner constraints fix) passes silently. `column_norms` (n_free,): the
+    norms of the whitened Jacobian's columns (default: from the dense Jacobian).
     """
     rank_defect = null_basis.shape[0]
     similarity = _describe_similarity(null_basis, _similarity_directions(problem), index)
@@ -108,7 +111,9 @@ def describe_defect(problem, null_basis, index, labels, *, allow_similarity=Fals
             + hint
         )
     # Rank the unknowns in Jacobi-scaled units (as the observations see them).
-    column_norms = np.linalg.norm(np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
+    if column_norms is None:
+        column_norms = np.linalg.norm(
+            np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
     scaled = null_basis * column_norms
     magnitude = np.max(np.abs(scaled / np.linalg.norm(scaled, axis=1, keepdims=True)), axis=0)
     involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
@@ -132,6 +137,28 @@ def check_datum(
     check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
 
 
+def check_columns(
+    problem: BundleProblem, finite: np.ndarray, column_norms: np.ndarray, labels: list[str]
+) -> None:
+    """The checks before any decomposition: a positive redundancy, a finite model and an
+    observation for every free unknown (`finite`, `column_norms`: (n_free,) per column of
+    the whitened Jacobian at the approximations)."""
+    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
+    if n_observations <= n_unknowns:
+        raise DatumError(
+            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
+            "(redundancy must be positive)"
+        )
+    index = free_indices(problem)
+    if not np.all(finite):
+        bad = sorted({labels[index[k]] for k in np.flatnonzero(~finite)})
+        raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
+    unobserved = np.flatnonzero(column_norms == 0)
+    if unobserved.size:
+        names = ", ".join(labels[index[k]] for k in unobserved[:8])
+        raise DatumError(f"datum defect: no observation depends on {names}")
+
+
 def check_datum_with_jacobian(
     problem: BundleProblem,
     jacobian: np.ndarray,
@@ -141,21 +168,10 @@ def check_datum_with_jacobian(
 ) -> None:
     """`check_datum`, given the whitened Jacobian (real observations x free unknowns) at
     the approximations (e.g. from a batched computation)."""
-    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    if n_observations <= n_unknowns:
-        raise DatumError(
-            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
-            "(redundancy must be positive)"
-        )
     labels = labels or parameter_labels(problem.initial)
     index = free_indices(problem)
-    if not np.all(np.isfinite(jacobian)):
-        bad = sorted({labels[index[k]] for k in np.flatnonzero(~np.isfinite(jacobian).all(0))})
-        raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
-    unobserved = np.flatnonzero(np.linalg.norm(jacobian, axis=0) == 0)
-    if unobserved.size:
-        names = ", ".join(labels[index[k]] for k in unobserved[:8])
-        raise DatumError(f"datum defect: no observation depends on {names}")
+    check_columns(problem, np.all(np.isfinite(jacobian), axis=0),
+                  np.linalg.norm(jacobian, axis=0), labels)
     null_basis = null_space(problem, rtol=rtol, jacobian=jacobian)
     if null_basis is not None:
         describe_defect(problem, null_basis, index, labels)

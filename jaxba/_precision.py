@@ -1,7 +1,8 @@
 """Derived precision: correlations, object-point ellipsoids, propagation to functions.
 
-All work on an `Adjustment` whose `precision.covariance` holds Cxx of the free unknowns
-in `flatten` order (`precision.free_index`); fixed unknowns have zero variance.
+All work on an `Adjustment` through `precision.covariance_of` (Cxx among unknowns given by
+their `flatten` positions; fixed unknowns have zero variance), so they serve bundles
+adjusted densely and with their points eliminated alike (`full_covariance` excepted).
 """
 
 from collections.abc import Callable
@@ -17,12 +18,9 @@ from ._solve import Adjustment
 
 
 def full_covariance(result: Adjustment) -> np.ndarray:
-    """Cxx over *all* unknowns in `flatten` order, zero rows/columns for fixed ones."""
-    n = flatten(result.parameters).size
-    index = result.precision.free_index
-    covariance = np.zeros((n, n))
-    covariance[np.ix_(index, index)] = result.precision.covariance
-    return covariance
+    """Cxx over *all* unknowns in `flatten` order, zero rows/columns for fixed ones (dense
+    adjustments only: n x n)."""
+    return result.precision.covariance_of(np.arange(flatten(result.parameters).size))
 
 
 def correlation(covariance: np.ndarray) -> np.ndarray:
@@ -43,15 +41,20 @@ def camera_correlation(result: Adjustment, model: str, row: int) -> tuple[list[s
     positions = np.asarray(_positions(result).cameras[model][row])
     free = np.asarray(result.problem.free.cameras[model][row])
     chosen = positions[free]
-    full = full_covariance(result)
-    return [n for n, f in zip(names, free) if f], correlation(full[np.ix_(chosen, chosen)])
+    return [n for n, f in zip(names, free) if f], correlation(
+        result.precision.covariance_of(chosen))
 
 
 def point_covariances(result: Adjustment) -> Float[np.ndarray, "n_points 3 3"]:
     """3x3 covariance of every object point (object units²), zeros for fixed coordinates."""
-    positions = np.asarray(_positions(result).points)
-    full = full_covariance(result)
-    return full[positions[:, :, None], positions[:, None, :]]
+    precision = result.precision
+    if precision.schur is not None:
+        return precision.schur.points
+    rows = precision.covariance_rows(np.asarray(_positions(result).points))  # (n_points, 3)
+    free = rows >= 0
+    safe = np.where(free, rows, 0)
+    blocks = precision.covariance[safe[:, :, None], safe[:, None, :]]
+    return np.where(free[:, :, None] & free[:, None, :], blocks, 0.0)
 
 
 def error_ellipsoids(
@@ -74,17 +77,19 @@ def propagate(
     """Value and covariance of y = f(x) by linear propagation, C_yy = F Cxx Fᵀ.
 
     `function` maps the adjusted Parameters to an array (a distance, a projected point,
-    a derived camera constant...); F = ∂y/∂x_free by `jax.jacfwd`. The covariance has the
-    flattened shape (y.size, y.size).
+    a derived camera constant...); F = ∂y/∂x_free by `jax.jacfwd`; only the unknowns y
+    depends on enter (after points-eliminated adjustments: reduced unknowns or one point).
+    The covariance has the flattened shape (y.size, y.size).
     """
-    index = jnp.asarray(result.precision.free_index)
+    index = np.asarray(result.precision.free_index)
     base = jnp.asarray(flatten(result.parameters))
 
     def of_free(x_free):
         values = unflatten(result.parameters, base.at[index].set(x_free))
         return jnp.ravel(function(values))
 
-    x_free = base[index]
     value = np.asarray(function(result.parameters))
-    jacobian = np.asarray(jax.jacfwd(of_free)(x_free))
-    return value, jacobian @ result.precision.covariance @ jacobian.T
+    jacobian = np.asarray(jax.jacfwd(of_free)(base[index]))
+    used = np.flatnonzero(np.any(jacobian != 0, axis=0))
+    covariance = result.precision.covariance_of(index[used])
+    return value, jacobian[:, used] @ covariance @ jacobian[:, used].T

@@ -18,6 +18,7 @@ import scipy.stats
 
 from ._observations import ImagePoints
 from ._problem import BundleProblem, dense_jacobian, observation_mask
+from ._schur._reliability import schur_redundancy_numbers
 from ._solve import Adjustment, adjust
 
 
@@ -51,8 +52,13 @@ def _split(problem: BundleProblem, flat_real: np.ndarray) -> tuple[np.ndarray, .
     return tuple(parts)
 
 
-def redundancy_numbers(problem: BundleProblem, params) -> tuple[np.ndarray, np.ndarray]:
-    """(r_i, e_i) of the real observations, flat, at `params` (dense)."""
+def redundancy_numbers(
+    problem: BundleProblem, params, *, schur: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations, flat, at `params`: dense, or with `schur` from
+    the Schur split (`schur_redundancy_numbers`, for bundles adjusted that way)."""
+    if schur:
+        return schur_redundancy_numbers(problem, params)
     jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
     column_scale = 1.0 / np.linalg.norm(jacobian, axis=0)
     scaled = jacobian * column_scale
@@ -75,7 +81,8 @@ def reliability(
     `alpha` is the significance of each w-test, or with `familywise=True` that of the
     whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
     """
-    r, whitened = redundancy_numbers(result.problem, result.parameters)
+    r, whitened = redundancy_numbers(result.problem, result.parameters,
+                                     schur=result.precision.schur is not None)
     return reliability_from_redundancy(
         result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
     )

@@ -16,6 +16,9 @@ from ._linearisation import LinearisationPlan, linearisation_plan, normal_equati
 from ._parameters import Parameters
 from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder, listening, report_step
+from ._schur._bundle import schur_precision, solve_schur
+from ._schur._choice import use_schur
+from ._schur._datum import check_datum_schur
 from ._statistics import Precision, precision
 from ._trust_region import silent
 
@@ -152,6 +155,7 @@ def adjust(
     on_iteration: Callable[[Iteration], None] | None = None,
     throw: bool = False,
     check: bool = True,
+    solver: str = "auto",
 ) -> Adjustment:
     """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
 
@@ -160,13 +164,25 @@ def adjust(
     re-adjusting a checked bundle with new weights). `on_iteration` is called for
     every accepted iterate. With `throw=True` a non-converged solve raises
     `NotConvergedError`; otherwise `converged` and `message` say what happened.
+
+    `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
+    points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
+    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" above
+    `SCHUR_MIN_UNKNOWNS` unknowns).
     """
+    schur = use_schur(problem, solver)
     if check:
-        check_datum(problem, labels=labels)
+        if schur:
+            check_datum_schur(problem, labels=labels)
+        else:
+            check_datum(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with listening(recorder):
-        solution = solve(problem, max_steps=max_steps, rtol=rtol, atol=atol)
+        if schur:
+            solution = solve_schur(problem, max_steps=max_steps, rtol=rtol, atol=atol)
+        else:
+            solution = solve(problem, max_steps=max_steps, rtol=rtol, atol=atol)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     final_cost = float(solution.cost)
@@ -181,7 +197,7 @@ def adjust(
     return Adjustment(
         problem=problem,
         parameters=params,
-        precision=precision(problem, params, sigma0=sigma0),
+        precision=(schur_precision if schur else precision)(problem, params, sigma0=sigma0),
         residuals=residuals,
         iterations=recorder.iterations,
         converged=bool(converged),

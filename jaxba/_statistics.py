@@ -11,13 +11,33 @@ from ._problem import BundleProblem, dense_jacobian, free_indices
 
 
 @dataclasses.dataclass(frozen=True)
+class SchurCovariance:
+    """Cxx of a bundle adjusted with the object points eliminated (`solve_schur`): the
+    reduced side (IOPs, EOPs, points in distances) in full and every object point's 3 x 3
+    block; the cross-covariances of an eliminated point with any other unknown are not
+    formed (they would make Cxx dense).
+
+    - `reduced_positions`: (n_r,) `flatten` positions of the reduced unknowns;
+    - `reduced`: (n_r, n_r) their covariance (rows of fixed unknowns 0);
+    - `points`: (n_points, 3, 3) every point's covariance (0 for fixed coordinates).
+    """
+
+    reduced_positions: np.ndarray
+    reduced: np.ndarray
+    points: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
 class Precision:
     """Cxx = σ̂0² N⁻¹, N = AᵀPA (whitened Jacobian J: N = σ0² JᵀJ), free unknowns only;
     for a free network N⁻¹ is the inner-constraint generalised inverse.
 
     - `sigma0_squared`: a posteriori variance factor σ0² vᵀΣ⁻¹v / r;
-    - `covariance`: (n_free, n_free) in the order of `free_index`;
+    - `covariance`: (n_free, n_free) in the order of `free_index`, or None for a bundle
+      adjusted with its points eliminated, whose covariance is `schur` instead;
     - `std`: Parameters of standard deviations, 0 for fixed unknowns.
+
+    `covariance_of(positions)` serves both.
     """
 
     sigma0_squared: float
@@ -25,8 +45,49 @@ class Precision:
     n_observations: int
     n_unknowns: int
     free_index: np.ndarray
-    covariance: np.ndarray
+    covariance: np.ndarray | None
     std: Parameters
+    schur: SchurCovariance | None = None
+
+    def covariance_of(self, positions: np.ndarray) -> np.ndarray:
+        """Cxx among the unknowns at `positions` (`flatten` order over all unknowns; rows
+        and columns of fixed ones 0). From `schur`, the positions must all be reduced
+        unknowns or all coordinates of one object point (`ValueError` otherwise)."""
+        positions = np.asarray(positions, dtype=int)
+        if self.covariance is not None:
+            rows = self.covariance_rows(positions)
+            free = rows >= 0
+            out = np.zeros((positions.size, positions.size))
+            out[np.ix_(free, free)] = self.covariance[np.ix_(rows[free], rows[free])]
+            return out
+        return _schur_block(self.schur, self.std, positions)
+
+    def covariance_rows(self, positions: np.ndarray) -> np.ndarray:
+        """Rows of `covariance` of the unknowns at `positions` (any shape), -1 where fixed."""
+        row_of = np.full(flatten(self.std).size, -1)
+        row_of[self.free_index] = np.arange(self.free_index.size)
+        return row_of[np.asarray(positions, dtype=int)]
+
+
+def _schur_block(schur: SchurCovariance, std: Parameters, positions: np.ndarray) -> np.ndarray:
+    """`Precision.covariance_of` from a `SchurCovariance`."""
+    row_of = np.full(flatten(std).size, -1)
+    row_of[schur.reduced_positions] = np.arange(schur.reduced_positions.size)
+    rows = row_of[positions]
+    if np.all(rows >= 0):
+        return schur.reduced[np.ix_(rows, rows)]
+    point_positions = np.asarray(unflatten(std, np.arange(flatten(std).size)).points)
+    where = np.isin(point_positions, positions)
+    point_rows = np.flatnonzero(where.any(axis=1))
+    if point_rows.size == 1 and np.all(np.isin(positions, point_positions[point_rows[0]])):
+        coordinate = {int(p): k for k, p in enumerate(point_positions[point_rows[0]])}
+        index = np.array([coordinate[int(p)] for p in positions])
+        return schur.points[point_rows[0]][np.ix_(index, index)]
+    raise ValueError(
+        "this bundle was adjusted with its object points eliminated (Schur complement): "
+        "covariances are available among IOPs, EOPs and distance points, or within one "
+        "object point, not between an eliminated point and other unknowns"
+    )
 
 
 def _constraint_rows(problem: BundleProblem) -> np.ndarray:

@@ -65,7 +65,8 @@ def estimate_variance_components(
     current = result
     for iteration in range(1, max_iterations + 1):
         problem = current.problem
-        r, whitened = redundancy_numbers(problem, current.parameters)
+        r, whitened = redundancy_numbers(problem, current.parameters,
+                                         schur=current.precision.schur is not None)
         full_r = np.zeros(observation_mask(problem).shape)
         full_e = np.zeros_like(full_r)
         full_r[observation_mask(problem)] = r

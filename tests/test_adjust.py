@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._schur._datum import check_datum_schur
 
 # A result is "recovered" when it is within this many of its reported σ of the truth.
 RECOVERY_SIGMAS = 4.0
@@ -100,18 +101,33 @@ def test_missing_scale_is_refused_before_solving(tmp_path):
         jaxba.adjust_project(project)
 
 
-def test_no_datum_at_all_names_translation_rotation_and_scale(tmp_path):
+# The dense check (SVD of the Jacobian) and the one from the Schur split (large bundles).
+DATUM_CHECKS = {"dense": jaxba.check_datum, "schur": check_datum_schur}
+
+
+def test_schur_datum_check_passes_a_determined_block_and_names_missing_scale(tmp_path, lab):
+    _, project, _ = lab
+    check_datum_schur(project.problem, labels=project.labels)
+    truth = jaxba.write_synthetic_project(tmp_path, seed=7, n_distances=0)
+    no_scale = jaxba.build_project(jaxba.read_project(truth.project_file))
+    with pytest.raises(jaxba.DatumError, match="rank deficiency 1.*scale"):
+        check_datum_schur(no_scale.problem, labels=no_scale.labels)
+
+
+@pytest.mark.parametrize("check", DATUM_CHECKS)
+def test_no_datum_at_all_names_translation_rotation_and_scale(tmp_path, check):
     truth = jaxba.write_synthetic_project(tmp_path, seed=7, datum="none", n_distances=0)
     project = jaxba.build_project(jaxba.read_project(truth.project_file))
     with pytest.raises(jaxba.DatumError) as error:
-        jaxba.check_datum(project.problem, labels=project.labels)
+        DATUM_CHECKS[check](project.problem, labels=project.labels)
     message = str(error.value)
     assert "rank deficiency 7" in message
     for word in ("translation in X", "rotation about Z", "scale"):
         assert word in message
 
 
-def test_point_on_a_single_ray_is_named(lab):
+@pytest.mark.parametrize("check", DATUM_CHECKS)
+def test_point_on_a_single_ray_is_named(lab, check):
     """A tie point seen from two images taken at one station has no depth: name it."""
     _, project, _ = lab
     problem = project.problem
@@ -131,7 +147,7 @@ def test_point_on_a_single_ray_is_named(lab):
         lambda p: (p.groups, p.initial.images), problem, ((thinned, *problem.groups[1:]), images)
     )
     with pytest.raises(jaxba.DatumError) as error:
-        jaxba.check_datum(degenerate, labels=project.labels)
+        DATUM_CHECKS[check](degenerate, labels=project.labels)
     message = str(error.value)
     assert "rank deficiency 1" in message
     point_id = project.point_ids[point]

@@ -11,11 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.flatten_util import ravel_pytree
 
 import jaxba
 from jaxba._observations import AbstractObservationGroup, ParameterObservations
 from jaxba._parameters import flatten
 from jaxba._problem import dense_jacobian, free_indices
+from jaxba._reliability import redundancy_numbers
 from jaxba._schur._bundle import (
     FUNCTION_TOLERANCE,
     _to_parameters,
@@ -27,11 +29,13 @@ from jaxba._schur._bundle import (
     solve_schur,
 )
 from jaxba._schur._normal import marquardt_diagonal
+from jaxba._schur._reliability import schur_redundancy_numbers
 
 COVARIANCE_RTOL = 1e-7  # σ and point 3x3 covariances, Schur vs dense precision
 STEP_RTOL = 1e-9  # one damped step, Schur vs dense normal equations (float64)
 COST_RTOL = 1e-10  # final cost, Schur LM vs dense LM
 PARAMETER_ATOL = 1e-8  # final unknowns (m, rad, mm)
+REDUNDANCY_ATOL = 1e-9  # r_i in [0, 1], Schur blocks vs dense (float64)
 
 
 def _problem(tmp_path, **kwargs):
@@ -222,3 +226,22 @@ def test_run_bal_without_progress_has_no_host_callback(tmp_path):
     assert quiet["iterations"] == loud["iterations"]
     assert quiet["final_cost"] == loud["final_cost"]
     assert len(loud["cost_history"]) == loud["accepted_iterations"] + 1
+
+
+@pytest.mark.parametrize("variant", ["plain", "control_robust"])
+def test_redundancy_numbers_match_dense(block, variant):
+    """r_i = 1 - j N⁻¹ jᵀ from the Schur blocks equals the dense computation for every real
+    observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances."""
+    problem = block if variant == "plain" else _with_control_and_robust(block)
+    flat, unravel = ravel_pytree(problem.initial)
+    perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
+    params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))
+    structure = bundle_structure(problem, chunk_mib=0.01)  # several chunks of points
+    r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
+    expected_r, expected_whitened = redundancy_numbers(problem, params)
+    assert r.shape == expected_r.shape == (problem.n_observations(),)
+    np.testing.assert_allclose(whitened, expected_whitened, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(r, expected_r, rtol=0, atol=REDUNDANCY_ATOL)
+    # Σ r_i = trace(I - J N⁻¹ Jᵀ) = n - u.
+    redundancy = problem.n_observations() - problem.n_unknowns()
+    assert float(np.sum(r)) == pytest.approx(redundancy, rel=1e-9)

@@ -14,6 +14,7 @@ from .._reliability import data_snooping, reliability, restart_from
 from .._solve import Adjustment, adjust
 from .._variance_components import estimate_variance_components
 from ._build import Project
+from ._errors import ProjectError
 
 
 def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list[Iteration]:
@@ -23,13 +24,23 @@ def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list
 
 
 def adjust_project(
-    project: Project, *, on_iteration: Callable[[Iteration], None] | None = None
+    project: Project,
+    *,
+    on_iteration: Callable[[Iteration], None] | None = None,
+    solver: str | None = None,
 ) -> Adjustment:
-    """Run the project's adjustment and statistics; see the module docstring."""
+    """Run the project's adjustment and statistics; see the module docstring. `solver`:
+    "auto", "dense" or "schur" (object points eliminated), as for `jaxba.adjust`; None: the
+    project's `solver` setting."""
     settings = project.spec.settings
+    solver = solver or settings.solver
+    if solver == "schur" and settings.datum == "free":
+        raise ProjectError(
+            f"{project.spec.path}: solver 'schur' eliminates the object points and cannot "
+            "hold a free network's inner constraints (datum = \"free\"); use 'dense' or 'auto'")
     options = dict(
         sigma0=settings.sigma0, max_steps=settings.max_iterations,
-        rtol=settings.rtol, atol=settings.atol,
+        rtol=settings.rtol, atol=settings.atol, solver=solver,
     )
     snooping = dict(alpha=settings.snooping_alpha, familywise=settings.snooping_familywise)
     problem = project.problem

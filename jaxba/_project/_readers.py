@@ -38,7 +38,11 @@ _CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor")
 _POSITIVE_SETTINGS = frozenset({
     "sigma0", "image_sigma", "max_iterations", "object_unit_km", "snooping_alpha", "robust_scale",
 })
-_SETTING_CHOICES = {"robust": ("none", "huber", "cauchy"), "datum": ("control", "free")}
+_SETTING_CHOICES = {
+    "robust": ("none", "huber", "cauchy"),
+    "datum": ("control", "free"),
+    "solver": ("auto", "dense", "schur"),
+}
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
 
 _IMAGE_COLUMNS = (

@@ -36,6 +36,9 @@ class AdjustmentSettings:
     # constraints over `datum_points`, default all points; point σ are then ignored).
     datum: str = "control"
     datum_points: tuple[str, ...] = ()
+    # Solver: "dense" (normal equations of all unknowns), "schur" (object points
+    # eliminated, covariance in blocks) or "auto" (schur above 2000 unknowns).
+    solver: str = "auto"
 
 
 @dataclasses.dataclass(frozen=True)

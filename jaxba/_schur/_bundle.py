@@ -36,8 +36,9 @@ from jaxtyping import Array, Float, Int, Scalar
 
 from .._cholesky import cholesky_solve
 from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
-from .._parameters import Parameters
-from .._problem import BundleProblem
+from .._parameters import Parameters, flatten, unflatten
+from .._problem import BundleProblem, free_indices
+from .._statistics import Precision, SchurCovariance
 from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, silent
 from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
 
@@ -219,6 +220,14 @@ def _to_parameters(
     return Parameters(cameras=cameras, images=images.reshape(n_images, 6), points=points)
 
 
+def _free_masks(problem: BundleProblem, structure: BundleStructure, dtype) -> tuple[Array, Array]:
+    """1.0 on free unknowns: reduced columns (n_r + 1,) and eliminated points (n_e + 1, 3),
+    each with a padding entry 0."""
+    free_r = jnp.append(_reduced_vector(structure, problem.free), 0.0).astype(dtype)
+    free_e = problem.free.points.astype(dtype)[structure.eliminated_points]
+    return free_r, jnp.concatenate([free_e, jnp.zeros((1, 3), dtype)])
+
+
 def bundle_normal_equations(
     problem: BundleProblem,
     structure: BundleStructure,
@@ -230,9 +239,8 @@ def bundle_normal_equations(
     n_r, m = structure.n_reduced, structure.m
     n_e = structure.eliminated_points.shape[0]
     dtype = params.images.dtype
-    free_r = jnp.append(_reduced_vector(structure, problem.free), 0.0).astype(dtype)
+    free_r, free_e = _free_masks(problem, structure, dtype)
     free_points = problem.free.points.astype(dtype)
-    free_e = jnp.concatenate([free_points[structure.eliminated_points], jnp.zeros((1, 3), dtype)])
 
     n_keys = structure.key_columns.shape[0]
     totals = (
@@ -342,13 +350,74 @@ def _accumulate_image_group(
     observations at once); returns the totals and the group's couplings W_i (n, m, 3).
 
     Observations [start, stop) of the structure's concatenated image observations.
-    The residual differentiated is the one the solver minimises: whitened, masked,
-    robustified (`BundleProblem.residuals`).
     """
     params = problem.with_free(params)
-    m, batch = structure.m, max(1, min(structure.jacobian_batch, stop - start))
+
+    def accumulate(totals, chunk):
+        per_key, gradient, point_hessian, point_gradient = totals
+        *observations, key = chunk
+        jr, je, e = _image_jacobian_blocks(
+            problem, structure, group, params, free_r, free_e, observations)
+        columns, point_row = observations[-2:]
+        totals = (
+            per_key + jax.ops.segment_sum(_gram(jr, jr), key, per_key.shape[0]),
+            gradient.at[columns].add(jnp.sum(jr * e[:, :, None], axis=1), mode="drop"),
+            point_hessian.at[point_row].add(_gram(je, je), mode="drop"),
+            point_gradient.at[point_row].add(jnp.sum(je * e[:, :, None], axis=1), mode="drop"),
+        )
+        return totals, _gram(jr, je)
+
+    chunks = _image_group_chunks(structure, group, start, stop)
+    totals, coupling = jax.lax.scan(accumulate, totals, chunks)
+    return totals, coupling.reshape(-1, structure.m, 3)[: stop - start]
+
+
+def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
+    """One ImagePoints group's observations (camera, image, point, measured, σ, mask,
+    reduced columns, eliminated-point row, key), in chunks of `structure.jacobian_batch`
+    (n_chunks, batch, ...); padding repeats the last observation, masked out, with
+    out-of-range columns, point row and key."""
     n = stop - start
-    n_iop = params.cameras[group.model].shape[1]
+    batch = max(1, min(structure.jacobian_batch, n))
+    pad = -n % batch
+
+    def chunked(x, fill=None):
+        widths = [(0, pad)] + [(0, 0)] * (x.ndim - 1)
+        if fill is None:
+            x = jnp.pad(x, widths, mode="edge")
+        else:
+            x = jnp.pad(x, widths, constant_values=fill)
+        return x.reshape(-1, batch, *x.shape[1:])
+
+    return (
+        chunked(group.camera),
+        chunked(group.image),
+        chunked(group.point),
+        chunked(group.measured),
+        chunked(group.stddev),
+        chunked(group.mask(), False),
+        chunked(structure.image_columns[start:stop], structure.n_reduced),
+        chunked(structure.image_point[start:stop], structure.eliminated_points.shape[0]),
+        chunked(structure.key[start:stop], structure.key_columns.shape[0]),
+    )
+
+
+def _image_jacobian_blocks(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    group: ImagePoints,
+    params: Parameters,
+    free_r: Array,
+    free_e: Array,
+    observations: list[Array],
+) -> tuple[Float[Array, "n 2 m"], Float[Array, "n 2 3"], Float[Array, "n 2"]]:
+    """Jacobian blocks of a batch of one group's observations (`_image_group_chunks`
+    rows, less the key) at `params` (all values set): jr over the observation's reduced
+    columns (a reduced point's columns included), je over its eliminated point (0 for a
+    reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
+    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`)."""
+    camera, image, point, measured, sigma, mask, columns, point_row = observations
+    m, n_iop = structure.m, params.cameras[group.model].shape[1]
     dtype = params.images.dtype
 
     def residual(iop, eop, point, measured, sigma, mask):
@@ -365,56 +434,22 @@ def _accumulate_image_group(
         e = residual(iop, eop, point, measured, sigma, mask)
         return jnp.concatenate([j_iop, j_eop], axis=1), j_point, e
 
-    def accumulate(totals, chunk):
-        per_key, gradient, point_hessian, point_gradient = totals
-        camera, image, point, measured, sigma, mask, columns, point_row, key = chunk
-        jc, jp, e = jax.vmap(one)(
-            params.cameras[group.model].at[camera].get(mode="clip"),
-            params.images.at[image].get(mode="clip"),
-            params.points.at[point].get(mode="clip"),
-            measured,
-            sigma,
-            mask,
-        )
-        mask = mask.astype(dtype)[:, :, None]
-        jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
-        reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
-        padding = jnp.zeros((*jc.shape[:2], m - n_iop - 9), dtype)
-        jr = jnp.concatenate([jc, padding, jnp.where(reduced_point, jp, 0.0)], axis=-1)
-        jr = jr * free_r[columns][:, None, :]
-        je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
-        totals = (
-            per_key + jax.ops.segment_sum(_gram(jr, jr), key, per_key.shape[0]),
-            gradient.at[columns].add(jnp.sum(jr * e[:, :, None], axis=1), mode="drop"),
-            point_hessian.at[point_row].add(_gram(je, je), mode="drop"),
-            point_gradient.at[point_row].add(jnp.sum(je * e[:, :, None], axis=1), mode="drop"),
-        )
-        return totals, _gram(jr, je)
-
-    pad = -n % batch
-    n_reduced, n_e = structure.n_reduced, structure.eliminated_points.shape[0]
-
-    def chunked(x, fill=None):
-        widths = [(0, pad)] + [(0, 0)] * (x.ndim - 1)
-        if fill is None:
-            x = jnp.pad(x, widths, mode="edge")
-        else:
-            x = jnp.pad(x, widths, constant_values=fill)
-        return x.reshape(-1, batch, *x.shape[1:])
-
-    chunks = (
-        chunked(group.camera),
-        chunked(group.image),
-        chunked(group.point),
-        chunked(group.measured),
-        chunked(group.stddev),
-        chunked(group.mask(), False),
-        chunked(structure.image_columns[start:stop], n_reduced),
-        chunked(structure.image_point[start:stop], n_e),
-        chunked(structure.key[start:stop], structure.key_columns.shape[0]),
+    jc, jp, e = jax.vmap(one)(
+        params.cameras[group.model].at[camera].get(mode="clip"),
+        params.images.at[image].get(mode="clip"),
+        params.points.at[point].get(mode="clip"),
+        measured,
+        sigma,
+        mask,
     )
-    totals, coupling = jax.lax.scan(accumulate, totals, chunks)
-    return totals, coupling.reshape(-1, m, 3)[:n]
+    mask = mask.astype(dtype)[:, :, None]
+    jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
+    reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
+    padding = jnp.zeros((*jc.shape[:2], m - n_iop - 9), dtype)
+    jr = jnp.concatenate([jc, padding, jnp.where(reduced_point, jp, 0.0)], axis=-1)
+    jr = jr * free_r[columns][:, None, :]
+    je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
+    return jr, je, e
 
 
 def _distance_jacobians(
@@ -623,7 +658,8 @@ class BundleCofactors(eqx.Module):
     - `points`: (n_points, 3, 3) the 3 x 3 cofactor block of every object point (reduced
       ones copied from `reduced`), V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ for eliminated ones;
     - `sigma0_squared`: σ0² eᵀe / (n_observations - n_unknowns);
-    - `std`: Parameters of σ = sqrt(σ̂0² diag Q), 0 for fixed unknowns (as `Precision.std`).
+    - `std`: Parameters of σ = sqrt(σ̂0²/σ0² diag Q) (Cxx = σ̂0² N⁻¹, N = σ0² JᵀJ), 0 for
+      fixed unknowns (as `Precision.std`).
     """
 
     reduced: Float[Array, "n_r n_r"]
@@ -653,10 +689,43 @@ def schur_cofactors(
     return _schur_cofactors(problem, structure, params, sigma0, n_observations - n_unknowns)
 
 
-@eqx.filter_jit
-def _schur_cofactors(problem, structure, params, sigma0, redundancy):
-    n_r, n_points = structure.n_reduced, structure.points_per_chunk
-    normal = bundle_normal_equations(problem, structure, params)
+def schur_precision(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> Precision:
+    """`jaxba.precision` from the Schur split (`schur_cofactors`): σ̂0², σ of every unknown,
+    and as covariance a `SchurCovariance` (`covariance` None): Cxx of the reduced side and
+    every object point's 3 x 3 block."""
+    if structure is None:
+        structure = bundle_structure(problem)
+    cofactors = schur_cofactors(problem, params, sigma0=sigma0, structure=structure)
+    sigma0_squared = float(cofactors.sigma0_squared)
+    variance_factor = sigma0_squared / sigma0**2
+    n_all = flatten(problem.initial).size
+    positions = unflatten(problem.initial, np.arange(n_all))
+    index = free_indices(problem)
+    return Precision(
+        sigma0_squared=sigma0_squared,
+        redundancy=problem.n_observations() - index.size,
+        n_observations=problem.n_observations(),
+        n_unknowns=index.size,
+        free_index=index,
+        covariance=None,
+        std=jax.tree.map(np.asarray, cofactors.std),
+        schur=SchurCovariance(
+            reduced_positions=np.asarray(_reduced_vector(structure, positions)).astype(int),
+            reduced=variance_factor * np.asarray(cofactors.reduced),
+            points=variance_factor * np.asarray(cofactors.points),
+        ),
+    )
+
+
+def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:
+    """S⁻¹ (n_r, n_r; rows and columns of fixed unknowns 0) and the points' V⁻¹ padded
+    with a zero block (n_e + 1, 3, 3)."""
     dtype = normal.reduced_gradient.dtype
     free_r = _reduced_vector(structure, problem.free).astype(dtype)
     point_inverse = _small_inverse(normal.point_hessian)
@@ -664,32 +733,47 @@ def _schur_cofactors(problem, structure, params, sigma0, redundancy):
     reduced = normal.reduced_hessian + product
     factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
     cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
-    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
-    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
+    return cofactor, jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
 
-    def chunk_cofactors(_, chunk):
-        obs, local, points = chunk
-        _, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
-        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-        qt = (padded @ t_flat).reshape(n_r + 1, n_points, 3)
-        return None, inverse[points] + jnp.einsum("pci,cpk->pik", t, qt)
+
+def _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk) -> tuple[Array, Array]:
+    """For a chunk of eliminated points: G = S⁻¹ Y_p V_p⁻¹ (n_r + 1, points, 3), so that
+    the reduced/point cofactor block is -G, and the points' 3 x 3 cofactor blocks
+    V_p⁻¹ + V_p⁻¹ Y_pᵀ G (points, 3, 3)."""
+    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    obs, local, points = chunk
+    _, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
+    t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
+    g = (jnp.pad(cofactor, ((0, 1), (0, 1))) @ t_flat).reshape(n_r + 1, n_points, 3)
+    return g, inverse[points] + jnp.einsum("pci,cpk->pik", t, g)
+
+
+def _point_cofactors(problem, structure, normal, cofactor, inverse) -> Array:
+    """The 3 x 3 cofactor block of every object point (n_points, 3, 3), 0 where fixed."""
+    def chunk_blocks(_, chunk):
+        return None, _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)[1]
 
     chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
-    _, eliminated = jax.lax.scan(chunk_cofactors, None, chunks)
+    _, eliminated = jax.lax.scan(chunk_blocks, None, chunks)
     n_e = structure.eliminated_points.shape[0]
-    eliminated = eliminated.reshape(-1, 3, 3)[:n_e]
-    point_free = problem.free.points.astype(dtype)
-    points = jnp.zeros((problem.initial.points.shape[0], 3, 3), dtype)
-    points = points.at[structure.eliminated_points].set(eliminated)
-    start = structure.image_offset + problem.initial.images.size
-    index = start + 3 * jnp.arange(structure.reduced_points.shape[0])[:, None] + jnp.arange(3)
+    points = jnp.zeros((problem.initial.points.shape[0], 3, 3), cofactor.dtype)
+    points = points.at[structure.eliminated_points].set(eliminated.reshape(-1, 3, 3)[:n_e])
+    index = structure.point_column[structure.reduced_points][:, None] + jnp.arange(3)
     points = points.at[structure.reduced_points].set(cofactor[index[:, :, None], index[:, None, :]])
-    points = points * point_free[:, :, None] * point_free[:, None, :]
+    free = problem.free.points.astype(cofactor.dtype)
+    return points * free[:, :, None] * free[:, None, :]
 
+
+@eqx.filter_jit
+def _schur_cofactors(problem, structure, params, sigma0, redundancy):
+    normal = bundle_normal_equations(problem, structure, params)
+    cofactor, inverse = _reduced_cofactor(problem, structure, normal)
+    points = _point_cofactors(problem, structure, normal, cofactor, inverse)
     residuals = problem.residuals(problem.with_free(params))
     sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy
-    reduced_std = jnp.sqrt(sigma0_squared * jnp.clip(jnp.diagonal(cofactor), 0.0))
-    point_std = jnp.sqrt(sigma0_squared * jnp.clip(jnp.diagonal(points, axis1=1, axis2=2), 0.0))
+    variance_factor = sigma0_squared / sigma0**2
+    reduced_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(cofactor), 0.0))
+    point_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(points, axis1=1, axis2=2), 0.0))
     eliminated_std = point_std[structure.eliminated_points]
     std = _to_parameters(structure, problem.initial, reduced_std, eliminated_std)
     return BundleCofactors(cofactor, points, sigma0_squared, std)

@@ -1,0 +1,156 @@
+"""Redundancy numbers of a bundle from the Schur split, without a dense Jacobian or N⁻¹.
+
+The redundancy number of a whitened residual entry with Jacobian row j is r = 1 - j N⁻¹ jᵀ.
+A row depends on few unknowns, so j N⁻¹ jᵀ needs only the cofactor blocks among them: for an
+image observation with blocks a (its reduced columns: IOPs, EOPs, a reduced point) and b (its
+eliminated point p),
+
+    j N⁻¹ jᵀ = a Q_rr aᵀ - 2 a G_p bᵀ + b Q_pp bᵀ,
+
+Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
+observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
+3 x 3 cofactor block, both built a chunk of points at a time as in `schur_cofactors`. Direct
+observations of unknowns (control, GNSS/INS, IOP priors) need one diagonal cofactor each;
+distances the 6 x 6 block of their two (reduced) points.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._observations import Distances, ImagePoints, ParameterObservations
+from .._parameters import Parameters
+from .._problem import BundleProblem, observation_mask
+from ._bundle import (
+    BundleStructure,
+    _chunk_point_cofactors,
+    _distance_jacobians,
+    _free_masks,
+    _image_group_chunks,
+    _image_jacobian_blocks,
+    _point_cofactors,
+    _reduced_cofactor,
+    bundle_normal_equations,
+    bundle_structure,
+)
+
+
+def schur_redundancy_numbers(
+    problem: BundleProblem, params: Parameters, *, structure: BundleStructure | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations, flat in `observation_mask` order, at `params`:
+    the same as `jaxba._reliability.redundancy_numbers` (dense), from the Schur split.
+    For bundles with a datum (S positive definite); not for free networks."""
+    if structure is None:
+        structure = bundle_structure(problem)
+    leverages, residuals = _leverages(problem, structure, params)
+    leverage = np.concatenate([np.ravel(np.asarray(h)) for h in leverages])
+    whitened = np.concatenate([np.ravel(np.asarray(e)) for e in residuals])
+    real = observation_mask(problem)
+    return 1.0 - leverage[real], whitened[real]
+
+
+@eqx.filter_jit
+def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
+    """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k), and the residuals."""
+    normal = bundle_normal_equations(problem, structure, params)
+    dtype = normal.reduced_gradient.dtype
+    cofactor, inverse = _reduced_cofactor(problem, structure, normal)
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+    jr, je = _image_jacobians(problem, structure, params)
+    image = _image_leverages(structure, normal, padded, cofactor, inverse, jr, je)
+    point_cofactors = _point_cofactors(problem, structure, normal, cofactor, inverse)
+
+    full = problem.with_free(params)
+    residuals = problem.residuals(full)
+    leverages, start = [], 0
+    for group in problem.groups:
+        if isinstance(group, ImagePoints):
+            stop = start + group.point.shape[0]
+            leverages.append(image[start:stop])
+            start = stop
+        elif isinstance(group, ParameterObservations):
+            leverages.append(_direct_leverages(structure, group, cofactor, point_cofactors))
+        elif isinstance(group, Distances):
+            jd, _ = _distance_jacobians(problem, group, full)
+            columns = jnp.concatenate([
+                structure.point_column[group.a][:, None] + jnp.arange(3),
+                structure.point_column[group.b][:, None] + jnp.arange(3),
+            ], axis=1)
+            free_r, _ = _free_masks(problem, structure, dtype)
+            jd = jd * free_r[columns][:, None, :]
+            block = cofactor[columns[:, :, None], columns[:, None, :]]
+            leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
+    return leverages, residuals
+
+
+def _image_jacobians(problem, structure, params) -> tuple[Array, Array]:
+    """jr (n_obs1, 2, m) and je (n_obs1, 2, 3) of all image observations, in the structure's
+    order, with a zero padding row last (`_image_jacobian_blocks`)."""
+    full = problem.with_free(params)
+    dtype = full.images.dtype
+    free_r, free_e = _free_masks(problem, structure, dtype)
+    blocks_r, blocks_e, start = [], [], 0
+    for group in problem.groups:
+        if not isinstance(group, ImagePoints):
+            continue
+        stop = start + group.point.shape[0]
+
+        def blocks(_, chunk, group=group):
+            jr, je, _ = _image_jacobian_blocks(
+                problem, structure, group, full, free_r, free_e, list(chunk[:-1]))
+            return None, (jr, je)
+
+        _, (jr, je) = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start,
+                                                                     stop))
+        blocks_r.append(jr.reshape(-1, *jr.shape[2:])[: stop - start])
+        blocks_e.append(je.reshape(-1, *je.shape[2:])[: stop - start])
+        start = stop
+    k = blocks_r[0].shape[1]
+    blocks_r.append(jnp.zeros((1, k, structure.m), dtype))
+    blocks_e.append(jnp.zeros((1, k, 3), dtype))
+    return jnp.concatenate(blocks_r), jnp.concatenate(blocks_e)
+
+
+def _image_leverages(structure, normal, padded, cofactor, inverse, jr, je) -> Array:
+    """j N⁻¹ jᵀ (n_image_obs, 2) of the image observations (see the module docstring)."""
+    per_key = padded[structure.key_columns[:, :, None], structure.key_columns[:, None, :]]
+
+    def reduced_part(jr_i, key_i):
+        return jnp.einsum("ka,ab,kb->k", jr_i, per_key[key_i], jr_i)
+
+    # One observation's m x m block at a time, vmapped over batches: never all at once.
+    leverage = jax.lax.map(lambda x: reduced_part(*x), (jr, structure.key),
+                           batch_size=structure.jacobian_batch)
+
+    def chunk_leverages(total, chunk):
+        obs, local, _ = chunk
+        g, point_blocks = _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)
+        g_obs = g[structure.image_columns[obs], local[:, None], :]  # (max_obs, m, 3)
+        a, b = jr[obs], je[obs]
+        part = (jnp.einsum("nka,nab,nkb->nk", b, point_blocks[local], b)
+                - 2.0 * jnp.einsum("nka,nab,nkb->nk", a, g_obs, b))
+        return total.at[obs].add(part), None
+
+    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
+    leverage, _ = jax.lax.scan(chunk_leverages, leverage, chunks)
+    return leverage[:-1]
+
+
+def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Array, "n k"]:
+    """Q_jj / σ² of direct observations of unknowns (whitened row -1/σ on one unknown)."""
+    rows = jnp.asarray(group.rows)
+    if group.block == "points":
+        variance = jnp.diagonal(point_cofactors[rows], axis1=1, axis2=2)
+    else:
+        width = group.observed.shape[1]
+        if group.block == "images":
+            start = structure.image_offset
+        else:
+            model = group.block.removeprefix("cameras/")
+            start = structure.camera_offsets[structure.models.index(model)]
+        columns = start + rows[:, None] * width + jnp.arange(width)
+        variance = jnp.diagonal(cofactor)[columns]
+    return jnp.where(group.mask(), variance / group.stddev**2, 0.0)

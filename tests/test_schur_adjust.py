@@ -1,0 +1,160 @@
+"""`adjust(solver="schur")`: the object points eliminated from the solve, the datum check and
+the statistics (covariance in blocks, redundancy numbers, variance components, data snooping)
+give what the dense adjustment gives, on a synthetic self-calibration block (two cameras,
+GNSS/INS, distances, a planted blunder)."""
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxba
+from jaxba._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
+from jaxba._statistics import SchurCovariance
+
+SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ apart
+PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ
+REDUNDANCY_ATOL = 1e-6
+
+
+def _project(directory, **settings):
+    sigma_mm = 0.3 * 0.00369
+    truth = jaxba.write_synthetic_project(
+        directory, seed=21, n_images=8, n_targets=30, n_cameras=2, noise_px=0.3,
+        gnss_sigma=(0.05, 0.01), blunders=[("img03", "17", 0, 25 * sigma_mm)],
+    )  # fmt: skip
+    lines = "".join(f"\n{key} = {value}" for key, value in settings.items())
+    text = truth.project_file.read_text().replace("[adjustment]", "[adjustment]" + lines)
+    truth.project_file.write_text(text)
+    return jaxba.build_project(jaxba.read_project(truth.project_file))
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """The same project adjusted densely and with its points eliminated, with variance
+    components and data snooping."""
+    project = _project(tmp_path_factory.mktemp("schur_adjust"), variance_components="true",
+                       data_snooping="true")
+    dense = jaxba.adjust_project(project, solver="dense")
+    schur = jaxba.adjust_project(project, solver="schur")
+    return project, dense, schur
+
+
+def test_auto_picks_schur_by_size_and_dense_for_free_networks(both, tmp_path):
+    project, _, _ = both
+    assert not use_schur(project.problem)  # ~300 unknowns
+    assert use_schur(project.problem, "schur") and not use_schur(project.problem, "dense")
+    assert SCHUR_MIN_UNKNOWNS >= 1000
+    with pytest.raises(ValueError, match="solver must be one of"):
+        use_schur(project.problem, "qr")
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, n_images=6, n_targets=25)
+    text = truth.project_file.read_text().replace("[adjustment]", '[adjustment]\ndatum = "free"')
+    truth.project_file.write_text(text)
+    free = jaxba.build_project(jaxba.read_project(truth.project_file))
+    with pytest.raises(ValueError, match="inner constraints"):
+        use_schur(free.problem, "schur")
+    with pytest.raises(jaxba.ProjectError, match="free network"):
+        jaxba.adjust_project(free, solver="schur")
+
+
+def test_parameters_sigma0_and_sigmas_agree(both):
+    _, dense, schur = both
+    assert dense.converged and schur.converged
+    assert dense.precision.covariance is not None and dense.precision.schur is None
+    assert schur.precision.covariance is None
+    assert isinstance(schur.precision.schur, SchurCovariance)
+    assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-8)
+    assert schur.precision.redundancy == dense.precision.redundancy
+    std = jaxba.flatten(dense.precision.std)
+    np.testing.assert_allclose(jaxba.flatten(schur.precision.std), std, rtol=SIGMA_RTOL)
+    difference = np.abs(jaxba.flatten(schur.parameters) - jaxba.flatten(dense.parameters))
+    free = std > 0
+    assert np.all(difference[free] <= PARAMETER_SIGMAS * std[free])
+    assert np.all(difference[~free] == 0)
+
+
+def test_correlations_point_covariances_and_propagation_agree(both):
+    project, dense, schur = both
+    for model, row in project.camera_rows.values():
+        names_d, rho_d = jaxba.camera_correlation(dense, model, row)
+        names_s, rho_s = jaxba.camera_correlation(schur, model, row)
+        assert names_s == names_d
+        np.testing.assert_allclose(rho_s, rho_d, rtol=0, atol=SIGMA_RTOL)
+    points_d, points_s = jaxba.point_covariances(dense), jaxba.point_covariances(schur)
+    np.testing.assert_allclose(points_s, points_d, rtol=SIGMA_RTOL,
+                               atol=SIGMA_RTOL * np.abs(points_d).max())
+    distances = next(g for g in project.problem.groups if isinstance(g, jaxba.Distances))
+    a, b = int(distances.a[0]), int(distances.b[0])  # reduced points (in a distance)
+
+    def span(params):
+        return jnp.linalg.norm(params.points[a] - params.points[b])
+
+    def camera_constants(params):  # IOPs of both cameras: reduced unknowns
+        return jnp.stack([params.cameras["smac"][0, 2], params.cameras["smac"][1, 2]])
+
+    def one_point(params):  # an eliminated point's coordinates
+        return params.points[10] * 2.0
+
+    for function in (span, camera_constants, one_point):
+        value_d, covariance_d = jaxba.propagate(dense, function)
+        value_s, covariance_s = jaxba.propagate(schur, function)
+        np.testing.assert_allclose(covariance_s, covariance_d, rtol=SIGMA_RTOL,
+                                   atol=SIGMA_RTOL * np.abs(covariance_d).max())
+
+    def point_and_camera(params):  # an eliminated point with an IOP: not in the blocks
+        return params.points[10, 0] + params.cameras["smac"][0, 2]
+
+    with pytest.raises(ValueError, match="eliminated"):
+        jaxba.propagate(schur, point_and_camera)
+
+
+def test_reliability_variance_components_and_snooping_agree(both):
+    _, dense, schur = both
+    assert [(r.group, r.row, r.coordinate) for r in schur.rejections] == [
+        (r.group, r.row, r.coordinate) for r in dense.rejections]
+    assert len(dense.rejections) >= 1
+    for r_s, r_d in zip(schur.reliability.redundancy_numbers, dense.reliability.redundancy_numbers):
+        np.testing.assert_allclose(r_s, r_d, rtol=0, atol=REDUNDANCY_ATOL)
+    assert dense.variance_components.keys() == schur.variance_components.keys()
+    for name, component in dense.variance_components.items():
+        other = schur.variance_components[name]
+        assert other.sigma0 == pytest.approx(component.sigma0, rel=1e-5), name
+        assert other.redundancy == pytest.approx(component.redundancy, rel=1e-6), name
+
+
+def test_reports_are_written_from_the_blocks(both, tmp_path):
+    """results.json of both adjustments: the same statistics (σ, correlations, point σ,
+    redundancy numbers) to SIGMA_RTOL (the values themselves: see above); the text
+    reports are written alike."""
+    project, dense, schur = both
+    jaxba.write_reports(project, dense, tmp_path / "dense")
+    jaxba.write_reports(project, schur, tmp_path / "schur")
+    data_d = json.loads((tmp_path / "dense" / "results.json").read_text())
+    data_s = json.loads((tmp_path / "schur" / "results.json").read_text())
+    # σ relative; correlations, redundancy numbers and w-tests (order 1) absolute.
+    for key, rtol, atol in (("cameras", SIGMA_RTOL, 0), ("points", SIGMA_RTOL, 0),
+                            ("correlations", 0, SIGMA_RTOL), ("reliability", 0, SIGMA_RTOL)):
+        numbers_d, numbers_s = _numbers(data_d[key]), _numbers(data_s[key])
+        assert len(numbers_s) == len(numbers_d) > 0, key
+        np.testing.assert_allclose(numbers_s, numbers_d, rtol=rtol, atol=atol, err_msg=key)
+    name = project.spec.name
+    for suffix in (".out", ".res", ".sigma"):
+        lines_d = (tmp_path / "dense" / f"{name}{suffix}").read_text().splitlines()
+        lines_s = (tmp_path / "schur" / f"{name}{suffix}").read_text().splitlines()
+        more_iterations = len(schur.iterations) - len(dense.iterations)  # one row each in .sigma
+        assert len(lines_s) == len(lines_d) + (suffix == ".sigma") * more_iterations, suffix
+
+
+def _numbers(tree) -> np.ndarray:
+    """All floats in a JSON tree in document order (None as NaN), but the adjusted values
+    and the ellipsoids' axis directions (eigenvectors of nearly equal axes turn with tiny
+    changes of the covariance)."""
+    if isinstance(tree, dict):
+        parts = [_numbers(v) for k, v in tree.items() if k not in ("value", "directions")]
+        return np.concatenate(parts or [np.zeros(0)])
+    if isinstance(tree, list):
+        return np.concatenate([_numbers(v) for v in tree] or [np.zeros(0)])
+    if isinstance(tree, bool) or isinstance(tree, str):
+        return np.zeros(0)
+    return np.array([np.nan if tree is None else float(tree)])
