@@ -4,9 +4,11 @@
 
 Builds benchmarks/ceres_bal.cc with g++ (needs Ceres 2.x headers and library, e.g.
 `apt-get install -y libceres-dev`), decompresses each problem to a temporary folder, runs
-Ceres (SPARSE_SCHUR and DENSE_SCHUR, the given thread counts) and `jaxba._bal.run_bal`
-(each in a fresh process, OPENBLAS_NUM_THREADS=1), and prints a Markdown table. Default
-problems: the BAL files of /work/shared/data/bal, else tests/data/bal.
+Ceres (SPARSE_SCHUR and DENSE_SCHUR, the given thread counts), `jaxba._bal.run_bal` and the
+Python peers of `bal_peers.py` (`--peers`: scipy least_squares with a sparse Jacobian, stock
+optx.LevenbergMarquardt where its dense Jacobian fits), each in a fresh process with
+OPENBLAS_NUM_THREADS=1, and prints a Markdown table. Default problems: the BAL files of
+/work/shared/data/bal, else tests/data/bal.
 """
 
 import argparse
@@ -89,6 +91,18 @@ def run_jaxba(path, work) -> dict:
     return results
 
 
+def run_peer(peer: str, path) -> dict:
+    environment = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    output = subprocess.run(
+        [sys.executable, str(HERE / "bal_peers.py"), peer, str(path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=environment,
+    ).stdout
+    return json.loads(output.strip().splitlines()[-1])
+
+
 def table(rows: list[tuple[str, dict]]) -> str:
     lines = [
         "| problem | solver | final cost | iterations | solve s | compile s | peak RSS MiB |",
@@ -96,6 +110,9 @@ def table(rows: list[tuple[str, dict]]) -> str:
     ]
     for problem, r in rows:
         solver = r["solver"]
+        if "skipped" in r:
+            lines.append(f"| {problem} | {solver} | not run: {r['skipped']} | | | | |")
+            continue
         if "linear_solver" in r:
             solver += f" {r['linear_solver']}, {r['threads']} thread(s)"
         compile_seconds = f"{r['compile_seconds']:.2f}" if "compile_seconds" in r else "-"
@@ -121,6 +138,7 @@ def main() -> None:
     parser.add_argument("problems", nargs="*", type=pathlib.Path)
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write all results")
+    parser.add_argument("--peers", nargs="*", choices=("scipy", "optx"), default=["scipy", "optx"])
     args = parser.parse_args()
     problems = args.problems or default_problems()
     rows = []
@@ -134,6 +152,8 @@ def main() -> None:
                 for threads in args.threads:
                     rows.append((name, run_ceres(executable, plain, linear_solver, threads)))
             rows.append((name, run_jaxba(path, work)))
+            for peer in args.peers:
+                rows.append((name, run_peer(peer, path)))
             print(f"done: {name}", file=sys.stderr, flush=True)
     print(table(rows))
     if args.json is not None:
