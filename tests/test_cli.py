@@ -255,3 +255,24 @@ def test_not_converged_still_writes_reports(tmp_path):
     data = json.loads((out / "results.json").read_text())
     assert data["converged"] is False and data["message"] != "converged"
     assert all((out / name).is_file() for name in OUTPUTS)
+
+
+def test_solver_option_and_setting(run, tmp_path):
+    """--solver schur eliminates the object points: same σ̂0 and IOP σ as the default (dense)
+    run; the project's `solver` setting is read; a free network refuses 'schur' (exit 2)."""
+    project_file = _copy_lab(tmp_path / "lab")
+    code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "schur"),
+                           "--solver", "schur")
+    assert code == 0, stderr
+    schur = json.loads((tmp_path / "schur" / "results.json").read_text())
+    dense = run["results"]
+    assert schur["sigma0"] == pytest.approx(dense["sigma0"], rel=1e-8)
+    for name, entry in dense["cameras"]["C1"].items():
+        assert schur["cameras"]["C1"][name]["std"] == pytest.approx(entry["std"], rel=1e-6), name
+    _edit(project_file, "[adjustment]", '[adjustment]\nsolver = "fast"')
+    code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "bad"))
+    assert code == 2 and "solver" in stderr and "fast" in stderr
+    _edit(project_file, 'solver = "fast"', 'datum = "free"')
+    code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "free"),
+                           "--solver", "schur")
+    assert code == 2 and "free network" in stderr and "Traceback" not in stderr
