@@ -18,7 +18,7 @@ from jaxtyping import Array, Bool, Float, Scalar
 from ._cholesky import cholesky_solve
 from ._linearisation import LinearisationPlan, normal_equations
 from ._problem import BundleProblem, params_from_scaled
-from ._trust_region import AbstractNormalDescent, LevenbergMarquardt, silent
+from ._trust_region import AbstractNormalDescent, LevenbergMarquardt, finite_step, silent
 
 # Stop when the Gauss-Newton step from an accepted iterate would lower the cost by less
 # than this fraction of it. Then the unknowns are within √(1e-12 r) σ of the optimum
@@ -49,9 +49,9 @@ class NormalDampedNewtonDescent(AbstractNormalDescent[Array, _NormalState]):
 
     Decrement tolerance: an accepted iterate from which the Gauss-Newton step would lower
     the cost ½Σe² by less than `decrement_tolerance` times the cost (½ gᵀN⁻¹g, the Newton
-    decrement) is converged. Without it (0), at the noise floor of the cost every further
-    step is rejected and the solve only ends when the trust region has shrunk to nothing
-    (~25 extra steps), at an iterate that depends on rounding.
+    decrement) is converged. Without it (0), the solve ends on the Cauchy test, or at the
+    noise floor of the cost once every further step is rejected and the trust region has
+    shrunk below its minimum, at an iterate that depends on rounding.
     """
 
     problem: BundleProblem
@@ -79,10 +79,7 @@ class NormalDampedNewtonDescent(AbstractNormalDescent[Array, _NormalState]):
     def step(self, radius: Scalar, state: _NormalState) -> tuple[Array, optx.RESULTS]:
         n = state.gradient.shape[0]
         damped = state.normal + jnp.eye(n, dtype=state.normal.dtype) / radius
-        step = cholesky_solve(damped, state.gradient, _block_size(n))
-        finite = jnp.all(jnp.isfinite(step))
-        result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.singular)
-        return -jnp.where(finite, step, 0.0), result
+        return finite_step(-cholesky_solve(damped, state.gradient, _block_size(n)))
 
     def predicted_reduction(self, y_diff: Array, state: _NormalState) -> Scalar:
         return y_diff @ state.gradient + 0.5 * y_diff @ (state.normal @ y_diff)

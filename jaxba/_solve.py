@@ -105,10 +105,11 @@ def solve(
 ) -> Solution:
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
 
-    Converged: optimistix's Cauchy test (step and residual change within `rtol`, `atol`,
-    elementwise, in the scaled unknowns), reached at once when the Gauss-Newton step from
-    an accepted iterate would lower the cost by less than `decrement_tolerance` times the
-    cost (0: Cauchy test only; see `NormalDampedNewtonDescent`).
+    Converged at an accepted iterate from which the Gauss-Newton step would lower the cost
+    by less than `decrement_tolerance` times the cost (see `NormalDampedNewtonDescent`), or
+    where optimistix's Cauchy test passes (step and residual change within `rtol`, `atol`,
+    elementwise, in the scaled unknowns), or when every step from it is rejected down to the
+    trust region's minimum radius (`jaxba._trust_region`).
     Pure and jitted (normal equations from per-row Jacobian blocks, Cholesky per trial
     step: `NormalLevenbergMarquardt`): no datum check, no statistics, so it can be `jax.vmap`ped
     over problems of one structure (Monte Carlo, batches). `plan` =

@@ -64,16 +64,19 @@ class Precision:
 
     def covariance_rows(self, positions: np.ndarray) -> np.ndarray:
         """Rows of `covariance` of the unknowns at `positions` (any shape), -1 where fixed."""
-        row_of = np.full(flatten(self.std).size, -1)
-        row_of[self.free_index] = np.arange(self.free_index.size)
-        return row_of[np.asarray(positions, dtype=int)]
+        return _rows_of(flatten(self.std).size, self.free_index)[np.asarray(positions, dtype=int)]
+
+
+def _rows_of(n_all: int, index: np.ndarray) -> np.ndarray:
+    """(n_all,) the row of each position in `index`, -1 for positions not in it."""
+    rows = np.full(n_all, -1)
+    rows[index] = np.arange(index.size)
+    return rows
 
 
 def _schur_block(schur: SchurCovariance, std: Parameters, positions: np.ndarray) -> np.ndarray:
     """`Precision.covariance_of` from a `SchurCovariance`."""
-    row_of = np.full(flatten(std).size, -1)
-    row_of[schur.reduced_positions] = np.arange(schur.reduced_positions.size)
-    rows = row_of[positions]
+    rows = _rows_of(flatten(std).size, schur.reduced_positions)[positions]
     if np.all(rows >= 0):
         return schur.reduced[np.ix_(rows, rows)]
     point_positions = np.asarray(unflatten(std, np.arange(flatten(std).size)).points)

@@ -11,10 +11,12 @@ third of every step. It is an `optx.AbstractLeastSquaresSolver`, driven by
 
 Per step: evaluate the residuals at the trial point y + δ; accept it when the actual
 reduction is at least `low_cutoff` of the predicted one (a trial point with non-finite cost
-is rejected), grow the radius x`high_constant` above `high_cutoff`, shrink it x`low_constant`
-on rejection (`TrustRegionUpdate`, Ceres' rule by default); at an accepted point the descent
-linearises (`query`: the Jacobian-dependent work), then proposes the damped step for the
-current radius (`step`: the damping-dependent work).
+is rejected), grow the radius x`high_constant` above `high_cutoff`, divide it on rejection by
+a factor that starts at 1/`low_constant` and doubles with every consecutive rejection
+(`TrustRegionUpdate`; Ceres' rejection rule and min_relative_decrease, with a fixed growth
+x3 for a good model where Ceres grows by a ratio-dependent factor); at an accepted point the
+descent linearises (`query`: the Jacobian-dependent work), then proposes the damped step
+for the current radius (`step`: the damping-dependent work).
 
 Stops as converged at an accepted point where optimistix's Cauchy test passes (the step and
 the residual change within rtol/atol elementwise), where the step to it lowered the cost by
@@ -45,12 +47,13 @@ MIN_RADIUS = 1e-32
 
 class TrustRegionUpdate(eqx.Module):
     """Accept a step whose actual/predicted reduction ratio is at least `low_cutoff`, grow
-    the radius x`high_constant` above `high_cutoff`, multiply it by `low_constant` on
-    rejection. The defaults are Ceres' (min_relative_decrease 1e-3, radius x3 for a good
-    model, halved on rejection). optimistix's defaults (0.99, 0.01, 3.5, 0.25, from radius
-    1) grow the radius only when the model predicts the decrease to 1 %: on BAL's
-    Ladybug-49 λ then stalls (200 steps end at cost 13345.07; with these, 25 steps reach
-    13344.27); see benchmarks/README.md."""
+    the radius x`high_constant` above `high_cutoff`; on rejection multiply it by
+    `low_constant`, squared after two consecutive rejections, cubed... (Ceres doubles its
+    decrease factor with each one, so that a hopeless point gives up in ~16 steps instead of
+    ~120). Defaults: Ceres' min_relative_decrease 1e-3, x3 for a good model, halving.
+    optimistix's defaults (0.99, 0.01, 3.5, 0.25, from radius 1) grow the radius only when
+    the model predicts the decrease to 1 %: on BAL's Ladybug-49 λ then stalls (200 steps
+    end at cost 13345.07; with these, 25 steps reach 13344.27); see benchmarks/README.md."""
 
     high_cutoff: float = 0.75
     low_cutoff: float = 1e-3
@@ -89,6 +92,27 @@ class AbstractNormalDescent(eqx.Module, Generic[Y, DescentState]):
         return jnp.array(False)
 
 
+def _all_finite(tree) -> Bool[Array, ""]:
+    return jnp.all(jnp.array([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves(tree)]))
+
+
+def finite_step(step: Y) -> tuple[Y, optx.RESULTS]:
+    """A descent's step and its result: `singular` (and a zero step) where the damped
+    system gave non-finite values (a dense Cholesky of JᵀJ + λI fails only on NaNs)."""
+    finite = _all_finite(step)
+    result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.singular)
+    return jax.tree.map(lambda leaf: jnp.where(finite, leaf, 0.0), step), result
+
+
+def normal_equations_result(normal) -> optx.RESULTS:
+    """`singular` where the normal equations hold non-finite values (a non-finite Jacobian
+    at an accepted point: no step can help), else successful. A Schur step that is not
+    finite for finite normal equations (S barely positive definite at a tiny damping) is
+    left to the trust region, which rejects it and shrinks the radius."""
+    return optx.RESULTS.where(
+        _all_finite(normal), optx.RESULTS.successful, optx.RESULTS.singular)
+
+
 def silent(**info) -> None:
     """A solver `verbose` hook that reports nothing."""
     del info
@@ -109,6 +133,7 @@ class _LevenbergMarquardtState(eqx.Module, Generic[Y, DescentState]):
     cost: Float[Array, ""]  # ½|residual|²
     aux: Any
     radius: Float[Array, ""]
+    shrink: Float[Array, ""]  # factor of the next rejection: low_constant^(k+1) after k in a row
     descent_state: DescentState
     terminate: Bool[Array, ""]
     result: optx.RESULTS
@@ -148,6 +173,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             cost=jnp.array(jnp.inf, dtype),
             aux=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), aux_struct),
             radius=jnp.array(self.initial_radius, dtype),
+            shrink=jnp.array(self.update.low_constant, dtype),
             descent_state=self.descent.init(y, residual),
             terminate=jnp.array(False),
             result=optx.RESULTS.successful,
@@ -165,8 +191,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         update = self.update
         accept = state.first_step | ((predicted < 0) & (actual <= update.low_cutoff * predicted))
         good = ~state.first_step & (predicted < 0) & (actual < update.high_cutoff * predicted)
-        factor = jnp.where(accept, jnp.where(good, update.high_constant, 1.0), update.low_constant)
+        factor = jnp.where(accept, jnp.where(good, update.high_constant, 1.0), state.shrink)
         radius = jnp.where(state.first_step, state.radius, factor * state.radius)
+        shrink = jnp.where(accept, update.low_constant, state.shrink * update.low_constant)
 
         def accepted(descent_state):
             descent_state = self.descent.query(
@@ -187,7 +214,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
         self.verbose(step=state.num_steps, accepted=accept, cost=cost_eval, radius=radius)
         y_descent, descent_result = self.descent.step(radius, descent_state)
-        result = optx.RESULTS.where(result == optx.RESULTS.successful, descent_result, result)
+        # The step for the next trial; it does not matter once the solve has ended.
+        proposing = (result == optx.RESULTS.successful) & ~terminate
+        result = optx.RESULTS.where(proposing, descent_result, result)
         state = _LevenbergMarquardtState(
             first_step=jnp.array(False),
             y_eval=jax.tree.map(lambda a, b: a + b, y, y_descent),
@@ -195,6 +224,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             cost=cost,
             aux=aux,
             radius=radius,
+            shrink=shrink,
             descent_state=descent_state,
             terminate=terminate | (result != optx.RESULTS.successful),
             result=result,

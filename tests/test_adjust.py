@@ -3,6 +3,7 @@
 import math
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -161,3 +162,19 @@ def test_non_convergence_is_reported_not_hidden(lab):
     assert "maximum number of steps" in result.message.lower()
     with pytest.raises(jaxba.NotConvergedError):
         jaxba.adjust(project.problem, max_steps=2, throw=True)
+
+
+def test_schur_datum_check_with_nothing_free_but_points(lab):
+    """A forward intersection (every IOP and EOP known, no distances): no reduced unknown
+    is free, and both checks pass."""
+    _, project, _ = lab
+    problem = project.problem
+    groups = tuple(g for g in problem.groups if not isinstance(g, jaxba.Distances))
+    fixed = eqx.tree_at(
+        lambda p: (p.groups, p.free.cameras["smac"], p.free.images),
+        problem,
+        (groups, jnp.zeros_like(problem.free.cameras["smac"]),
+         jnp.zeros_like(problem.free.images)),
+    )
+    jaxba.check_datum(fixed, labels=project.labels)
+    check_datum_schur(fixed, labels=project.labels)

@@ -39,7 +39,12 @@ from .._observations import Distances, ImagePoints, ParameterObservations, colli
 from .._parameters import Parameters, flatten, unflatten
 from .._problem import BundleProblem, free_indices
 from .._statistics import Precision, SchurCovariance
-from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, silent
+from .._trust_region import (
+    AbstractNormalDescent,
+    LevenbergMarquardt,
+    normal_equations_result,
+    silent,
+)
 from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
 
 
@@ -291,13 +296,7 @@ def bundle_normal_equations(
                 reduced_columns = column[:, None] + jnp.arange(3)
                 reduced_columns = jnp.where(eliminated, n_r, reduced_columns)
             else:
-                width = group.observed.shape[1]
-                if group.block == "images":
-                    start = structure.image_offset
-                else:
-                    model = group.block.removeprefix("cameras/")
-                    start = structure.camera_offsets[structure.models.index(model)]
-                reduced_columns = start + rows[:, None] * width + jnp.arange(width)
+                reduced_columns = _block_columns(structure, group)
                 reduced_sub = free_r[reduced_columns] * derivative
             hessian = hessian.at[reduced_columns, reduced_columns].add(reduced_sub**2)
             gradient = gradient.at[reduced_columns].add(reduced_sub * residual)
@@ -327,6 +326,23 @@ def bundle_normal_equations(
             jnp.diagonal(point_hessian, axis1=1, axis2=2), min_diagonal, max_diagonal
         ),
     )
+
+
+def _block_columns(structure: BundleStructure, group: ParameterObservations) -> Array:
+    """(n, width) reduced columns of the observed rows of a camera or image block."""
+    width = group.observed.shape[1]
+    if group.block == "images":
+        start = structure.image_offset
+    else:
+        model = group.block.removeprefix("cameras/")
+        start = structure.camera_offsets[structure.models.index(model)]
+    return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
+
+
+def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np.ndarray:
+    """(n_r,) `flatten` positions of the reduced columns."""
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    return np.asarray(_reduced_vector(structure, positions)).astype(int)
 
 
 def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
@@ -571,7 +587,7 @@ class BundleSchurDescent(AbstractNormalDescent[Parameters, BundleNormalEquations
         x_r, x_e = solve_bundle_damped(self.structure, state, 1.0 / radius)
         step = _to_parameters(self.structure, self.problem.initial, -x_r, -x_e)
         step = jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
-        return step, optx.RESULTS.successful
+        return step, normal_equations_result(state)
 
     def predicted_reduction(self, y_diff: Parameters, state: BundleNormalEquations) -> Scalar:
         return bundle_predicted_reduction(self.structure, state, y_diff)
@@ -704,8 +720,6 @@ def schur_precision(
     cofactors = schur_cofactors(problem, params, sigma0=sigma0, structure=structure)
     sigma0_squared = float(cofactors.sigma0_squared)
     variance_factor = sigma0_squared / sigma0**2
-    n_all = flatten(problem.initial).size
-    positions = unflatten(problem.initial, np.arange(n_all))
     index = free_indices(problem)
     return Precision(
         sigma0_squared=sigma0_squared,
@@ -716,7 +730,7 @@ def schur_precision(
         covariance=None,
         std=jax.tree.map(np.asarray, cofactors.std),
         schur=SchurCovariance(
-            reduced_positions=np.asarray(_reduced_vector(structure, positions)).astype(int),
+            reduced_positions=_reduced_positions(problem, structure),
             reduced=variance_factor * np.asarray(cofactors.reduced),
             points=variance_factor * np.asarray(cofactors.points),
         ),

@@ -21,7 +21,7 @@ from .._parameters import flatten, parameter_labels, unflatten
 from .._problem import BundleProblem, free_indices
 from ._bundle import (
     BundleStructure,
-    _reduced_vector,
+    _reduced_positions,
     _schur_complement,
     _small_inverse,
     bundle_normal_equations,
@@ -47,7 +47,7 @@ def check_datum_schur(
     row_of = np.full(n_all, -1)
     row_of[index] = np.arange(index.size)
     positions = unflatten(problem.initial, np.arange(n_all))
-    reduced_rows = row_of[np.asarray(_reduced_vector(structure, positions)).astype(int)]
+    reduced_rows = row_of[_reduced_positions(problem, structure)]
     point_rows = row_of[np.asarray(positions.points)[np.asarray(structure.eliminated_points)]]
     reduced_free, point_free = reduced_rows >= 0, point_rows >= 0
 
@@ -70,7 +70,9 @@ def check_datum_schur(
 def _equilibrated_null_space(matrix: np.ndarray) -> np.ndarray:
     """Null vectors (columns) of a symmetric positive semi-definite matrix, found on its
     diagonally equilibrated form and returned in the original units."""
-    scale = 1.0 / np.sqrt(np.diag(matrix))
+    if matrix.size == 0:
+        return np.zeros((0, 0))
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(matrix), np.finfo(float).tiny))
     values, vectors = np.linalg.eigh(matrix * scale[:, None] * scale[None, :])
     null = values < EIGENVALUE_RTOL * values[-1]
     return vectors[:, null] * scale[:, None]
@@ -79,7 +81,8 @@ def _equilibrated_null_space(matrix: np.ndarray) -> np.ndarray:
 def _single_ray_points(point_hessian, point_rows, n_free) -> np.ndarray | None:
     """(d, n_free) null vectors of the points whose 3 x 3 block is singular (fixed
     coordinates have a unit row there, so they never are)."""
-    scale = 1.0 / np.sqrt(np.diagonal(point_hessian, axis1=1, axis2=2))
+    diagonal = np.diagonal(point_hessian, axis1=1, axis2=2)
+    scale = 1.0 / np.sqrt(np.maximum(diagonal, np.finfo(float).tiny))
     values, vectors = np.linalg.eigh(point_hessian * scale[:, :, None] * scale[:, None, :])
     point, k = np.nonzero(values < EIGENVALUE_RTOL * values[:, -1:])
     if point.size == 0:

@@ -25,6 +25,7 @@ from .._parameters import Parameters
 from .._problem import BundleProblem, observation_mask
 from ._bundle import (
     BundleStructure,
+    _block_columns,
     _chunk_point_cofactors,
     _distance_jacobians,
     _free_masks,
@@ -65,6 +66,7 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
 
     full = problem.with_free(params)
     residuals = problem.residuals(full)
+    free_r, _ = _free_masks(problem, structure, dtype)
     leverages, start = [], 0
     for group in problem.groups:
         if isinstance(group, ImagePoints):
@@ -79,7 +81,6 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
                 structure.point_column[group.a][:, None] + jnp.arange(3),
                 structure.point_column[group.b][:, None] + jnp.arange(3),
             ], axis=1)
-            free_r, _ = _free_masks(problem, structure, dtype)
             jd = jd * free_r[columns][:, None, :]
             block = cofactor[columns[:, :, None], columns[:, None, :]]
             leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
@@ -145,12 +146,5 @@ def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Arra
     if group.block == "points":
         variance = jnp.diagonal(point_cofactors[rows], axis1=1, axis2=2)
     else:
-        width = group.observed.shape[1]
-        if group.block == "images":
-            start = structure.image_offset
-        else:
-            model = group.block.removeprefix("cameras/")
-            start = structure.camera_offsets[structure.models.index(model)]
-        columns = start + rows[:, None] * width + jnp.arange(width)
-        variance = jnp.diagonal(cofactor)[columns]
+        variance = jnp.diagonal(cofactor)[_block_columns(structure, group)]
     return jnp.where(group.mask(), variance / group.stddev**2, 0.0)

@@ -19,6 +19,7 @@ from .._trust_region import (
     AbstractNormalDescent,
     LevenbergMarquardt,
     TrustRegionUpdate,
+    normal_equations_result,
     silent,
 )
 from ._normal import NormalEquations, normal_equations, predicted_reduction, solve_damped
@@ -52,7 +53,7 @@ class SchurDampedNewtonDescent(AbstractNormalDescent[TwoBlockY, NormalEquations]
 
     def step(self, radius: Scalar, state: NormalEquations) -> tuple[TwoBlockY, optx.RESULTS]:
         camera_step, point_step = solve_damped(self.problem, state, 1.0 / radius)
-        return (-camera_step, -point_step), optx.RESULTS.successful
+        return (-camera_step, -point_step), normal_equations_result(state)
 
     def predicted_reduction(self, y_diff: TwoBlockY, state: NormalEquations) -> Scalar:
         return predicted_reduction(self.problem, state, y_diff)

@@ -1,0 +1,127 @@
+"""jaxba's trust-region loop (`jaxba._trust_region.LevenbergMarquardt`) on toy problems, with
+a dense Gauss-Newton descent: convergence, each stopping rule, non-finite starts, and a
+descent whose steps never help (the radius must collapse in a few steps)."""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+
+from jaxba._trust_region import (
+    MIN_RADIUS,
+    AbstractNormalDescent,
+    LevenbergMarquardt,
+    finite_step,
+)
+
+
+def rosenbrock(y, args=None):
+    """Residuals of Rosenbrock's function: ½|r|² has its minimum 0 at (1, 1)."""
+    return jnp.array([10.0 * (y[1] - y[0] ** 2), 1.0 - y[0]])
+
+
+class DenseDescent(AbstractNormalDescent):
+    """Gauss-Newton on a dense Jacobian (`jax.jacfwd`), damped with λ = 1/radius."""
+
+    residual_fn: Callable = eqx.field(static=True)
+
+    def init(self, y, residual):
+        return jnp.zeros((y.size, y.size)), jnp.zeros(y.size)
+
+    def query(self, y, residual, cost, state):
+        jacobian = jax.jacfwd(self.residual_fn)(y)
+        return jacobian.T @ jacobian, jacobian.T @ residual
+
+    def step(self, radius, state):
+        normal, gradient = state
+        return finite_step(-jnp.linalg.solve(normal + jnp.eye(gradient.size) / radius, gradient))
+
+    def predicted_reduction(self, y_diff, state):
+        normal, gradient = state
+        return y_diff @ gradient + 0.5 * y_diff @ (normal @ y_diff)
+
+
+class UphillDescent(DenseDescent):
+    """Steps that go the wrong way, with a model that promises a decrease each time."""
+
+    def step(self, radius, state):
+        step, result = super().step(radius, state)
+        return -step, result
+
+    def predicted_reduction(self, y_diff, state):
+        return -jnp.abs(super().predicted_reduction(y_diff, state)) - 1e-300
+
+
+class DoneAtOnce(DenseDescent):
+    def converged(self, state):
+        return jnp.array(True)
+
+
+def _solve(descent, y0, *, max_steps=200, **options):
+    solver = LevenbergMarquardt(options.pop("rtol", 1e-12), options.pop("atol", 1e-12),
+                                descent, **options)
+    return optx.least_squares(rosenbrock, solver, y0, max_steps=max_steps, throw=False)
+
+
+Y0 = jnp.array([-1.2, 1.0])
+
+
+def test_converges_on_rosenbrock():
+    solution = _solve(DenseDescent(rosenbrock), Y0)
+    assert solution.result == optx.RESULTS.successful
+    np.testing.assert_allclose(solution.value, [1.0, 1.0], atol=1e-8)
+    assert int(solution.stats["num_steps"]) < 60
+
+
+def offset_rosenbrock(y, args=None):
+    """Rosenbrock's residuals and a constant one: the minimum cost is ½, not 0, so relative
+    cost changes tend to 0 near it."""
+    return jnp.append(rosenbrock(y), 1.0)
+
+
+def test_function_tolerance_stops_earlier_near_the_minimum():
+    def solve(**options):
+        solver = LevenbergMarquardt(descent=DenseDescent(offset_rosenbrock), **options)
+        return optx.least_squares(offset_rosenbrock, solver, Y0, max_steps=200, throw=False)
+
+    tight = solve(rtol=1e-12, atol=1e-12)
+    loose = solve(rtol=0.0, atol=0.0, function_tolerance=1e-6)
+    assert tight.result == optx.RESULTS.successful and loose.result == optx.RESULTS.successful
+    assert int(loose.stats["num_steps"]) < int(tight.stats["num_steps"])
+    np.testing.assert_allclose(loose.value, [1.0, 1.0], atol=1e-2)
+
+
+def test_descent_convergence_ends_at_the_start():
+    solution = _solve(DoneAtOnce(rosenbrock), Y0)
+    assert solution.result == optx.RESULTS.successful
+    assert int(solution.stats["num_steps"]) == 1
+    np.testing.assert_array_equal(solution.value, Y0)
+
+
+def test_non_finite_start_is_reported():
+    solution = _solve(DenseDescent(rosenbrock), jnp.array([jnp.nan, 1.0]))
+    assert solution.result == optx.RESULTS.nonfinite
+    assert int(solution.stats["num_steps"]) <= 1
+
+
+def test_steps_that_never_help_collapse_the_radius_quickly():
+    """Every trial is rejected: the radius shrinks by 2, 4, 8... (Ceres' doubling decrease
+    factor) from 1e4 to below MIN_RADIUS in ~16 steps, and the start is the answer."""
+    solution = _solve(UphillDescent(rosenbrock), Y0)
+    steps = int(solution.stats["num_steps"])
+    assert solution.result == optx.RESULTS.successful
+    np.testing.assert_array_equal(solution.value, Y0)
+    # k rejections shrink the radius by 2^(k(k+1)/2): 1e4 -> 1e-32 needs k = 16.
+    expected = next(k for k in range(1, 100) if 1e4 / 2.0 ** (k * (k + 1) / 2) < MIN_RADIUS)
+    assert steps == expected + 1  # + step 0, which evaluates the start
+    assert solution.state.num_accepted_steps == 1
+
+
+@pytest.mark.parametrize("max_steps", [3])
+def test_max_steps_is_reported(max_steps):
+    solution = _solve(DenseDescent(rosenbrock), Y0, max_steps=max_steps)
+    assert solution.result == optx.RESULTS.nonlinear_max_steps_reached
