@@ -1,8 +1,12 @@
 """Shared test helpers: central differences, Jacobian checks and named tolerances (float64)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+import jaxba
+from jaxba._observations import ParameterObservations
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
@@ -40,3 +44,18 @@ def assert_jacobian_matches_fd(f, x, rtol, atol, *, step=FD_STEP):
     assert np.all(np.isfinite(exact)), "jax.jacfwd returned non-finite entries"
     approximate = central_difference(f, x, step * np.maximum(1.0, np.abs(x)))
     np.testing.assert_allclose(exact, approximate, rtol=rtol, atol=atol)
+
+
+def with_control_and_huber(problem, rows):
+    """`problem` with weighted control on the three points `rows` (Z of the first
+    unobserved; σ 1-2 mm, observed 3 mm off the approximations) and a Huber loss (k 1.5)."""
+    rows = jnp.asarray(rows)
+    stddev = jnp.array([[0.001, 0.001, jnp.inf], [0.002] * 3, [0.001] * 3])
+    control = ParameterObservations(
+        name="control", block="points", rows=rows,
+        observed=problem.initial.points[rows] + 0.003, stddev=stddev,
+    )  # fmt: skip
+    problem = eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, control))
+    return eqx.tree_at(
+        lambda p: p.robust, problem, jaxba.RobustLoss("huber", 1.5), is_leaf=lambda x: x is None
+    )

@@ -5,17 +5,16 @@ and Zhang's OpenCV-camera calibration."""
 
 import pathlib
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
 from jaxba._linearisation import normal_equations
-from jaxba._observations import ParameterObservations
-from jaxba._problem import free_indices, params_from_free
+from jaxba._problem import dense_jacobian, free_indices
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 NORMAL_RTOL = 1e-10  # in units of the columns' norms: the same float64 sums in another order
@@ -29,20 +28,6 @@ def _synthetic(directory, datum_line=None, **kwargs):
     return jaxba.build_project(jaxba.read_project(truth.project_file)).problem
 
 
-def _with_control_and_robust(problem):
-    """Weighted control on three points (one coordinate unobserved) and a Huber loss."""
-    rows = jnp.array([2, 5, 9])
-    stddev = jnp.array([[0.001, 0.001, jnp.inf], [0.002] * 3, [0.001] * 3])
-    control = ParameterObservations(
-        name="control", block="points", rows=rows,
-        observed=problem.initial.points[rows] + 0.003, stddev=stddev,
-    )  # fmt: skip
-    problem = eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, control))
-    return eqx.tree_at(
-        lambda p: p.robust, problem, jaxba.RobustLoss("huber", 1.5), is_leaf=lambda x: x is None
-    )
-
-
 @pytest.fixture(scope="module", params=["two_cameras_gnss", "control_huber", "free_network",
                                         "zhang_opencv"])
 def problem(request, tmp_path_factory):
@@ -51,23 +36,18 @@ def problem(request, tmp_path_factory):
         return _synthetic(directory, seed=3, n_images=6, n_targets=25, n_cameras=2,
                           gnss_sigma=(0.05, 0.01))
     if request.param == "control_huber":
-        return _with_control_and_robust(_synthetic(directory, seed=5, n_images=6, n_targets=25))
+        return with_control_and_huber(
+            _synthetic(directory, seed=5, n_images=6, n_targets=25), [2, 5, 9])
     if request.param == "free_network":
         return _synthetic(directory, 'datum = "free"', seed=4, n_images=6, n_targets=25)
     return jaxba.build_project(jaxba.read_project(CONFIGS / "zhang" / "zhang.toml")).problem
 
 
-def _dense_normal_equations(problem, params, index):
-    """JᵀJ and Jᵀẽ with J = jax.jacfwd of all residuals w.r.t. the free unknowns."""
-    at = eqx.tree_at(lambda p: p.initial, problem, params)
-
-    def residual_vector(x_free):
-        values = params_from_free(at, x_free, index)
-        return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(values)])
-
-    x_free = ravel_pytree(params)[0][index]
-    jacobian = jax.jacfwd(residual_vector)(x_free)
-    return jacobian.T @ jacobian, jacobian.T @ residual_vector(x_free)
+def _dense_normal_equations(problem, params):
+    """JᵀJ and Jᵀẽ with J = `dense_jacobian` (jax.jacfwd of all residuals w.r.t. the free
+    unknowns; rows of masked entries, which are zero, left out)."""
+    jacobian, residuals = dense_jacobian(problem, params)
+    return jacobian.T @ jacobian, jacobian.T @ residuals
 
 
 def test_normal_equations_match_a_dense_jacobian(problem):
@@ -79,7 +59,7 @@ def test_normal_equations_match_a_dense_jacobian(problem):
     params = unravel(flat.at[index].add(perturbation))
     plan = jaxba.linearisation_plan(problem)
     normal, gradient = jax.jit(normal_equations)(problem, params, plan)
-    dense_normal, dense_gradient = _dense_normal_equations(problem, params, index)
+    dense_normal, dense_gradient = _dense_normal_equations(problem, params)
     # Each entry in units of its columns' norms |J_i| |J_j| (and |J_i| |ẽ| for Jᵀẽ): a
     # correlation-like scale in which every unknown counts, whatever its units.
     column_norm = np.sqrt(np.diag(np.asarray(dense_normal)))

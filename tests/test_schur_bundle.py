@@ -11,10 +11,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
-from jaxba._observations import AbstractObservationGroup, ParameterObservations
+from jaxba._observations import AbstractObservationGroup
 from jaxba._parameters import flatten
 from jaxba._problem import dense_jacobian, free_indices
 from jaxba._reliability import redundancy_numbers
@@ -55,16 +56,7 @@ def block(tmp_path_factory):
 def _with_control_and_robust(problem):
     """Weighted control on 3 points (one of them also in a distance) and a Huber loss."""
     distances = next(g for g in problem.groups if isinstance(g, jaxba.Distances))
-    rows = jnp.array([int(distances.a[0]), 5, 9])
-    stddev = jnp.array([[0.001, 0.001, jnp.inf], [0.002] * 3, [0.001] * 3])
-    control = ParameterObservations(
-        name="control", block="points", rows=rows,
-        observed=problem.initial.points[rows] + 0.003, stddev=stddev,
-    )  # fmt: skip
-    problem = eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, control))
-    return eqx.tree_at(
-        lambda p: p.robust, problem, jaxba.RobustLoss("huber", 1.5), is_leaf=lambda x: x is None
-    )
+    return with_control_and_huber(problem, [int(distances.a[0]), 5, 9])
 
 
 def test_structure_splits_distance_points(block):
