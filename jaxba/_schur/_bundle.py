@@ -565,7 +565,9 @@ def bundle_predicted_reduction(
     return linear + 0.5 * quadratic
 
 
-class BundleSchurDescent(AbstractNormalDescent[Parameters, BundleNormalEquations]):
+class BundleSchurDescent(
+    AbstractNormalDescent[Parameters, tuple[BundleNormalEquations, optx.RESULTS]]
+):
     """Damped Newton step -(JᵀJ + λD)⁻¹ Jᵀe, λ = 1/radius, of a `BundleProblem` by the
     Schur complement (see the module docstring). y is the full Parameters tree; fixed
     unknowns get a zero step."""
@@ -575,22 +577,25 @@ class BundleSchurDescent(AbstractNormalDescent[Parameters, BundleNormalEquations
     min_diagonal: float = 1e-6
     max_diagonal: float = 1e32
 
-    def init(self, y: Parameters, residual) -> BundleNormalEquations:
+    def init(self, y: Parameters, residual) -> tuple[BundleNormalEquations, optx.RESULTS]:
         shapes = jax.eval_shape(self._normal, y)
-        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
 
-    def query(self, y: Parameters, residual, cost, state) -> BundleNormalEquations:
+    def query(self, y: Parameters, residual, cost, state):
+        """The normal equations at `y` and whether they are finite (checked once here)."""
         del residual, cost, state
-        return self._normal(y)
+        normal = self._normal(y)
+        return normal, normal_equations_result(normal)
 
-    def step(self, radius: Scalar, state: BundleNormalEquations):
-        x_r, x_e = solve_bundle_damped(self.structure, state, 1.0 / radius)
+    def step(self, radius: Scalar, state):
+        normal, result = state
+        x_r, x_e = solve_bundle_damped(self.structure, normal, 1.0 / radius)
         step = _to_parameters(self.structure, self.problem.initial, -x_r, -x_e)
         step = jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
-        return step, normal_equations_result(state)
+        return step, result
 
-    def predicted_reduction(self, y_diff: Parameters, state: BundleNormalEquations) -> Scalar:
-        return bundle_predicted_reduction(self.structure, state, y_diff)
+    def predicted_reduction(self, y_diff: Parameters, state) -> Scalar:
+        return bundle_predicted_reduction(self.structure, state[0], y_diff)
 
     def _normal(self, y: Parameters) -> BundleNormalEquations:
         return bundle_normal_equations(

@@ -25,8 +25,12 @@ from .._trust_region import (
 from ._normal import NormalEquations, normal_equations, predicted_reduction, solve_damped
 from ._problem import TwoBlockProblem, TwoBlockY, two_block_residuals
 
+# The normal equations of the last accepted point and whether they are finite (checked once
+# there, not at every trial step).
+_CheckedNormal = tuple[NormalEquations, optx.RESULTS]
 
-class SchurDampedNewtonDescent(AbstractNormalDescent[TwoBlockY, NormalEquations]):
+
+class SchurDampedNewtonDescent(AbstractNormalDescent[TwoBlockY, _CheckedNormal]):
     """The damped Newton (Levenberg-Marquardt) step -(JᵀJ + λD)⁻¹ Jᵀr, λ = 1/radius,
     for a `TwoBlockProblem`, solved by the Schur complement on the point block.
 
@@ -41,22 +45,24 @@ class SchurDampedNewtonDescent(AbstractNormalDescent[TwoBlockY, NormalEquations]
     min_diagonal: float = 1e-6
     max_diagonal: float = 1e32
 
-    def init(self, y: TwoBlockY, residual: Array) -> NormalEquations:
+    def init(self, y: TwoBlockY, residual: Array) -> _CheckedNormal:
         shapes = jax.eval_shape(self._normal_equations, y, residual)
-        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
 
     def query(
-        self, y: TwoBlockY, residual: Array, cost: Scalar, state: NormalEquations
-    ) -> NormalEquations:
+        self, y: TwoBlockY, residual: Array, cost: Scalar, state: _CheckedNormal
+    ) -> _CheckedNormal:
         del cost, state
-        return self._normal_equations(y, residual)
+        normal = self._normal_equations(y, residual)
+        return normal, normal_equations_result(normal)
 
-    def step(self, radius: Scalar, state: NormalEquations) -> tuple[TwoBlockY, optx.RESULTS]:
-        camera_step, point_step = solve_damped(self.problem, state, 1.0 / radius)
-        return (-camera_step, -point_step), normal_equations_result(state)
+    def step(self, radius: Scalar, state: _CheckedNormal) -> tuple[TwoBlockY, optx.RESULTS]:
+        normal, result = state
+        camera_step, point_step = solve_damped(self.problem, normal, 1.0 / radius)
+        return (-camera_step, -point_step), result
 
-    def predicted_reduction(self, y_diff: TwoBlockY, state: NormalEquations) -> Scalar:
-        return predicted_reduction(self.problem, state, y_diff)
+    def predicted_reduction(self, y_diff: TwoBlockY, state: _CheckedNormal) -> Scalar:
+        return predicted_reduction(self.problem, state[0], y_diff)
 
     def _normal_equations(self, y: TwoBlockY, residual: Array) -> NormalEquations:
         return normal_equations(self.problem, y, residual, self.min_diagonal, self.max_diagonal)
