@@ -302,9 +302,7 @@ def bundle_normal_equations(
             gradient = gradient.at[reduced_columns].add(reduced_sub * residual)
         elif isinstance(group, Distances):
             jd, e_d = _distance_jacobians(problem, group, params)
-            a_col = structure.point_column[group.a][:, None] + jnp.arange(3)
-            b_col = structure.point_column[group.b][:, None] + jnp.arange(3)
-            cols = jnp.concatenate([a_col, b_col], axis=1)
+            cols = _distance_columns(structure, group)
             jd = jd * free_r[cols][:, None, :]
             hessian = hessian.at[cols[:, :, None], cols[:, None, :]].add(_gram(jd, jd))
             gradient = gradient.at[cols].add(jnp.sum(jd * e_d[:, :, None], axis=1))
@@ -337,6 +335,14 @@ def _block_columns(structure: BundleStructure, group: ParameterObservations) -> 
         model = group.block.removeprefix("cameras/")
         start = structure.camera_offsets[structure.models.index(model)]
     return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
+
+
+def _distance_columns(structure: BundleStructure, group: Distances) -> Array:
+    """(n, 6) reduced columns of the two end points of every distance (reduced points)."""
+    return jnp.concatenate([
+        structure.point_column[group.a][:, None] + jnp.arange(3),
+        structure.point_column[group.b][:, None] + jnp.arange(3),
+    ], axis=1)
 
 
 def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np.ndarray:
@@ -539,8 +545,7 @@ def _schur_complement(
         return (product, rhs), None
 
     zeros = (jnp.zeros((n_r + 1, n_r + 1), dtype), jnp.zeros(n_r + 1, dtype))
-    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
-    (product, rhs), _ = jax.lax.scan(accumulate, zeros, chunks)
+    (product, rhs), _ = jax.lax.scan(accumulate, zeros, _point_chunks(structure))
     return product[:n_r, :n_r], rhs[:n_r]
 
 
@@ -767,13 +772,10 @@ def _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk) -> tuple
     return g, inverse[points] + jnp.einsum("pci,cpk->pik", t, g)
 
 
-def _point_cofactors(problem, structure, normal, cofactor, inverse) -> Array:
-    """The 3 x 3 cofactor block of every object point (n_points, 3, 3), 0 where fixed."""
-    def chunk_blocks(_, chunk):
-        return None, _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)[1]
-
-    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
-    _, eliminated = jax.lax.scan(chunk_blocks, None, chunks)
+def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
+    """The 3 x 3 cofactor block of every object point (n_points, 3, 3), 0 where fixed, from
+    S⁻¹ and the eliminated points' blocks per chunk (n_chunks, points_per_chunk, 3, 3: the
+    second output of `_chunk_point_cofactors` over `structure`'s chunks)."""
     n_e = structure.eliminated_points.shape[0]
     points = jnp.zeros((problem.initial.points.shape[0], 3, 3), cofactor.dtype)
     points = points.at[structure.eliminated_points].set(eliminated.reshape(-1, 3, 3)[:n_e])
@@ -783,11 +785,21 @@ def _point_cofactors(problem, structure, normal, cofactor, inverse) -> Array:
     return points * free[:, :, None] * free[:, None, :]
 
 
+def _point_chunks(structure: BundleStructure) -> tuple[Array, Array, Array]:
+    """The chunks of eliminated points scanned over: (observations, local point, point)."""
+    return structure.chunk_obs, structure.chunk_local, structure.chunk_points
+
+
 @eqx.filter_jit
 def _schur_cofactors(problem, structure, params, sigma0, redundancy):
     normal = bundle_normal_equations(problem, structure, params)
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
-    points = _point_cofactors(problem, structure, normal, cofactor, inverse)
+
+    def chunk_blocks(_, chunk):
+        return None, _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)[1]
+
+    _, eliminated = jax.lax.scan(chunk_blocks, None, _point_chunks(structure))
+    points = _point_cofactors(problem, structure, cofactor, eliminated)
     residuals = problem.residuals(problem.with_free(params))
     sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy
     variance_factor = sigma0_squared / sigma0**2

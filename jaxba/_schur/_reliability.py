@@ -27,10 +27,12 @@ from ._bundle import (
     BundleStructure,
     _block_columns,
     _chunk_point_cofactors,
+    _distance_columns,
     _distance_jacobians,
     _free_masks,
     _image_group_chunks,
     _image_jacobian_blocks,
+    _point_chunks,
     _point_cofactors,
     _reduced_cofactor,
     bundle_normal_equations,
@@ -59,10 +61,9 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
     normal = bundle_normal_equations(problem, structure, params)
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
-    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
     jr, je = _image_jacobians(problem, structure, params)
-    image = _image_leverages(structure, normal, padded, cofactor, inverse, jr, je)
-    point_cofactors = _point_cofactors(problem, structure, normal, cofactor, inverse)
+    image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
+    point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
 
     full = problem.with_free(params)
     residuals = problem.residuals(full)
@@ -77,10 +78,7 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
             leverages.append(_direct_leverages(structure, group, cofactor, point_cofactors))
         elif isinstance(group, Distances):
             jd, _ = _distance_jacobians(problem, group, full)
-            columns = jnp.concatenate([
-                structure.point_column[group.a][:, None] + jnp.arange(3),
-                structure.point_column[group.b][:, None] + jnp.arange(3),
-            ], axis=1)
+            columns = _distance_columns(structure, group)
             jd = jd * free_r[columns][:, None, :]
             block = cofactor[columns[:, :, None], columns[:, None, :]]
             leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
@@ -115,8 +113,10 @@ def _image_jacobians(problem, structure, params) -> tuple[Array, Array]:
     return jnp.concatenate(blocks_r), jnp.concatenate(blocks_e)
 
 
-def _image_leverages(structure, normal, padded, cofactor, inverse, jr, je) -> Array:
-    """j N⁻¹ jᵀ (n_image_obs, 2) of the image observations (see the module docstring)."""
+def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:
+    """j N⁻¹ jᵀ (n_image_obs, 2) of the image observations (see the module docstring), and
+    the eliminated points' 3 x 3 cofactor blocks per chunk that it needs on the way."""
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
     per_key = padded[structure.key_columns[:, :, None], structure.key_columns[:, None, :]]
 
     def reduced_part(jr_i, key_i):
@@ -133,11 +133,10 @@ def _image_leverages(structure, normal, padded, cofactor, inverse, jr, je) -> Ar
         a, b = jr[obs], je[obs]
         part = (jnp.einsum("nka,nab,nkb->nk", b, point_blocks[local], b)
                 - 2.0 * jnp.einsum("nka,nab,nkb->nk", a, g_obs, b))
-        return total.at[obs].add(part), None
+        return total.at[obs].add(part), point_blocks
 
-    chunks = (structure.chunk_obs, structure.chunk_local, structure.chunk_points)
-    leverage, _ = jax.lax.scan(chunk_leverages, leverage, chunks)
-    return leverage[:-1]
+    leverage, eliminated = jax.lax.scan(chunk_leverages, leverage, _point_chunks(structure))
+    return leverage[:-1], eliminated
 
 
 def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Array, "n k"]:
