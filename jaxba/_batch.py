@@ -208,7 +208,7 @@ def _solve_batch(problem, plan, max_steps, rtol, atol, chunk_size) -> Solution:
 
     def one(arrays):
         problem, plan = eqx.combine(arrays, static)
-        return solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol, progress=False)
+        return solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
 
     if chunk_size is None:
         return jax.vmap(one)(arrays)

@@ -10,6 +10,7 @@ import argparse
 import os
 import pathlib
 import sys
+import time
 from collections.abc import Sequence
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -47,7 +48,10 @@ def _setup_jax() -> None:
         if not os.access(cache, os.W_OK):
             return
         jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+        # Every program, however small: a run compiles ~150 (most of them eager operations
+        # of a few ms each), and loading one is several times faster than compiling it.
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     except (OSError, RuntimeError, ValueError):
         pass
 
@@ -89,16 +93,8 @@ def _plot_name(camera_id: str) -> str:
 def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
     """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
 
-    Skipped with a warning, not an error, when matplotlib is missing; never over an input.
+    Never over an input (an input's name is skipped with a warning).
     """
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        _error(
-            "--plots: matplotlib is not installed (pip install 'jaxba[plots]'); no plots written",
-            "warning",
-        )
-        return []
     import jaxba
 
     out_dir = pathlib.Path(out_dir)
@@ -120,35 +116,71 @@ def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
     return written
 
 
+def _read_checked(args: argparse.Namespace):
+    """Read the project and check the output folder, without jax: bad input is reported
+    within a fraction of a second. Returns the spec, the output folder and the seconds."""
+    from jaxba._project import ProjectError, read_project
+    from jaxba._report import OutputError, check_outputs
+
+    start = time.perf_counter()
+    try:
+        spec = read_project(args.project)
+        out_dir = args.out if args.out is not None else spec.path.parent
+        check_outputs(spec, out_dir)
+    except (ProjectError, OutputError) as error:
+        raise _UsageError(str(error)) from None
+    return spec, out_dir, time.perf_counter() - start
+
+
+def _plots_possible() -> bool:
+    """Whether matplotlib can be imported; warns (before the run) when it cannot."""
+    try:
+        import matplotlib  # noqa: F401
+        return True
+    except ImportError:
+        pass
+    _error("--plots: matplotlib is not installed (pip install 'jaxba[plots]'); no plots will"
+           " be written", "warning")
+    return False
+
+
 def _adjust(args: argparse.Namespace) -> int:
+    spec, out_dir, read_seconds = _read_checked(args)
+    plots = args.plots and _plots_possible()
+    start = time.perf_counter()
     _setup_jax()
     import jaxba
     from jaxba import _report
+    from jaxba._timing import Phase, Timings
 
+    jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
+    timings = Timings(on_compile=lambda name: _say(f"  {name}: compiling..."))
+    timings.add(Phase("read", read_seconds, 0.0, 0, 0))
+    timings.add(Phase("start-up", time.perf_counter() - start, 0.0, 0, 0))
     try:
-        spec = jaxba.read_project(args.project)
-        out_dir = args.out if args.out is not None else spec.path.parent
-        _report.check_outputs(spec, out_dir)
-        project = jaxba.build_project(spec)
+        with timings.phase("read"):
+            project = jaxba.build_project(spec)
         _say(_report.start_line(project))
         result = jaxba.adjust_project(
             project, on_iteration=lambda it: _say(_report.iteration_line(it)),
-            solver=args.solver,
+            solver=args.solver, timings=timings,
         )
-    except (jaxba.ProjectError, jaxba.DatumError, _report.OutputError) as error:
+    except (jaxba.ProjectError, jaxba.DatumError) as error:
         raise _UsageError(str(error)) from None
     except jaxba.NotConvergedError as error:
         _error(f"the adjustment failed: {error}")
         return EXIT_NOT_CONVERGED
     try:
-        written = _report.write_reports(project, result, out_dir)
-        if args.plots:
-            written += _write_plots(project, result, out_dir)
+        with timings.phase("reports"):
+            written = _report.write_reports(project, result, out_dir)
+            if plots:
+                written += _write_plots(project, result, out_dir)
     except (_report.OutputError, OSError) as error:
         raise _UsageError(str(error)) from None
 
     for line in _report.summary_lines(project, result):
         _say(line)
+    _say(_report.timing_line(timings))
     _say("wrote")
     for path in written:
         _say(f"  {path}")

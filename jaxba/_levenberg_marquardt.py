@@ -8,8 +8,6 @@ solves (JᵀJ + λI) δ = -Jᵀe by Cholesky per trial step, inside jaxba's trus
 unknowns z of `solve` (x = x₀ + scale ⊙ z).
 """
 
-from collections.abc import Callable
-
 import equinox as eqx
 import jax.numpy as jnp
 import optimistix as optx
@@ -18,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Scalar
 from ._cholesky import cholesky_solve
 from ._linearisation import LinearisationPlan, normal_equations
 from ._problem import BundleProblem, params_from_scaled
-from ._trust_region import AbstractNormalDescent, LevenbergMarquardt, finite_step, silent
+from ._trust_region import AbstractNormalDescent, LevenbergMarquardt, finite_step
 
 # Stop when the Gauss-Newton step from an accepted iterate would lower the cost by less
 # than this fraction of it. Then the unknowns are within √(1e-12 r) σ of the optimum
@@ -102,8 +100,6 @@ class NormalLevenbergMarquardt(LevenbergMarquardt):
         atol: float,
         *,
         decrement_tolerance: float = DECREMENT_TOLERANCE,
-        verbose: Callable[..., None] = silent,
     ):
         super().__init__(
-            rtol, atol, NormalDampedNewtonDescent(problem, plan, scale, decrement_tolerance),
-            verbose=verbose)
+            rtol, atol, NormalDampedNewtonDescent(problem, plan, scale, decrement_tolerance))

@@ -53,26 +53,28 @@ class LinearisationPlan(eqx.Module):
         return self.free_index.shape[-1]
 
 
-def _positions(problem: BundleProblem) -> Parameters:
-    """A Parameters of NumPy arrays holding every unknown's position in `flatten` order."""
-    tree = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
-    return jax.tree.map(np.asarray, tree)
+@eqx.filter_jit
+def _local_positions_jit(problem: BundleProblem, positions: Parameters) -> tuple:
+    return tuple(group.local_values(positions) for group in problem.groups)
 
 
-def live_slots(problem: BundleProblem, free_index: np.ndarray) -> list:
+def _local_positions(problem: BundleProblem) -> list[np.ndarray | None]:
+    """Per group: the `flatten` positions of the unknowns each row depends on (n_rows,
+    width), or None for a group that is not row-local. One compiled program."""
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    return [None if depends is None else np.asarray(depends)
+            for depends in _local_positions_jit(problem, positions)]
+
+
+def live_slots(problem: BundleProblem, free_index: np.ndarray, local=None) -> list:
     """Per group: the slots (columns of `local_values`) that hold a free unknown in at least
-    one row, or None for a group that is not row-local."""
+    one row, or None for a group that is not row-local. `local`: `_local_positions`."""
     is_free = np.zeros(flatten(problem.initial).size, dtype=bool)
     is_free[free_index] = True
-    positions = _positions(problem)
-    out = []
-    for group in problem.groups:
-        depends = group.local_values(positions)
-        if depends is None:
-            out.append(None)
-        else:
-            out.append(tuple(int(k) for k in np.flatnonzero(is_free[np.asarray(depends)].any(0))))
-    return out
+    local = _local_positions(problem) if local is None else local
+    return [None if depends is None
+            else tuple(int(k) for k in np.flatnonzero(is_free[depends].any(0)))
+            for depends in local]
 
 
 def linearisation_plan(
@@ -85,13 +87,13 @@ def linearisation_plan(
     `live` (default `live_slots`) the union of the live slots of all its problems.
     """
     free_index = free_indices(problem) if free_index is None else np.asarray(free_index)
-    live = live_slots(problem, free_index) if live is None else live
+    local = _local_positions(problem)
+    live = live_slots(problem, free_index, local) if live is None else live
     n_free = free_index.size
     column_of = np.full(flatten(problem.initial).size, n_free)
     column_of[free_index] = np.arange(n_free)  # a repeated (padding) position keeps the last
-    positions = _positions(problem)
     key_rows, key_columns = [], []
-    for group, slots in zip(problem.groups, live):
+    for group, slots, depends in zip(problem.groups, live, local):
         if slots is None:
             key_rows.append(None)
             key_columns.append(None)
@@ -99,7 +101,7 @@ def linearisation_plan(
         # Rows that are no observation at all (padding, rejected blunders) add nothing and
         # join no key: all padded rows repeat row 0, and would make its key hundreds long.
         observed = np.flatnonzero(np.asarray(group.mask()).any(axis=1))
-        columns = column_of[np.asarray(group.local_values(positions))[observed][:, list(slots)]]
+        columns = column_of[depends[observed][:, list(slots)]]
         unique, key = np.unique(columns, axis=0, return_inverse=True)
         rows = _rows_by_key(key.ravel(), unique.shape[0])
         key_rows.append(jnp.asarray(np.where(rows >= 0, observed[rows], -1)))

@@ -44,12 +44,16 @@ def flatten(tree: Parameters) -> np.ndarray:
 
 
 def unflatten(like: Parameters, vector) -> Parameters:
-    """Inverse of `flatten`, shaped like `like`."""
+    """Inverse of `flatten`, shaped like `like`: NumPy leaves from a NumPy `vector` (no jax
+    operations, nothing to compile), jax arrays from a jax one (also under tracing)."""
+    numpy = isinstance(vector, np.ndarray)
     leaves, treedef = jax.tree.flatten(like)
     out, start = [], 0
     for leaf in leaves:
         size = int(np.size(leaf))
-        out.append(jnp.reshape(jnp.asarray(vector[start:start + size]), jnp.shape(leaf)))
+        piece = vector[start:start + size]
+        out.append(np.reshape(piece, np.shape(leaf)) if numpy
+                   else jnp.reshape(jnp.asarray(piece), jnp.shape(leaf)))
         start += size
     return jax.tree.unflatten(treedef, out)
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ._project import Project
+from ._project._build import Project
 from ._report._collect import PIXEL, camera_correlations, camera_units, image_residuals
 from ._solve import Adjustment
 

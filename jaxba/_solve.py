@@ -15,12 +15,13 @@ from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
 from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
-from ._progress import Iteration, StepRecorder, listening, report_step
+from ._progress import Iteration, StepRecorder
 from ._schur._bundle import schur_precision, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
 from ._statistics import Precision, precision
-from ._trust_region import silent
+from ._steps import StepInfo, least_squares_stepwise
+from ._timing import Timings
 
 
 class NotConvergedError(RuntimeError):
@@ -38,6 +39,9 @@ class Adjustment:
     - `iterations`: every accepted iterate with its cost ½Σe² and σ̂0² (re-adjustments
       for variance components or data snooping continue the numbering);
     - `converged`, `message`, `steps` (solver steps, rejected ones included);
+    - `backend`: the normal-equation backend that solved, "dense" or "schur";
+    - `timings`: wall seconds per phase ("datum check", "solve", "statistics", ...) with
+      the compilations inside each (`jaxba._timing.Timings`);
     - filled in by `adjust_project` as the project asks: `reliability` (a `Reliability`),
       `variance_components` ({group: VarianceComponent}) with `variance_iterations`, and
       `rejections` (data snooping, in order of removal).
@@ -51,6 +55,8 @@ class Adjustment:
     converged: bool
     message: str
     steps: int
+    backend: str = "dense"
+    timings: Timings = dataclasses.field(default_factory=Timings)
     reliability: "Reliability | None" = None  # noqa: F821  (defined in _reliability)
     variance_components: dict | None = None
     variance_iterations: int = 0
@@ -101,40 +107,46 @@ def solve(
     rtol: float = 1e-8,
     atol: float = 1e-8,
     decrement_tolerance: float = DECREMENT_TOLERANCE,
-    progress: bool = True,
+    on_step: Callable[[StepInfo], None] | None = None,
 ) -> Solution:
-    """Levenberg-Marquardt on the Jacobi-scaled free unknowns, through optx.least_squares.
+    """Levenberg-Marquardt on the Jacobi-scaled free unknowns (`NormalLevenbergMarquardt`).
 
     Converged at an accepted iterate from which the Gauss-Newton step would lower the cost
     by less than `decrement_tolerance` times the cost (see `NormalDampedNewtonDescent`), or
     where optimistix's Cauchy test passes (step and residual change within `rtol`, `atol`,
     elementwise, in the scaled unknowns), or when every step from it is rejected down to the
     trust region's minimum radius (`jaxba._trust_region`).
-    Pure and jitted (normal equations from per-row Jacobian blocks, Cholesky per trial
-    step: `NormalLevenbergMarquardt`): no datum check, no statistics, so it can be `jax.vmap`ped
-    over problems of one structure (Monte Carlo, batches). `plan` =
-    `linearisation_plan(problem)`, computed here when not given (it must be given under
-    `jax.vmap` or `jax.jit`, where the problem's index arrays are traced).
-    `progress=False` leaves out the per-step host callback: jax then caches the compiled
-    solve persistently, and under vmap the callback is not unrolled per batch element.
+    No datum check, no statistics. Without `on_step` the whole solve is one compiled
+    `optx.least_squares` (pure: it can be `jax.vmap`ped over problems of one structure, as
+    Monte Carlo and batches do, and differentiated); with `on_step` the same solver runs one
+    compiled step at a time and `on_step(StepInfo)` hears every step (`least_squares_stepwise`:
+    not under jit or vmap). `plan` = `linearisation_plan(problem)`, computed here when not
+    given (it must be given under `jax.vmap` or `jax.jit`, where the problem's index arrays
+    are traced).
     """
     if plan is None:
         plan = linearisation_plan(problem)
-    return _solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol,
-                  decrement_tolerance=decrement_tolerance, progress=progress)
+    settings = dict(max_steps=max_steps, rtol=rtol, atol=atol,
+                    decrement_tolerance=decrement_tolerance)
+    if on_step is None:
+        return _solve(problem, plan, **settings)
+    solver, args, z0 = _normal_solver(problem, plan, rtol=rtol, atol=atol,
+                                      decrement_tolerance=decrement_tolerance)
+    solution = least_squares_stepwise(
+        _residual_fn, solver, z0, args, has_aux=True, max_steps=max_steps, on_step=on_step)
+    return _normal_solution(args, solution)
 
 
-@eqx.filter_jit
-def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance, progress) -> Solution:
-    index = plan.free_index
+def _make_normal_solver(problem, plan, *, rtol, atol, decrement_tolerance):
+    """The dense-backend solver, the residual function's args and the start z = 0."""
     scale = column_scale(problem, plan)
     solver = NormalLevenbergMarquardt(
-        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance,
-        verbose=report_step if progress else silent)
-    solution = optx.least_squares(
-        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, index, scale),
-        has_aux=True, max_steps=max_steps, throw=False,
-    )
+        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance)
+    return solver, (problem, plan.free_index, scale), jnp.zeros_like(scale)
+
+
+def _make_normal_solution(args, solution: optx.Solution) -> Solution:
+    problem, index, scale = args
     params = params_from_scaled(problem, solution.value, index, scale)
     return Solution(
         parameters=params,
@@ -143,6 +155,20 @@ def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance, progres
         cost=0.5 * jnp.sum(_flat_residuals(problem, params) ** 2),
         result=solution.result,
     )
+
+
+_normal_solver = eqx.filter_jit(_make_normal_solver)
+_whitened = eqx.filter_jit(BundleProblem.whitened)
+_normal_solution = eqx.filter_jit(_make_normal_solution)
+
+
+@eqx.filter_jit
+def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance) -> Solution:
+    solver, args, z0 = _make_normal_solver(
+        problem, plan, rtol=rtol, atol=atol, decrement_tolerance=decrement_tolerance)
+    solution = optx.least_squares(
+        _residual_fn, solver, z0, args=args, has_aux=True, max_steps=max_steps, throw=False)
+    return _make_normal_solution(args, solution)
 
 
 def adjust(
@@ -157,6 +183,7 @@ def adjust(
     throw: bool = False,
     check: bool = True,
     solver: str = "auto",
+    timings: Timings | None = None,
 ) -> Adjustment:
     """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
 
@@ -169,39 +196,41 @@ def adjust(
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
     `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" above
-    `SCHUR_MIN_UNKNOWNS` unknowns).
+    `SCHUR_MIN_UNKNOWNS` unknowns). The phases are timed into `timings` (a new `Timings`
+    when None), which the result holds.
     """
+    timings = Timings() if timings is None else timings
     schur = use_schur(problem, solver)
     if check:
-        if schur:
-            check_datum_schur(problem, labels=labels)
-        else:
-            check_datum(problem, labels=labels)
+        with timings.phase("datum check"):
+            (check_datum_schur if schur else check_datum)(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
-    with listening(recorder):
-        if schur:
-            solution = solve_schur(problem, max_steps=max_steps, rtol=rtol, atol=atol)
-        else:
-            solution = solve(problem, max_steps=max_steps, rtol=rtol, atol=atol)
+    with timings.phase("solve"):
+        solution = (solve_schur if schur else solve)(
+            problem, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     final_cost = float(solution.cost)
-    whitened = problem.whitened(params)
     if not np.isfinite(final_cost):
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
     converged = result == optx.RESULTS.successful
     message = "converged" if converged else optx.RESULTS[result]
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
-    residuals = observed_minus_computed(problem, whitened)
+    with timings.phase("statistics"):
+        residuals = observed_minus_computed(problem, _whitened(problem, params))
+        parameter_precision = (schur_precision if schur else precision)(
+            problem, params, sigma0=sigma0)
     return Adjustment(
         problem=problem,
         parameters=params,
-        precision=(schur_precision if schur else precision)(problem, params, sigma0=sigma0),
+        precision=parameter_precision,
         residuals=residuals,
         iterations=recorder.iterations,
         converged=bool(converged),
         message=str(message),
         steps=int(steps),
+        backend="schur" if schur else "dense",
+        timings=timings,
     )

@@ -113,11 +113,6 @@ def normal_equations_result(normal) -> optx.RESULTS:
         _all_finite(normal), optx.RESULTS.successful, optx.RESULTS.singular)
 
 
-def silent(**info) -> None:
-    """A solver `verbose` hook that reports nothing."""
-    del info
-
-
 def _cost(residual: PyTree[Array]) -> Scalar:
     return 0.5 * sum(jnp.sum(r**2) for r in jax.tree.leaves(residual))
 
@@ -147,10 +142,8 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     `rtol`, `atol`, `norm`: optimistix's Cauchy termination; `function_tolerance`: stop
     once an accepted step lowers the cost by at most this fraction (0: off);
     `initial_radius`: the first trust-region radius (1/λ in the descent's units); `update`:
-    the radius rule;
-    `verbose`: called every step as `verbose(step=, accepted=, cost=, radius=)` with
-    (traced) scalars: the step number (0 evaluates the starting point), whether the point
-    evaluated in it was accepted, its cost ½|r|², the radius for the next step.
+    the radius rule. No callback inside: `jaxba._steps.least_squares_stepwise` runs the
+    loop from Python where each step should be reported.
     """
 
     rtol: float
@@ -160,7 +153,6 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     function_tolerance: float = 0.0
     initial_radius: float = CERES_INITIAL_RADIUS
     update: TrustRegionUpdate = TrustRegionUpdate()
-    verbose: Callable[..., None] = silent
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LevenbergMarquardtState:
         del fn, args, options, tags
@@ -212,7 +204,6 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             accept, accepted, rejected, state.descent_state)
         result = optx.RESULTS.where(
             jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
-        self.verbose(step=state.num_steps, accepted=accept, cost=cost_eval, radius=radius)
         y_descent, descent_result = self.descent.step(radius, descent_state)
         # The step for the next trial; it does not matter once the solve has ended.
         proposing = (result == optx.RESULTS.successful) & ~terminate

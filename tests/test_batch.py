@@ -73,7 +73,7 @@ def test_problems_freeing_different_iops_batch_like_single_solves(projects):
     batch = pad_problems(problems)
     solutions = jaxba.solve_batch(batch.problem, batch.plan)
     for k, problem in enumerate(problems):
-        single = jaxba.solve(problem, progress=False)
+        single = jaxba.solve(problem)
         padded = jax.tree.map(lambda leaf: leaf[k], solutions.parameters)
         np.testing.assert_allclose(
             np.asarray(padded.cameras["smac"]), np.asarray(single.parameters.cameras["smac"]),

@@ -265,3 +265,11 @@ def test_new_models_refuse_a_mm_project_and_refraction(tmp_path, model):
     project_file.write_text(project.replace("image_sigma", "refraction = true\nimage_sigma"))
     with pytest.raises(jaxba.ProjectError, match=f"model '{model}' has no atmospheric"):
         jaxba.build_project(jaxba.read_project(project_file))
+
+
+def test_parameter_name_table_matches_the_models():
+    """The jax-free name table that project files are checked against is the models' own."""
+    from jaxba._camera import CAMERA_MODELS, CAMERA_PARAMETER_NAMES
+
+    assert {name: model.parameter_names for name, model in CAMERA_MODELS.items()} == (
+        CAMERA_PARAMETER_NAMES)

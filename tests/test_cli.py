@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba import _cli
 from jaxba._cli import main
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
@@ -192,11 +191,14 @@ def test_res_statistics_columns(run):
     assert "Variance components" not in text and "Data snooping" not in text
 
 
-def test_plots_without_matplotlib(monkeypatch, tmp_path, capsys):
+def test_plots_without_matplotlib_warn_before_the_run(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
-    assert _cli._write_plots(None, None, tmp_path) == []
-    assert "matplotlib is not installed" in capsys.readouterr().err
-    assert list(tmp_path.iterdir()) == []
+    code, stdout, stderr = _run("adjust", str(_copy_lab(tmp_path / "lab")), "--out",
+                                str(tmp_path / "out"), "--plots")
+    assert code == 0
+    assert stderr.startswith("jaxba: warning: --plots: matplotlib is not installed")
+    written = {path.name for path in (tmp_path / "out").iterdir()}
+    assert written >= set(OUTPUTS) and not written & set(PLOTS)
 
 
 def test_output_would_overwrite_input(tmp_path):

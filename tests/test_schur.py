@@ -20,7 +20,6 @@ from jaxba._bal import bal_residual
 from jaxba._cholesky import cholesky_solve
 from jaxba._schur import (
     SchurDampedNewtonDescent,
-    SchurLevenbergMarquardt,
     TwoBlockProblem,
     marquardt_diagonal,
     normal_equations,
@@ -329,8 +328,3 @@ def test_function_tolerance_stops_as_converged(scene, tight_solution):
     tight_cost = cost(problem, tight_solution.value)
     assert cost(problem, loose.value) == pytest.approx(tight_cost, rel=1e-6)
 
-
-def test_solver_arguments_are_checked(scene):
-    problem, _, _ = scene
-    with pytest.raises(ValueError, match="verbose"):
-        SchurLevenbergMarquardt(problem, rtol=1e-8, atol=1e-8, verbose=True)

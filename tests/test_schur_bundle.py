@@ -127,7 +127,7 @@ def test_solve_schur_matches_dense_solve(block, variant):
     max_steps = 50 if variant == "plain" else 200
     function_tolerance = FUNCTION_TOLERANCE if variant == "plain" else 0.0
     schur = solve_schur(problem, index, max_steps=max_steps,
-                        function_tolerance=function_tolerance, progress=False)
+                        function_tolerance=function_tolerance)
     dense = jaxba.solve(problem, rtol=1e-10, atol=1e-10, decrement_tolerance=0.0,
                         max_steps=max_steps + 200)
     assert isinstance(schur, jaxba.Solution)
@@ -142,19 +142,24 @@ def test_solve_schur_matches_dense_solve(block, variant):
     )
 
 
-def test_progress_is_reported(block):
-    from jaxba._progress import StepRecorder, listening
+def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block):
+    from jaxba._progress import StepRecorder
 
     recorder = StepRecorder(redundancy=100)
-    with listening(recorder):
-        solution = jax.block_until_ready(solve_schur(block))
+    stepwise = solve_schur(block, on_step=recorder)
+    whole = solve_schur(block)
     assert len(recorder.iterations) >= 2
-    assert recorder.iterations[0].cost > float(solution.cost)
+    assert recorder.iterations[0].cost > float(stepwise.cost)
+    assert recorder.iterations[-1].cost == pytest.approx(float(stepwise.cost), rel=1e-12)
+    assert int(stepwise.steps) == int(whole.steps)
+    assert bool(stepwise.converged) and bool(whole.converged)
+    for a, b in zip(jax.tree.leaves(stepwise.parameters), jax.tree.leaves(whole.parameters)):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
 
 
 def test_cofactors_match_dense_precision(block):
     index = jnp.asarray(free_indices(block))
-    params = solve_schur(block, index, progress=False).parameters
+    params = solve_schur(block, index).parameters
     dense = jaxba.precision(block, params)
     schur = schur_cofactors(block, params)
     assert float(schur.sigma0_squared) == pytest.approx(dense.sigma0_squared, rel=1e-12)
@@ -189,29 +194,19 @@ def _benchmark_block():
 def test_synthetic_nadir_block_reaches_sigma0_one():
     """40 images x 600 points (~40k residuals): σ̂0 ≈ 1 (the simulated noise)."""
     problem = _benchmark_block()(40, 600, dense_fraction=0.83, seed=1)
-    solution = jax.block_until_ready(solve_schur(problem, progress=False))
+    solution = jax.block_until_ready(solve_schur(problem))
     n = sum(int(np.sum(np.asarray(g.mask()))) for g in problem.groups)
     sigma0 = np.sqrt(2 * float(solution.cost) / (n - problem.n_unknowns()))
     assert bool(solution.converged)
     assert sigma0 == pytest.approx(1.0, abs=0.05)
 
 
-def test_run_bal_without_progress_has_no_host_callback(tmp_path):
-    """Executables with host callbacks are never written to jax's persistent compilation
-    cache; `run_bal(on_iteration=None)` compiles the solve without them and counts the same
-    iterations as with progress."""
+def test_run_bal_with_and_without_progress_agree(tmp_path):
+    """With progress the BAL solve runs step by step, without it as one program: same
+    iterations and cost."""
     from jaxba._bal import run_bal
-    from jaxba._bal._cli import _solve
-    from jaxba._bal._model import bal_initial, bal_two_block
-    from jaxba._bal._reader import read_bal
 
     toy = pathlib.Path(__file__).parent / "data" / "bal" / "dubrovnik-3-7-pre.txt"
-    bal = read_bal(toy)
-    settings = dict(max_steps=100, rtol=1e-10, atol=1e-10, function_tolerance=1e-6)
-    problem, y0 = bal_two_block(bal), bal_initial(bal)
-    with_progress = _solve.lower(problem, y0, progress=True, **settings).as_text()
-    without = _solve.lower(problem, y0, progress=False, **settings).as_text()
-    assert "callback" in with_progress and "callback" not in without
     quiet = run_bal(toy, tmp_path / "quiet", on_iteration=None)
     loud = run_bal(toy, tmp_path / "loud", on_iteration=lambda iteration: None)
     assert quiet["accepted_iterations"] == loud["accepted_iterations"]

@@ -1,24 +1,22 @@
-"""Camera, distortion and refraction models; `CAMERA_MODELS` names them for project files."""
+"""Camera, distortion and refraction models; `CAMERA_MODELS` names them for project files.
 
-from ._abstract import AbstractCamera, AbstractDistortion, AbstractRefraction
-from ._affine import Affine
-from ._bal import BalCamera
-from ._decentering import DecenteringSmac
-from ._fisheye import FisheyeCamera
-from ._opencv import OpenCVCamera
-from ._photomodeler import PhotoModelerCamera
-from ._pixel import PixelGrid
-from ._radial import RadialSmac
-from ._refraction import AtmosphericRefraction, NoRefraction
-from ._smac import SmacCamera
+`CAMERA_PARAMETER_NAMES` needs no jax; the models are imported when first used.
+"""
 
-CAMERA_MODELS: dict[str, type[AbstractCamera]] = {
-    "smac": SmacCamera, "opencv": OpenCVCamera, "photomodeler": PhotoModelerCamera,
-    "bal": BalCamera, "fisheye": FisheyeCamera,
-}
+from .._lazy import lazy_exports
 
-__all__ = [
-    "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
-    "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera", "NoRefraction",
-    "OpenCVCamera", "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera",
-]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._abstract": ("AbstractCamera", "AbstractDistortion", "AbstractRefraction"),
+    "._affine": ("Affine",),
+    "._bal": ("BalCamera",),
+    "._decentering": ("DecenteringSmac",),
+    "._fisheye": ("FisheyeCamera",),
+    "._names": ("CAMERA_PARAMETER_NAMES",),
+    "._opencv": ("OpenCVCamera",),
+    "._photomodeler": ("PhotoModelerCamera",),
+    "._pixel": ("PixelGrid",),
+    "._radial": ("RadialSmac",),
+    "._refraction": ("AtmosphericRefraction", "NoRefraction"),
+    "._registry": ("CAMERA_MODELS",),
+    "._smac": ("SmacCamera",),
+})

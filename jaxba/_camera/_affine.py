@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2
 from ._abstract import AbstractDistortion
+from ._names import AFFINE
 
 
 class Affine(AbstractDistortion):
@@ -11,7 +12,7 @@ class Affine(AbstractDistortion):
 
     A1: Scalar
     A2: Scalar
-    parameter_names = ("A1", "A2")
+    parameter_names = AFFINE
 
     def correction(self, reduced: Vector2) -> Vector2:
         x, y = reduced

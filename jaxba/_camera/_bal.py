@@ -2,6 +2,7 @@
 
 from .._custom_types import Scalar, Vector2, Vector3
 from ._abstract import AbstractCamera
+from ._names import CAMERA_PARAMETER_NAMES
 
 
 class BalCamera(AbstractCamera):
@@ -27,7 +28,7 @@ class BalCamera(AbstractCamera):
     f: Scalar
     k1: Scalar
     k2: Scalar
-    parameter_names = ("f", "k1", "k2")
+    parameter_names = CAMERA_PARAMETER_NAMES["bal"]
     image_units = "pixel"
 
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:

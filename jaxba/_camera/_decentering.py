@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2
 from ._abstract import AbstractDistortion
+from ._names import DECENTERING_SMAC
 
 
 class DecenteringSmac(AbstractDistortion):
@@ -15,7 +16,7 @@ class DecenteringSmac(AbstractDistortion):
     P1: Scalar
     P2: Scalar
     P3: Scalar
-    parameter_names = ("P1", "P2", "P3")
+    parameter_names = DECENTERING_SMAC
 
     def correction(self, reduced: Vector2) -> Vector2:
         x, y = reduced

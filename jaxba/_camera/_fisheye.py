@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2, Vector3
 from ._abstract import AbstractCamera
+from ._names import CAMERA_PARAMETER_NAMES
 
 # Below this r² = a² + b², θ/r = atan(r)/r is taken from its Taylor series 1 - r²/3 + r⁴/5
 # (error < r⁶ ~ 1e-24): keeps the value and the derivatives finite and exact at r = 0.
@@ -38,7 +39,7 @@ class FisheyeCamera(AbstractCamera):
     k2: Scalar
     k3: Scalar
     k4: Scalar
-    parameter_names = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
+    parameter_names = CAMERA_PARAMETER_NAMES["fisheye"]
     image_units = "pixel"
 
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:

@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2, Vector3
 from ._abstract import AbstractCamera
+from ._names import CAMERA_PARAMETER_NAMES
 
 
 class OpenCVCamera(AbstractCamera):
@@ -32,7 +33,7 @@ class OpenCVCamera(AbstractCamera):
     p1: Scalar
     p2: Scalar
     k3: Scalar
-    parameter_names = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3")
+    parameter_names = CAMERA_PARAMETER_NAMES["opencv"]
     image_units = "pixel"
 
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:

@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2, Vector3
 from ._abstract import AbstractCamera
+from ._names import CAMERA_PARAMETER_NAMES
 
 
 class PhotoModelerCamera(AbstractCamera):
@@ -55,7 +56,7 @@ class PhotoModelerCamera(AbstractCamera):
     P2: Scalar
     aspect: Scalar
     skew: Scalar
-    parameter_names = ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2", "aspect", "skew")
+    parameter_names = CAMERA_PARAMETER_NAMES["photomodeler"]
     image_units = "mm"
 
     def corrected(self, measured: Vector2, refraction_k: Scalar) -> Vector2:

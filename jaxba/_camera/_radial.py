@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from .._custom_types import Scalar, Vector2
 from ._abstract import AbstractDistortion
+from ._names import RADIAL_SMAC
 
 
 class RadialSmac(AbstractDistortion):
@@ -16,7 +17,7 @@ class RadialSmac(AbstractDistortion):
     K1: Scalar
     K2: Scalar
     K3: Scalar
-    parameter_names = ("K0", "K1", "K2", "K3")
+    parameter_names = RADIAL_SMAC
 
     def correction(self, reduced: Vector2) -> Vector2:
         r2 = jnp.sum(reduced**2)

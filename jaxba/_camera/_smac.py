@@ -9,6 +9,7 @@ from .._custom_types import Scalar, Vector2, Vector3
 from ._abstract import AbstractCamera
 from ._affine import Affine
 from ._decentering import DecenteringSmac
+from ._names import CAMERA_PARAMETER_NAMES
 from ._radial import RadialSmac
 
 
@@ -28,8 +29,7 @@ class SmacCamera(AbstractCamera):
     radial: RadialSmac
     decentering: DecenteringSmac
     affine: Affine
-    parameter_names = ("xp", "yp", "c", *RadialSmac.parameter_names,
-                       *DecenteringSmac.parameter_names, *Affine.parameter_names)
+    parameter_names = CAMERA_PARAMETER_NAMES["smac"]
     image_units = "mm"
 
     @classmethod

@@ -1,12 +1,15 @@
-"""Project files (FORMATS.md) in, BundleProblem out; plain Python around the jitted core."""
+"""Project files in, BundleProblem out; plain Python around the jitted core.
 
-from ._adjust import adjust_project
-from ._build import Project, build_project
-from ._errors import ProjectError
-from ._readers import read_project
-from ._spec import AdjustmentSettings, ProjectSpec
+Reading (`read_project`, the specs, `ProjectError`) needs no jax; building and adjusting are
+imported when first used.
+"""
 
-__all__ = [
-    "AdjustmentSettings", "Project", "ProjectError", "ProjectSpec", "adjust_project",
-    "build_project", "read_project",
-]
+from .._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._adjust": ("adjust_project",),
+    "._build": ("Project", "build_project"),
+    "._errors": ("ProjectError",),
+    "._readers": ("read_project",),
+    "._spec": ("AdjustmentSettings", "ProjectSpec"),
+})

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from .._progress import Iteration
 from .._reliability import data_snooping, reliability, restart_from
 from .._solve import Adjustment, adjust
+from .._timing import Timings
 from .._variance_components import estimate_variance_components
 from ._build import Project
 from ._errors import ProjectError
@@ -28,10 +29,13 @@ def adjust_project(
     *,
     on_iteration: Callable[[Iteration], None] | None = None,
     solver: str | None = None,
+    timings: Timings | None = None,
 ) -> Adjustment:
     """Run the project's adjustment and statistics; see the module docstring. `solver`:
     "auto", "dense" or "schur" (object points eliminated), as for `jaxba.adjust`; None: the
-    project's `solver` setting."""
+    project's `solver` setting. Phases are timed into `timings` (as `jaxba.adjust`): the
+    re-adjustments of variance components and data snooping, and reliability, count as
+    "statistics"."""
     settings = project.spec.settings
     solver = solver or settings.solver
     if solver == "schur" and settings.datum == "free":
@@ -42,15 +46,18 @@ def adjust_project(
         sigma0=settings.sigma0, max_steps=settings.max_iterations,
         rtol=settings.rtol, atol=settings.atol, solver=solver,
     )
+    timings = Timings() if timings is None else timings
     snooping = dict(alpha=settings.snooping_alpha, familywise=settings.snooping_familywise)
     problem = project.problem
     # A robust loss from far-off approximations treats every residual as an outlier; start
     # it from the least-squares solution instead.
     least_squares = dataclasses.replace(problem, robust=None)
-    result = adjust(least_squares, labels=project.labels, on_iteration=on_iteration, **options)
+    result = adjust(least_squares, labels=project.labels, on_iteration=on_iteration,
+                    timings=timings, **options)
     iterations = list(result.iterations)
     if problem.robust is not None and result.converged:
-        result = adjust(restart_from(problem, result.parameters), check=False, **options)
+        result = adjust(restart_from(problem, result.parameters), check=False,
+                        timings=timings, **options)
         iterations = _continue_numbering(iterations, result.iterations)
     components, variance_iterations, rejections = None, 0, ()
 
@@ -63,19 +70,22 @@ def adjust_project(
         iterations = _continue_numbering(iterations, current.iterations)
         return current
 
-    if settings.variance_components and result.converged:
-        result = with_components(result)
-    if settings.data_snooping and result.converged:
-        result, found, _ = data_snooping(result, **snooping, **options)
-        rejections = tuple(found)
-        if found:
-            iterations = _continue_numbering(iterations, result.iterations)
-            if settings.variance_components:
-                result = with_components(result)
+    with timings.phase("statistics"):
+        if settings.variance_components and result.converged:
+            result = with_components(result)
+        if settings.data_snooping and result.converged:
+            result, found, _ = data_snooping(result, **snooping, **options)
+            rejections = tuple(found)
+            if found:
+                iterations = _continue_numbering(iterations, result.iterations)
+                if settings.variance_components:
+                    result = with_components(result)
+        final_reliability = reliability(result, **snooping)
     return dataclasses.replace(
         result,
+        timings=timings,
         iterations=iterations,
-        reliability=reliability(result, **snooping),
+        reliability=final_reliability,
         variance_components=components,
         variance_iterations=variance_iterations,
         rejections=rejections,

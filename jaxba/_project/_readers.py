@@ -16,6 +16,7 @@ import tomllib
 from collections.abc import Iterator, Mapping
 from typing import Any
 
+from .._camera._names import CAMERA_PARAMETER_NAMES
 from ._errors import ProjectError
 from ._spec import (
     AdjustmentSettings,
@@ -186,17 +187,10 @@ def _read_settings(table: dict, where: str) -> AdjustmentSettings:
 # --- cameras.toml -----------------------------------------------------------------------
 
 
-def _camera_models() -> Mapping[str, Any]:
-    """The registry of camera models: name -> class with a `parameter_names` tuple."""
-    from .._camera import CAMERA_MODELS  # late: keeps importing the readers free of jax
-
-    return CAMERA_MODELS
-
-
 def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, CameraSpec]:
     """cameras.toml: one table per camera id."""
     document = _load_toml(file.path, file.name)
-    models = _camera_models()
+    models = CAMERA_PARAMETER_NAMES
     cameras = {}
     for camera_id, table in document.items():
         if not isinstance(table, dict):
@@ -224,7 +218,7 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
         raise ProjectError(
             f"{where} model: unknown camera model {model!r}; known models: {', '.join(models)}"
         )
-    names = tuple(models[model].parameter_names)
+    names = models[model]
     _check_keys(table, _CAMERA_KEYS + names, where)
     values = {name: _toml_float(table.get(name, 0.0), f"{where} {name}") for name in names}
 

@@ -1,14 +1,15 @@
-"""Reports of an adjustment: BASC-style text files and results.json (FORMATS.md).
+"""Reports of an adjustment: BASC-style text files and results.json.
 
-Plain Python and NumPy around the adjusted result; the jitted core never imports this.
+Plain Python and NumPy around the adjusted result; the jitted core never imports this. The
+output checks (`check_outputs`, `OutputError`) need no jax; the rest is imported when first used.
 """
 
-from ._console import iteration_line, start_line, summary_lines
-from ._json import results_dict, results_json
-from ._text import out_text, res_text, sigma_text
-from ._write import OutputError, check_outputs, report_paths, write_reports
+from .._lazy import lazy_exports
 
-__all__ = [
-    "OutputError", "check_outputs", "iteration_line", "out_text", "report_paths", "res_text",
-    "results_dict", "results_json", "sigma_text", "start_line", "summary_lines", "write_reports",
-]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._console": ("iteration_line", "start_line", "summary_lines", "timing_line"),
+    "._json": ("results_dict", "results_json"),
+    "._paths": ("OutputError", "check_outputs", "report_paths"),
+    "._text": ("out_text", "res_text", "sigma_text"),
+    "._write": ("write_reports",),
+})

@@ -20,7 +20,7 @@ from .._camera import CAMERA_MODELS
 from .._observations import AbstractObservationGroup, Distances, ImagePoints, ParameterObservations
 from .._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._precision import camera_correlation, error_ellipsoids, point_covariances
-from .._project import Project
+from .._project._build import Project
 from .._solve import Adjustment
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"

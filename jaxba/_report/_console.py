@@ -3,8 +3,9 @@
 import math
 
 from .._progress import Iteration
-from .._project import Project
+from .._project._build import Project
 from .._solve import Adjustment
+from .._timing import Timings
 from ._collect import FIXED, camera_tables, describe, rejections
 
 
@@ -60,12 +61,25 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
             ids = {key: value for key, value in entry.items() if key not in ("group", "w")}
             lines.append(f"  {entry['group']} {describe(ids)}  |w| {entry['w']:.2f}")
     n_iterations = max(len(result.iterations) - 1, 0)
+    steps = f"{result.steps} solver steps, {result.backend} backend"
     if result.converged:
-        lines.append(f"converged after {n_iterations} iterations ({result.steps} solver steps)")
+        lines.append(f"converged after {n_iterations} iterations ({steps})")
     else:
         lines.append(
-            f"NOT converged after {n_iterations} iterations ({result.steps} solver steps);"
+            f"NOT converged after {n_iterations} iterations ({steps});"
             " the reports show the last iterate"
         )
         lines.append(f"  solver: {result.message}")
     return lines
+
+
+def timing_line(timings: Timings) -> str:
+    """E.g. `seconds: read 0.02, start-up 1.1, solve 0.03, ...; compile 4.2 (31 programs,
+    29 from the cache)`: each phase's run seconds, compilation apart."""
+    summary = timings.summary()
+    phases = ", ".join(
+        f"{name} {seconds:.2f}" for name, seconds in summary.items()
+        if name not in ("compile", "total"))
+    return (
+        f"seconds: {phases}; compile {summary['compile']:.2f} ({timings.compilations}"
+        f" programs, {timings.cache_hits} from the cache); total {summary['total']:.2f}")

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from .._project import Project
+from .._project._build import Project
 from .._solve import Adjustment
 from ._collect import (
     MM,

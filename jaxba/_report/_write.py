@@ -2,46 +2,11 @@
 
 import pathlib
 
-from .._project import Project, ProjectSpec
+from .._project._build import Project
 from .._solve import Adjustment
 from ._json import results_json
+from ._paths import check_outputs
 from ._text import out_text, res_text, sigma_text
-
-
-class OutputError(ValueError):
-    """A report file cannot be written where asked (it would replace an input file, ...)."""
-
-
-def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json."""
-    out_dir = pathlib.Path(out_dir)
-    return {
-        "out": out_dir / f"{spec.name}.out",
-        "res": out_dir / f"{spec.name}.res",
-        "sigma": out_dir / f"{spec.name}.sigma",
-        "json": out_dir / "results.json",
-    }
-
-
-def check_outputs(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """`report_paths`, after checking that none of them is an input file or a folder.
-
-    Raises `OutputError` naming the file; call it before adjusting to fail early.
-    """
-    out_dir = pathlib.Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: output folder is not a folder")
-    inputs = {pathlib.Path(path).resolve() for path in spec.input_files}
-    paths = report_paths(spec, out_dir)
-    for path in paths.values():
-        if path.resolve() in inputs:
-            raise OutputError(
-                f"{path}: report file would overwrite an input file of project"
-                f" {spec.name!r}; choose another output folder (--out) or rename the input"
-            )
-        if path.is_dir():
-            raise OutputError(f"{path}: report file name is taken by a folder")
-    return paths
 
 
 def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib.Path]:

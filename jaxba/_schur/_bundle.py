@@ -26,6 +26,7 @@ their step is exactly 0. Control points / GNSS-INS / IOP priors (`ParameterObser
 add 1/σ² to the diagonal of V (eliminated points) or U (everything else).
 """
 
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -39,12 +40,8 @@ from .._observations import Distances, ImagePoints, ParameterObservations, colli
 from .._parameters import Parameters, flatten, unflatten
 from .._problem import BundleProblem, free_indices
 from .._statistics import Precision, SchurCovariance
-from .._trust_region import (
-    AbstractNormalDescent,
-    LevenbergMarquardt,
-    normal_equations_result,
-    silent,
-)
+from .._steps import StepInfo, least_squares_stepwise
+from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, normal_equations_result
 from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
 
 
@@ -620,16 +617,15 @@ def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]
 FUNCTION_TOLERANCE = 1e-12
 
 
-@eqx.filter_jit
-def _solve_schur(problem, structure, max_steps, rtol, atol, function_tolerance, verbose):
+def _make_schur_solver(problem, structure, *, rtol, atol, function_tolerance):
+    return LevenbergMarquardt(
+        rtol, atol, BundleSchurDescent(problem, structure),
+        function_tolerance=function_tolerance)
+
+
+def _make_schur_solution(problem, solution: optx.Solution) -> "Solution":  # noqa: F821
     from .._solve import Solution
 
-    solver = LevenbergMarquardt(
-        rtol, atol, BundleSchurDescent(problem, structure),
-        function_tolerance=function_tolerance, verbose=verbose or silent)
-    solution = optx.least_squares(
-        bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
-    )
     params = problem.with_free(solution.value)
     residuals = problem.residuals(params)
     return Solution(
@@ -641,6 +637,19 @@ def _solve_schur(problem, structure, max_steps, rtol, atol, function_tolerance, 
     )
 
 
+_schur_solution = eqx.filter_jit(_make_schur_solution)
+
+
+@eqx.filter_jit
+def _solve_schur(problem, structure, *, max_steps, rtol, atol, function_tolerance):
+    solver = _make_schur_solver(
+        problem, structure, rtol=rtol, atol=atol, function_tolerance=function_tolerance)
+    solution = optx.least_squares(
+        bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
+    )
+    return _make_schur_solution(problem, solution)
+
+
 def solve_schur(
     problem: BundleProblem,
     free_index: Int[Array, " n_free"] | None = None,
@@ -650,7 +659,7 @@ def solve_schur(
     atol: float = 1e-10,
     function_tolerance: float = FUNCTION_TOLERANCE,
     structure: BundleStructure | None = None,
-    progress: bool = True,
+    on_step: Callable[[StepInfo], None] | None = None,
 ) -> "Solution":  # noqa: F821
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged: an accepted step lowered the cost by at most `function_tolerance` of it, or
@@ -660,20 +669,22 @@ def solve_schur(
     result). `free_index` is accepted for signature compatibility with `solve` and not
     used: the free unknowns are `problem.free`. Not vmappable (the split is computed in
     NumPy from the problem's indices; pass `structure=bundle_structure(problem)` to reuse
-    it). `progress=True` reports every step through `jaxba._progress.report_step` (as
-    `solve`, for `adjust`'s iteration listing); progress=False has no host callback, so
-    that the compiled solve can be stored in jax's persistent compilation cache.
+    it). As for `solve`: without `on_step` one compiled `optx.least_squares`; with it, one
+    compiled step at a time, `on_step(StepInfo)` hearing every step.
     Memory O(n_obs + n_r² + chunk), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
     distance points.
     """
     del free_index
-    from .._progress import report_step
-
     if structure is None:
         structure = bundle_structure(problem)
-    verbose = report_step if progress else None
-    return _solve_schur(problem, structure, max_steps, rtol, atol, function_tolerance, verbose)
-
+    settings = dict(rtol=rtol, atol=atol, function_tolerance=function_tolerance)
+    if on_step is None:
+        return _solve_schur(problem, structure, max_steps=max_steps, **settings)
+    solver = _make_schur_solver(problem, structure, **settings)
+    solution = least_squares_stepwise(
+        bundle_residuals, solver, problem.initial, problem, max_steps=max_steps,
+        on_step=on_step)
+    return _schur_solution(problem, solution)
 
 
 class BundleCofactors(eqx.Module):

@@ -20,7 +20,6 @@ from .._trust_region import (
     LevenbergMarquardt,
     TrustRegionUpdate,
     normal_equations_result,
-    silent,
 )
 from ._normal import NormalEquations, normal_equations, predicted_reduction, solve_damped
 from ._problem import TwoBlockProblem, TwoBlockY, two_block_residuals
@@ -80,8 +79,7 @@ class SchurLevenbergMarquardt(LevenbergMarquardt):
     criterion; 0 = off); `min_diagonal`, `max_diagonal`: damping clamps (Ceres'
     defaults); `initial_radius`: first trust-region radius 1/λ (Ceres' default 1e4;
     from 1, Dubrovnik-16 takes 19 steps instead of 9); `update`: the trust-region rule
-    (default Ceres'); `verbose`: False, or a callable `**info -> None` (see
-    `jaxba._progress.report_step`).
+    (default Ceres').
     """
 
     def __init__(
@@ -96,14 +94,10 @@ class SchurLevenbergMarquardt(LevenbergMarquardt):
         max_diagonal: float = 1e32,
         initial_radius: float = CERES_INITIAL_RADIUS,
         update: TrustRegionUpdate = TrustRegionUpdate(),
-        verbose: bool | Callable[..., None] = False,
     ):
-        if verbose is True:
-            raise ValueError("verbose must be False or a callable **info -> None")
         descent = SchurDampedNewtonDescent(problem, min_diagonal, max_diagonal)
         super().__init__(rtol, atol, descent, norm=norm, function_tolerance=function_tolerance,
-                         initial_radius=initial_radius, update=update,
-                         verbose=verbose if verbose else silent)
+                         initial_radius=initial_radius, update=update)
 
 
 def solve_two_block(
@@ -114,7 +108,6 @@ def solve_two_block(
     atol: float = 1e-10,
     function_tolerance: float = 0.0,
     max_steps: int = 100,
-    verbose: Callable[..., None] | None = None,
     throw: bool = False,
 ) -> optx.Solution:
     """Minimise ½ Σ |residuals|² of `problem` from `y0` with `SchurLevenbergMarquardt`.
@@ -126,7 +119,6 @@ def solve_two_block(
         rtol=rtol,
         atol=atol,
         function_tolerance=function_tolerance,
-        verbose=verbose or False,
     )
     return optx.least_squares(
         two_block_residuals, solver, y0, args=problem, max_steps=max_steps, throw=throw

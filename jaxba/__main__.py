@@ -1,0 +1,5 @@
+"""`python -m jaxba ...`: the `jaxba` command line."""
+
+from ._cli import main
+
+raise SystemExit(main())

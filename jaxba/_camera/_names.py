@@ -1,0 +1,15 @@
+"""Parameter names of the camera models, by the name a cameras.toml gives (no jax here, so
+that project files are checked before jax is loaded). Each model class takes its
+`parameter_names` from this table."""
+
+RADIAL_SMAC = ("K0", "K1", "K2", "K3")
+DECENTERING_SMAC = ("P1", "P2", "P3")
+AFFINE = ("A1", "A2")
+
+CAMERA_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
+    "smac": ("xp", "yp", "c", *RADIAL_SMAC, *DECENTERING_SMAC, *AFFINE),
+    "opencv": ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"),
+    "photomodeler": ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2", "aspect", "skew"),
+    "bal": ("f", "k1", "k2"),
+    "fisheye": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+}

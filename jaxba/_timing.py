@@ -1,0 +1,136 @@
+"""Where a run's time goes: wall seconds per phase and the compilations inside each.
+
+jax reports every trace, lowering and backend compilation (or load from the persistent
+compilation cache) through `jax.monitoring`; `CompileLog` sums them while it is open, so a
+phase's compile seconds can be told from its run seconds. One listener is registered once
+per process and feeds every open log.
+"""
+
+import contextlib
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+
+import jax
+
+# jax._src.dispatch's event names: tracing to a jaxpr, lowering to MLIR, backend compile
+# (which includes looking the executable up in the persistent cache).
+_TRACE = "/jax/core/compile/jaxpr_trace_duration"
+_LOWER = "/jax/core/compile/jaxpr_to_mlir_module_duration"
+_COMPILE = "/jax/core/compile/backend_compile_duration"
+_CACHE_HIT = "/jax/compilation_cache/cache_hits"
+# A program that takes this long to lower is big: its compilation takes seconds.
+_LONG_LOWERING = 0.05
+
+_open_logs: list["CompileLog"] = []
+_registered = False
+
+
+def _on_duration(event: str, duration: float, **kwargs) -> None:
+    if event not in (_TRACE, _LOWER, _COMPILE):
+        return
+    for log in _open_logs:
+        log.seconds += duration
+        if event == _LOWER and duration >= _LONG_LOWERING and not log.announced:
+            log.announced = True
+            if log.on_compile is not None:
+                log.on_compile()
+        if event == _COMPILE:
+            log.count += 1
+            log.programs.append((str(kwargs.get("fun_name", "?")), duration))
+
+
+def _on_event(event: str, **kwargs) -> None:
+    if event == _CACHE_HIT:
+        for log in _open_logs:
+            log.cache_hits += 1
+
+
+def _register() -> None:
+    global _registered
+    if not _registered:
+        jax.monitoring.register_event_duration_secs_listener(_on_duration)
+        jax.monitoring.register_event_listener(_on_event)
+        _registered = True
+
+
+@dataclasses.dataclass(eq=False)  # identity: nested logs must not be confused
+class CompileLog:
+    """Tracing + lowering + compiling seconds, the number of programs compiled (or loaded from
+    the persistent cache: `cache_hits` of them) and each program's (name, compile seconds),
+    while the `with` block runs. `on_compile()` is called once, when the first big program
+    (lowered in `_LONG_LOWERING` seconds or more) has been lowered, just before its backend
+    compilation (or its look-up in the persistent cache) starts."""
+
+    on_compile: Callable[[], None] | None = None
+    seconds: float = 0.0
+    count: int = 0
+    cache_hits: int = 0
+    announced: bool = False
+    programs: list[tuple[str, float]] = dataclasses.field(default_factory=list)
+
+    def __enter__(self) -> "CompileLog":
+        _register()
+        _open_logs.append(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        _open_logs.remove(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class Phase:
+    """One phase of a run: wall `seconds`, of which `compile_seconds` tracing and compiling
+    `compilations` programs (`cache_hits` of them loaded from the persistent cache)."""
+
+    name: str
+    seconds: float
+    compile_seconds: float
+    compilations: int
+    cache_hits: int
+
+
+@dataclasses.dataclass
+class Timings:
+    """The phases of a run in order (a phase timed twice adds up). `on_compile(name)` is
+    called once per timed block, when phase `name` is about to compile its first big
+    program (see `CompileLog`)."""
+
+    phases: list[Phase] = dataclasses.field(default_factory=list)
+    on_compile: Callable[[str], None] | None = None
+
+    @contextlib.contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        """Time the block as phase `name`."""
+        start = time.perf_counter()
+        notify = None if self.on_compile is None else (lambda: self.on_compile(name))
+        with CompileLog(on_compile=notify) as log:
+            yield
+        self.add(Phase(name, time.perf_counter() - start, log.seconds, log.count,
+                       log.cache_hits))
+
+    def add(self, phase: Phase) -> None:
+        for k, known in enumerate(self.phases):
+            if known.name == phase.name:
+                self.phases[k] = Phase(
+                    phase.name, known.seconds + phase.seconds,
+                    known.compile_seconds + phase.compile_seconds,
+                    known.compilations + phase.compilations, known.cache_hits + phase.cache_hits)
+                return
+        self.phases.append(phase)
+
+    def summary(self) -> dict[str, float]:
+        """{phase: run seconds (compile excluded)} in order, then "compile" (all phases'
+        compile seconds) and "total" (wall)."""
+        out = {p.name: p.seconds - p.compile_seconds for p in self.phases}
+        out["compile"] = sum(p.compile_seconds for p in self.phases)
+        out["total"] = sum(p.seconds for p in self.phases)
+        return out
+
+    @property
+    def compilations(self) -> int:
+        return sum(p.compilations for p in self.phases)
+
+    @property
+    def cache_hits(self) -> int:
+        return sum(p.cache_hits for p in self.phases)
