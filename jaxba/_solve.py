@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float
 
 from ._datum import check_datum
 from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
@@ -19,6 +19,7 @@ from ._progress import Iteration, StepRecorder
 from ._schur._bundle import schur_precision, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
+from ._solution import Solution
 from ._statistics import Precision, precision
 from ._steps import StepInfo, least_squares_stepwise
 from ._timing import Timings
@@ -66,17 +67,6 @@ class Adjustment:
     def sigma0(self) -> float:
         """A posteriori σ̂0."""
         return float(np.sqrt(self.precision.sigma0_squared))
-
-
-class Solution(eqx.Module):
-    """What `solve` returns: adjusted `parameters`, `converged` flag, solver `steps`, the
-    final `cost` ½Σẽ² and optimistix's `result` code. A pytree, so it batches under vmap."""
-
-    parameters: Parameters
-    converged: Bool[Array, ""]
-    steps: Int[Array, ""]
-    cost: Float[Array, ""]
-    result: optx.RESULTS
 
 
 def _residual_fn(z, args):

@@ -39,6 +39,7 @@ from .._cholesky import cholesky_solve
 from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
 from .._parameters import Parameters, flatten, unflatten
 from .._problem import BundleProblem, free_indices
+from .._solution import Solution
 from .._statistics import Precision, SchurCovariance
 from .._steps import StepInfo, least_squares_stepwise
 from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, normal_equations_result
@@ -623,9 +624,7 @@ def _make_schur_solver(problem, structure, *, rtol, atol, function_tolerance):
         function_tolerance=function_tolerance)
 
 
-def _make_schur_solution(problem, solution: optx.Solution) -> "Solution":  # noqa: F821
-    from .._solve import Solution
-
+def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
     params = problem.with_free(solution.value)
     residuals = problem.residuals(params)
     return Solution(
@@ -660,7 +659,7 @@ def solve_schur(
     function_tolerance: float = FUNCTION_TOLERANCE,
     structure: BundleStructure | None = None,
     on_step: Callable[[StepInfo], None] | None = None,
-) -> "Solution":  # noqa: F821
+) -> Solution:
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged: an accepted step lowered the cost by at most `function_tolerance` of it, or
     optimistix's Cauchy test (`rtol`, `atol`) passed.
