@@ -109,7 +109,11 @@ from ._reliability import (
     remove_observation as remove_observation,
     restart_from as restart_from,
 )
-from ._report import OutputError as OutputError, write_reports as write_reports
+from ._report import (
+    OutputError as OutputError,
+    read_observations as read_observations,
+    write_reports as write_reports,
+)
 from ._robust import RobustLoss as RobustLoss
 from ._rotation import (
     matrix_to_opk as matrix_to_opk,

@@ -44,6 +44,9 @@ class ParameterTable:
 class ImageResiduals:
     """Image residuals of all image-point groups, sorted by image (file order within one).
 
+    `image`, `point` (n,): rows of `project.image_ids` and `project.point_ids`; `group` (n,):
+    the index of the row's group in `result.problem.groups`; `image_ids`, `point_ids`,
+    `camera_ids` and `units` (n,) object arrays: the IDs, the image's camera and its units.
     `xy` and `v` are (n, 2) in the image units of each row's camera model (`units`: "mm", or
     "pixel" for pixel-unit models such as "opencv"); `v_px` is v in pixels (v divided by the
     pixel size for mm rows, v itself for pixel rows; same axes as xy), NaN for mm cameras
@@ -54,10 +57,13 @@ class ImageResiduals:
     |w| above the critical value on either coordinate.
     """
 
-    image_ids: list[str]
-    point_ids: list[str]
-    camera_ids: list[str]
-    units: list[str]
+    image: np.ndarray
+    point: np.ndarray
+    group: np.ndarray
+    image_ids: np.ndarray
+    point_ids: np.ndarray
+    camera_ids: np.ndarray
+    units: np.ndarray
     xy: np.ndarray
     v: np.ndarray
     v_px: np.ndarray
@@ -281,36 +287,38 @@ def group_statistics(project: Project, result: Adjustment) -> list[GroupStatisti
 
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
-    parts = [s for s in group_statistics(project, result) if isinstance(s.group, ImagePoints)]
-    if not parts:
-        empty, none = np.zeros((0, 2)), np.zeros(0, dtype=bool)
-        return ImageResiduals([], [], [], [], empty, empty, empty, empty, empty, none, none)
+    statistics = list(enumerate(group_statistics(project, result)))
+    parts = [(k, s) for k, s in statistics if isinstance(s.group, ImagePoints)]
 
-    def stack(get):
-        return np.concatenate([np.asarray(get(part)) for part in parts])
+    def stack(get, shape=(0,)):
+        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
 
-    image_rows, point_rows = stack(lambda s: s.group.image), stack(lambda s: s.group.point)
-    order = np.argsort(image_rows, kind="stable")
-    image_ids = [project.image_ids[k] for k in image_rows[order]]
-    camera_ids = [project.spec.images[iid].camera for iid in image_ids]
-    units = [camera_units(project, cid) for cid in camera_ids]
+    image = stack(lambda k, s: s.group.image).astype(int)
+    order = np.argsort(image, kind="stable")
+    image = image[order]
+    cameras = [project.spec.images[iid].camera for iid in project.image_ids]
+    units = [camera_units(project, cid) for cid in cameras]
     pixel_size = np.array([
         (1.0, 1.0) if unit == PIXEL else _pixel_size(project, cid)
-        for cid, unit in zip(camera_ids, units)
+        for cid, unit in zip(cameras, units)
     ]).reshape(-1, 2)
-    v = stack(lambda s: s.v)[order]
+    point = stack(lambda k, s: s.group.point).astype(int)[order]
+    v = stack(lambda k, s: s.v, (0, 2))[order]
     return ImageResiduals(
-        image_ids=image_ids,
-        point_ids=[project.point_ids[k] for k in point_rows[order]],
-        camera_ids=camera_ids,
-        units=units,
-        xy=stack(lambda s: np.asarray(s.group.measured, dtype=float))[order],
+        image=image,
+        point=point,
+        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
+        image_ids=np.asarray(project.image_ids, dtype=object)[image],
+        point_ids=np.asarray(project.point_ids, dtype=object)[point],
+        camera_ids=np.asarray(cameras, dtype=object)[image],
+        units=np.asarray(units, dtype=object)[image],
+        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
         v=v,
-        v_px=v / pixel_size,
-        redundancy=stack(lambda s: s.r)[order],
-        w=stack(lambda s: s.w)[order],
-        removed=stack(lambda s: s.removed.any(axis=1))[order],
-        outlier=stack(lambda s: s.outlier.any(axis=1))[order],
+        v_px=v / pixel_size[image],
+        redundancy=stack(lambda k, s: s.r, (0, 2))[order],
+        w=stack(lambda k, s: s.w, (0, 2))[order],
+        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
+        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
     )
 
 

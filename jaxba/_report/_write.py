@@ -4,6 +4,7 @@ import pathlib
 
 from .._project import Project, ProjectSpec
 from .._solve import Adjustment
+from ._csv import OBSERVATIONS_FILE, observations_csv
 from ._json import results_json
 from ._text import out_text, res_text, sigma_text
 
@@ -13,13 +14,15 @@ class OutputError(ValueError):
 
 
 def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json."""
+    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json
+    and observations.csv."""
     out_dir = pathlib.Path(out_dir)
     return {
         "out": out_dir / f"{spec.name}.out",
         "res": out_dir / f"{spec.name}.res",
         "sigma": out_dir / f"{spec.name}.sigma",
         "json": out_dir / "results.json",
+        "observations": out_dir / OBSERVATIONS_FILE,
     }
 
 
@@ -45,7 +48,8 @@ def check_outputs(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
 
 
 def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib.Path]:
-    """Write NAME.out, NAME.res, NAME.sigma and results.json into `out_dir` (created if needed).
+    """Write NAME.out, NAME.res, NAME.sigma, results.json and observations.csv into `out_dir`
+    (created if needed).
 
     NAME is the project name. Nothing is written if any target is an input file of the
     project (`OutputError`). Returns the written paths.
@@ -56,6 +60,7 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
         "res": res_text(project, result),
         "sigma": sigma_text(project, result),
         "json": results_json(project, result),
+        "observations": observations_csv(project, result),
     }
     pathlib.Path(out_dir).mkdir(parents=True, exist_ok=True)
     for key, text in texts.items():
