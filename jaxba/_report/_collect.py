@@ -450,42 +450,56 @@ def _pixel_size(project: Project, camera_id: str) -> tuple[float, float]:
     return (math.nan, math.nan) if grid is None else tuple(grid.pixel_size)
 
 
-def rms(values: np.ndarray) -> np.ndarray:
-    """Root mean square over the rows, per column; NaN for no rows."""
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] == 0:
-        return np.full(values.shape[1:], math.nan)
-    return np.sqrt(np.mean(values**2, axis=0))
+def residual_summary(residuals: ImageResiduals, codes: np.ndarray, names: list[str]) -> dict:
+    """Per name: n and RMS of vx, vy in mm and in pixels over its rows (those with
+    `codes` (n,) == its index) not removed by data snooping (`n_removed` of them were).
 
-
-def residual_summary(residuals: ImageResiduals, selected: np.ndarray) -> dict:
-    """n and RMS of vx, vy in mm and in pixels, over the selected rows not removed by data
-    snooping (`n_removed` of them were). The mm RMS is NaN when a selected row is in pixels
-    (pixel-unit model); the pixel RMS is NaN when a row has no pixel size.
+    The mm RMS is NaN when a row is in pixels (pixel-unit model), the pixel RMS when a row has
+    no pixel size; both are NaN for no rows.
     """
-    used = np.asarray(selected, dtype=bool) & ~residuals.removed
-    units = np.asarray(residuals.units, dtype=object)
-    rms_mm = rms(residuals.v[used]) if np.all(units[used] == MM) else np.full(2, math.nan)
-    rms_px = rms(residuals.v_px[used])
+    used, k = ~residuals.removed, len(names)
+
+    def total(weights: np.ndarray) -> np.ndarray:
+        return np.bincount(codes[used], weights=weights, minlength=k)
+
+    n = np.bincount(codes[used], minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms_mm = np.sqrt([total(residuals.v[used, j] ** 2) / n for j in (0, 1)])
+        rms_px = np.sqrt([total(residuals.v_px[used, j] ** 2) / n for j in (0, 1)])
+    rms_mm[:, total((residuals.units[used] != MM).astype(float)) > 0] = math.nan
+    n_removed = np.bincount(codes[residuals.removed], minlength=k)
     return {
-        "n": int(np.count_nonzero(used)),
-        "n_removed": int(np.count_nonzero(selected & residuals.removed)),
-        "rms_x_mm": float(rms_mm[0]),
-        "rms_y_mm": float(rms_mm[1]),
-        "rms_x_px": float(rms_px[0]),
-        "rms_y_px": float(rms_px[1]),
+        name: {
+            "n": int(n[c]),
+            "n_removed": int(n_removed[c]),
+            "rms_x_mm": float(rms_mm[0, c]),
+            "rms_y_mm": float(rms_mm[1, c]),
+            "rms_x_px": float(rms_px[0, c]),
+            "rms_y_px": float(rms_px[1, c]),
+        }
+        for c, name in enumerate(names)
     }
 
 
 def residual_summaries(residuals: ImageResiduals) -> dict:
-    """Overall, per-camera and per-image residual summaries (see `residual_summary`)."""
-    cameras = np.asarray(residuals.camera_ids, dtype=object)
-    images = np.asarray(residuals.image_ids, dtype=object)
+    """Overall, per-camera and per-image residual summaries (see `residual_summary`); cameras
+    and images with rows only, in the order of the rows (sorted by image)."""
+    _, first, image_codes = np.unique(residuals.image, return_index=True, return_inverse=True)
+    image_cameras = residuals.camera_ids[first].tolist()
+    cameras = list(dict.fromkeys(image_cameras))
+    camera_codes = np.array([cameras.index(c) for c in image_cameras], dtype=int).reshape(-1)
+    everything = np.zeros(len(residuals.image), dtype=int)
     return {
-        "all": residual_summary(residuals, np.ones(len(images), dtype=bool)),
-        "cameras": {c: residual_summary(residuals, cameras == c) for c in dict.fromkeys(cameras)},
-        "images": {i: residual_summary(residuals, images == i) for i in dict.fromkeys(images)},
+        "all": residual_summary(residuals, everything, ["all"])["all"],
+        "cameras": residual_summary(residuals, camera_codes[image_codes], cameras),
+        "images": residual_summary(residuals, image_codes, residuals.image_ids[first].tolist()),
     }
+
+
+def row_tuples(table: np.ndarray):
+    """The rows of `table` (n, m) as tuples of Python numbers, one at a time (the columns are
+    converted at once: no list per row for the garbage collector to walk)."""
+    return zip(*(column.tolist() for column in np.asarray(table).T))
 
 
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:

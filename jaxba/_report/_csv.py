@@ -15,7 +15,13 @@ import numpy as np
 
 from .._project import Project
 from .._solve import Adjustment
-from ._collect import ImageResiduals, ScalarObservation, image_residuals, other_observations
+from ._collect import (
+    ImageResiduals,
+    ScalarObservation,
+    image_residuals,
+    other_observations,
+    row_tuples,
+)
 
 OBSERVATIONS_FILE = "observations.csv"
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
@@ -24,7 +30,6 @@ NUMBER_COLUMNS = (
 )  # fmt: skip
 FLAG_COLUMNS = ("removed", "outlier")
 COLUMNS = TEXT_COLUMNS + NUMBER_COLUMNS + FLAG_COLUMNS
-_NUMBER = "%.10g"
 
 
 def _field(text: str) -> str:
@@ -32,17 +37,22 @@ def _field(text: str) -> str:
     return text if not any(c in text for c in ',"\n\r') else '"' + text.replace('"', '""') + '"'
 
 
-def _lines(texts: list[list[str]], numbers: np.ndarray) -> list[str]:
+def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> list[str]:
     """CSV lines of rows: the text fields `texts` (one list per column, already CSV fields),
-    then `numbers` (n, m) as `%.10g`, empty where not finite."""
-    fmt = ",".join([_NUMBER] * numbers.shape[1])
-    formatted = "\n".join([fmt % tuple(row) for row in numbers.tolist()])
+    then the number and flag columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g`
+    (flags 0/1), empty where not finite, the others empty."""
+    fmt = ",".join(
+        "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
+        for name in NUMBER_COLUMNS + FLAG_COLUMNS
+    )
+    formatted = "\n".join(map(fmt.__mod__, row_tuples(numbers)))
     # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
     formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
     return list(map("{},{}".format, map(",".join, zip(*texts)), formatted.split("\n")))
 
 
-def _image_point_lines(project: Project, result: Adjustment, groups: dict) -> list[str]:
+def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray) -> list[str]:
+    """Rows of the image points; `groups`: the CSV fields of the result's group names."""
     residuals: ImageResiduals = image_residuals(project, result)
     n = len(residuals.image)
     image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
@@ -52,7 +62,7 @@ def _image_point_lines(project: Project, result: Adjustment, groups: dict) -> li
     empty = [""] * n
     texts = [
         ["image_points"] * n,
-        [_field(groups[g]) for g in residuals.group],
+        groups[residuals.group].tolist(),
         image_ids[residuals.image].tolist(),
         point_ids[residuals.point].tolist(),
         empty,
@@ -61,12 +71,13 @@ def _image_point_lines(project: Project, result: Adjustment, groups: dict) -> li
     ]
     numbers = np.column_stack([
         residuals.xy, residuals.v, residuals.v_px, residuals.redundancy, residuals.w,
-        np.full((n, 3), np.nan), residuals.removed, residuals.outlier,
+        residuals.removed, residuals.outlier,
     ])
-    return _lines(texts, numbers)
+    return _lines(texts, numbers, NUMBER_COLUMNS[:10] + FLAG_COLUMNS)
 
 
 def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
+    """Rows of the observations other than image points: their IDs, v, r, w and flags."""
     texts = [
         [_field(value) for value in column]
         for column in zip(*(
@@ -76,24 +87,24 @@ def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
             for row in rows
         ))
     ]
+    filled = ("v", "r", "w") + FLAG_COLUMNS
     numbers = np.array(
-        [[np.nan] * 10 + [row.v, row.r, row.w, row.removed, row.outlier] for row in rows],
-        dtype=float,
-    ).reshape(len(rows), len(NUMBER_COLUMNS) + len(FLAG_COLUMNS))
-    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers)
+        [[row.v, row.r, row.w, row.removed, row.outlier] for row in rows], dtype=float,
+    ).reshape(len(rows), len(filled))
+    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers, filled)
 
 
 def observations_csv(project: Project, result: Adjustment) -> str:
     """observations.csv as text: header `COLUMNS`, image points, then the other observations."""
-    groups = [group.name for group in result.problem.groups]
+    groups = np.array([_field(group.name) for group in result.problem.groups], dtype=object)
     lines = [",".join(COLUMNS)]
-    lines += _image_point_lines(project, result, dict(enumerate(groups)))
+    lines += _image_point_lines(project, result, groups)
     lines += _scalar_lines(other_observations(project, result))
     return "\n".join(lines) + "\n"
 
 
 def read_observations(path) -> dict[str, np.ndarray]:
-    """observations.csv (or its text) as columns: `COLUMNS` names -> (n,) arrays.
+    """observations.csv as columns: `COLUMNS` names -> (n,) arrays.
 
     Text columns are str arrays ("" where empty), numbers float (NaN where empty), removed and
     outlier bool.

@@ -166,6 +166,22 @@ def results_dict(project: Project, result: Adjustment) -> dict:
     }
 
 
+def _layout(value, depth: int, indent: str = "") -> str:
+    """JSON text of `value`: dicts and lists indented by two spaces down to `depth` levels,
+    each deeper value on one line (json's C encoder, fast for thousands of points)."""
+    if depth == 0 or not isinstance(value, dict | list) or not value:
+        return json.dumps(value, allow_nan=False)
+    inner = indent + "  "
+    if isinstance(value, dict):
+        items = [f"{json.dumps(k)}: {_layout(v, depth - 1, inner)}" for k, v in value.items()]
+        opening, closing = "{", "}"
+    else:
+        items = [_layout(v, depth - 1, inner) for v in value]
+        opening, closing = "[", "]"
+    return f"{opening}\n{inner}" + f",\n{inner}".join(items) + f"\n{indent}{closing}"
+
+
 def results_json(project: Project, result: Adjustment) -> str:
-    """results.json as text (strict JSON: raises if a NaN slipped through)."""
-    return json.dumps(results_dict(project, result), indent=2, allow_nan=False) + "\n"
+    """results.json as text (strict JSON: raises if a NaN slipped through); indented to the
+    entries of each point, image, camera and iteration, these on one line each."""
+    return _layout(results_dict(project, result), 3) + "\n"
