@@ -304,7 +304,7 @@ def test_json_without_statistics(lab, tmp_path):
     image = table["type"] == "image_points"
     assert list(table) == [
         "type", "group", "image", "point", "point_b", "camera", "coordinate", "x", "y", "vx",
-        "vy", "vx_px", "vy_px", "rx", "ry", "wx", "wy", "v", "r", "w", "removed", "outlier",
+        "vy", "rx", "ry", "wx", "wy", "v", "r", "w", "removed", "outlier",
     ]
     assert np.count_nonzero(image) == len(project.spec.image_points)
     assert set(table["group"][image]) == {"image_points:C1"}
@@ -335,10 +335,8 @@ def test_observation_table_rows(lab, tmp_path):
     assert list(zip(table["image"][image], table["point"][image])) == ids
     xy = np.column_stack([table["x"][image], table["y"][image]])
     v = np.column_stack([table["vx"][image], table["vy"][image]])
-    v_px = np.column_stack([table["vx_px"][image], table["vy_px"][image]])
     np.testing.assert_allclose(xy, np.asarray(group.measured)[order], rtol=CSV_RTOL)
     np.testing.assert_allclose(v, np.asarray(result.residuals[0])[order], rtol=CSV_RTOL)
-    np.testing.assert_allclose(v_px, v / PIXEL, rtol=CSV_RTOL)
     k = len(result.problem.groups) - 1
     np.testing.assert_allclose(table["v"][~image], result.residuals[k][:, 0], rtol=CSV_RTOL)
 

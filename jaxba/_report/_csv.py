@@ -3,8 +3,8 @@
 Image points first (one row per point: x and y together, sorted by image like NAME.res), then
 the scalar observations of the other groups (control, GNSS/INS, camera priors, distances), group
 by group. Numbers are written with 10 significant digits (`%.10g`); an empty field is a value
-that does not apply to the row's type or is not available (no reliability computed, no pixel
-size, the r of an observation removed by data snooping).
+that does not apply to the row's type or is not available (no reliability computed, the r of
+an observation removed by data snooping).
 """
 
 import csv
@@ -25,9 +25,7 @@ from ._collect import (
 
 OBSERVATIONS_FILE = "observations.csv"
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
-NUMBER_COLUMNS = (
-    "x", "y", "vx", "vy", "vx_px", "vy_px", "rx", "ry", "wx", "wy", "v", "r", "w",
-)  # fmt: skip
+NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
 FLAG_COLUMNS = ("removed", "outlier")
 COLUMNS = TEXT_COLUMNS + NUMBER_COLUMNS + FLAG_COLUMNS
 
@@ -70,10 +68,10 @@ def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray)
         empty,
     ]
     numbers = np.column_stack([
-        residuals.xy, residuals.v, residuals.v_px, residuals.redundancy, residuals.w,
-        residuals.removed, residuals.outlier,
+        residuals.xy, residuals.v, residuals.redundancy, residuals.w, residuals.removed,
+        residuals.outlier,
     ])
-    return _lines(texts, numbers, NUMBER_COLUMNS[:10] + FLAG_COLUMNS)
+    return _lines(texts, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
 
 
 def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
