@@ -341,6 +341,42 @@ def test_observation_table_rows(lab, tmp_path):
     np.testing.assert_allclose(table["v"][~image], result.residuals[k][:, 0], rtol=CSV_RTOL)
 
 
+def test_observation_table_other_types(tmp_path):
+    """Control, GNSS/INS and camera-prior rows: their IDs, coordinates and v (GNSS/INS angles
+    in degrees), one row per observed coordinate, group by group."""
+    folder = tmp_path / "block"
+    jaxba.write_synthetic_project(folder, n_images=6, n_targets=20, gnss_sigma=(0.01, 0.1))
+    _edit(folder / "ground_points.txt", " - - -", " 0.001 0.002 0.003")  # control point
+    cameras = folder / "cameras.toml"
+    cameras.write_text(cameras.read_text() + "[C1.sigma]\nP3 = 1e-6\n")
+    project = jaxba.build_project(jaxba.read_project(folder / "lab.toml"))
+    result = _fake_result(project)
+    table = _observations(project, result, tmp_path)
+    kinds = {"control", "gnss_ins", "camera_priors", "distances"}
+    assert set(table["type"]) == {"image_points"} | kinds
+    groups = {group.name: k for k, group in enumerate(result.problem.groups)}
+    expected = {
+        "control": ("point", "XYZ"), "gnss_ins": ("image", jaxba.IMAGE_PARAMETER_NAMES),
+        "camera_priors": ("camera", jaxba.CAMERA_MODELS["smac"].parameter_names),
+    }
+    for kind, (key, names) in expected.items():
+        chosen = table["type"] == kind
+        (name,) = set(table["group"][chosen])
+        group = result.problem.groups[groups[name]]
+        rows, coordinates = np.nonzero(np.asarray(group.mask()))
+        assert table["coordinate"][chosen].tolist() == [names[c] for c in coordinates], kind
+        v = np.asarray(result.residuals[groups[name]])[rows, coordinates]
+        if kind == "gnss_ins":
+            v = np.where(coordinates >= 3, np.degrees(v), v)
+        np.testing.assert_allclose(table["v"][chosen], v, rtol=CSV_RTOL, err_msg=kind)
+        assert np.all(table[key][chosen] != "") and np.all(np.isnan(table["vx"][chosen]))
+    assert set(table["point"][table["type"] == "control"]) == {"2"}
+    priors = table["type"] == "camera_priors"
+    assert table["camera"][priors].tolist() == ["C1"] and table["coordinate"][priors] == ["P3"]
+    gnss = table["type"] == "gnss_ins"
+    assert table["image"][gnss].tolist() == [iid for iid in project.image_ids for _ in range(6)]
+
+
 def test_statistics_in_json(lab, tmp_path):
     project, result = lab
     result = _with_statistics(project, result)

@@ -216,32 +216,44 @@ def _coordinate_names(project: Project, group: AbstractObservationGroup) -> tupl
     return ("distance",)
 
 
-def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
-    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+def _row_ids(project: Project, group, rows) -> list[dict[str, str]]:
+    """The IDs naming rows `rows` (k,) of `group`: image and point, the two points of a
+    distance, the point, image or camera of a parameter observation, else the row number."""
+    rows = np.asarray(rows, dtype=int)
+    images = np.asarray(project.image_ids, dtype=object)
+    points = np.asarray(project.point_ids, dtype=object)
     if isinstance(group, ImagePoints):
-        return {
-            "image": project.image_ids[int(group.image[row])],
-            "point": project.point_ids[int(group.point[row])],
-            "coordinate": ("x", "y")[coordinate],
-        }
+        pairs = zip(images[np.asarray(group.image)[rows]], points[np.asarray(group.point)[rows]])
+        return [{"image": image, "point": point} for image, point in pairs]
     if isinstance(group, Distances):
-        return {
-            "point_a": project.point_ids[int(group.a[row])],
-            "point_b": project.point_ids[int(group.b[row])],
-        }
+        pairs = zip(points[np.asarray(group.a)[rows]], points[np.asarray(group.b)[rows]])
+        return [{"point_a": a, "point_b": b} for a, b in pairs]
     if not isinstance(group, ParameterObservations):
-        return {"row": str(row), "coordinate": str(coordinate)}
-    names = _coordinate_names(project, group)
-    block_row = int(np.asarray(group.rows)[row])
+        return [{"row": str(row)} for row in rows.tolist()]
+    block_rows = np.asarray(group.rows)[rows]
     if group.block == "points":
-        key, value = "point", project.point_ids[block_row]
+        key, names = "point", points[block_rows]
     elif group.block == "images":
-        key, value = "image", project.image_ids[block_row]
+        key, names = "image", images[block_rows]
     else:
         model = group.block.removeprefix("cameras/")
-        owners = {rows: cid for cid, rows in project.camera_rows.items()}
-        key, value = "camera", owners[(model, block_row)]
-    return {key: value, "coordinate": names[coordinate]}
+        owners = {model_row: cid for cid, model_row in project.camera_rows.items()}
+        key, names = "camera", [owners[(model, row)] for row in block_rows.tolist()]
+    return [{key: name} for name in names]
+
+
+def _with_coordinate(project: Project, group, ids: dict[str, str], coordinate: int) -> dict:
+    """`ids` of a row and the name of its observed coordinate (none for a distance)."""
+    if isinstance(group, Distances):
+        return ids
+    if isinstance(group, ImagePoints | ParameterObservations):
+        return {**ids, "coordinate": _coordinate_names(project, group)[coordinate]}
+    return {**ids, "coordinate": str(coordinate)}
+
+
+def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
+    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+    return _with_coordinate(project, group, _row_ids(project, group, [row])[0], coordinate)
 
 
 def _prior_groups(project: Project, result: Adjustment) -> list:
@@ -327,26 +339,28 @@ def other_observations(project: Project, result: Adjustment) -> list[ScalarObser
 
     GNSS/INS angle residuals are converted to decimal degrees (r and w have no unit).
     """
-    rows = []
+    observations = []
     for stats in group_statistics(project, result):
         if isinstance(stats.group, ImagePoints) or not is_measurement(stats.group):
             continue
-        names = _coordinate_names(project, stats.group)
-        for row, coordinate in zip(*np.nonzero(stats.observed)):
-            v = float(stats.v[row, coordinate])
-            if stats.kind == "gnss_ins" and names[coordinate] in ANGLE_NAMES:
-                v = math.degrees(v)
-            rows.append(ScalarObservation(
+        rows, coordinates = np.nonzero(stats.observed)
+        v = stats.v[rows, coordinates]
+        if stats.kind == "gnss_ins":
+            angles = np.isin(np.asarray(IMAGE_PARAMETER_NAMES)[coordinates], ANGLE_NAMES)
+            v = np.where(angles, np.degrees(v), v)
+        ids = _row_ids(project, stats.group, rows)
+        for k, coordinate in enumerate(coordinates.tolist()):
+            observations.append(ScalarObservation(
                 kind=stats.kind,
                 group=stats.group.name,
-                ids=observation_ids(project, stats.group, int(row), int(coordinate)),
-                v=v,
-                r=float(stats.r[row, coordinate]),
-                w=float(stats.w[row, coordinate]),
-                removed=bool(stats.removed[row, coordinate]),
-                outlier=bool(stats.outlier[row, coordinate]),
+                ids=_with_coordinate(project, stats.group, ids[k], coordinate),
+                v=float(v[k]),
+                r=float(stats.r[rows[k], coordinate]),
+                w=float(stats.w[rows[k], coordinate]),
+                removed=bool(stats.removed[rows[k], coordinate]),
+                outlier=bool(stats.outlier[rows[k], coordinate]),
             ))
-    return rows
+    return observations
 
 
 def rejections(project: Project, result: Adjustment) -> list[dict]:
