@@ -15,13 +15,7 @@ import numpy as np
 
 from .._project import Project
 from .._solve import Adjustment
-from ._collect import (
-    ImageResiduals,
-    ScalarObservation,
-    image_residuals,
-    other_observations,
-    row_tuples,
-)
+from ._collect import ScalarObservation, image_residuals, other_observations, row_tuples
 
 OBSERVATIONS_FILE = "observations.csv"
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
@@ -51,7 +45,7 @@ def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...])
 
 def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray) -> list[str]:
     """Rows of the image points; `groups`: the CSV fields of the result's group names."""
-    residuals: ImageResiduals = image_residuals(project, result)
+    residuals = image_residuals(project, result)
     n = len(residuals.image)
     image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
     point_ids = np.array([_field(p) for p in project.point_ids], dtype=object)
