@@ -52,7 +52,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "Rejection", "Reliability", "data_snooping", "reliability", "remove_observation",
         "restart_from",
     ),
-    "._report": ("OutputError", "write_reports"),
+    "._report": ("OutputError", "read_observations", "write_reports"),
     "._robust": ("RobustLoss",),
     "._rotation": (
         "matrix_to_opk", "matrix_to_quaternion", "matrix_to_rodrigues", "opk_to_matrix",

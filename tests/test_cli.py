@@ -19,7 +19,7 @@ import jaxba
 from jaxba._cli import main
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
-OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json")
+OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
 PLOTS = ("residuals.png", "correlation_C1.png")  # written by --plots
 APPROXIMATION_DEG = 10.0  # the lab's angle approximations are within a few degrees of the result
 SIGMA_FILE_RTOL = 1e-9  # .sigma prints 11 significant digits
@@ -121,12 +121,16 @@ def test_results_json_statistics(run):
     reliability = data["reliability"]
     assert reliability["redundancy_sum"] == pytest.approx(data["redundancy"], rel=REDUNDANCY_RTOL)
     assert 0 < reliability["alpha"] < 1 and reliability["critical_value"] > 2
-    image = [o for o in data["observations"] if "type" not in o]
-    assert len(image) == len(_data_lines(run["folder"] / "image_coordinates.txt"))
-    r = np.array([[o["rx"], o["ry"]] for o in image])
+    assert data["observations_file"] == "observations.csv" and "observations" not in data
+    table = jaxba.read_observations(run["folder"] / data["observations_file"])
+    image = table["type"] == "image_points"
+    assert np.count_nonzero(image) == len(_data_lines(run["folder"] / "image_coordinates.txt"))
+    r = np.column_stack([table["rx"][image], table["ry"][image]])
     assert np.all((r > 0) & (r < 1))
-    assert not any(o["outlier"] for o in image)
-    assert [o["type"] for o in data["observations"] if "type" in o] == ["distances"] * 4
+    assert not table["outlier"].any()
+    assert table["type"][~image].tolist() == ["distances"] * 4
+    assert np.sum(r) + np.sum(table["r"][~image]) == pytest.approx(
+        reliability["redundancy_sum"], rel=REDUNDANCY_RTOL)
     for pid, entry in data["points"].items():
         std = [entry[name]["std"] for name in jaxba.POINT_PARAMETER_NAMES]
         if "ellipsoid" not in entry:

@@ -20,6 +20,7 @@ from jaxba._parameters import Parameters, flatten, unflatten
 from jaxba._problem import free_indices
 from jaxba._report import (
     OutputError,
+    observations_csv,
     out_text,
     res_text,
     results_dict,
@@ -37,10 +38,11 @@ STD_RAD = 1e-4  # σ given to every free EOP angle, radians
 STD_OBJ = 2e-4  # σ given to every free position and point coordinate, object units
 PRINTED_MM = 5e-7  # half a unit in the last decimal (6) of mm values in .res
 PRINTED_PX = 5e-4  # half a unit in the last decimal (3) of pixel values in .res
-FILES = ("lab.out", "lab.res", "lab.sigma", "results.json")
+FILES = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
 MATRIX_RTOL = 1e-12  # correlations and ellipsoids against NumPy on the same covariance
 PRINTED_W = 5e-3  # half a unit in the last decimal (2) of w in .res
 CRITICAL = 3.29  # critical |w| of the hand-made reliability
+CSV_RTOL = 1e-9  # observations.csv writes numbers with 10 significant digits
 
 
 def _copy_lab(tmp_path: pathlib.Path) -> pathlib.Path:
@@ -110,6 +112,13 @@ def _with_statistics(project, result, *, removed_row: int = 5, seed: int = 1):
         result, problem=problem, residuals=tuple(residuals), reliability=reliability,
         variance_components=components, variance_iterations=3, rejections=(rejection,),
     )
+
+
+def _observations(project, result, tmp_path: pathlib.Path) -> dict[str, np.ndarray]:
+    """observations.csv of `result`, read back with `jaxba.read_observations`."""
+    path = tmp_path / "observations.csv"
+    path.write_text(observations_csv(project, result))
+    return jaxba.read_observations(path)
 
 
 def _data_lines(text: str) -> list[list[str]]:
@@ -222,15 +231,33 @@ def test_write_reports_creates_folder(lab, tmp_path):
     assert all(p.parent == out and p.is_file() for p in written)
 
 
-def test_refuses_to_overwrite_an_input(tmp_path):
+@pytest.mark.parametrize("name", ["lab.sigma", "observations.csv"])
+def test_refuses_to_overwrite_an_input(tmp_path, name):
     folder = _copy_lab(tmp_path)
-    (folder / "distances.txt").rename(folder / "lab.sigma")
-    _edit(folder / "lab.toml", '"distances.txt"', '"lab.sigma"')
+    (folder / "distances.txt").rename(folder / name)
+    _edit(folder / "lab.toml", '"distances.txt"', f'"{name}"')
     project = jaxba.build_project(jaxba.read_project(folder / "lab.toml"))
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
-    with pytest.raises(OutputError, match="lab.sigma"):
+    with pytest.raises(OutputError, match=name):
         write_reports(project, _fake_result(project), folder)
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_reports_are_replaced(lab, tmp_path):
+    """A second write replaces every report, observations.csv included."""
+    project, result = lab
+    write_reports(project, _fake_result(project, seed=1), tmp_path / "out")
+    write_reports(project, result, tmp_path / "out")
+    table = jaxba.read_observations(tmp_path / "out" / "observations.csv")
+    k = len(result.problem.groups) - 1
+    np.testing.assert_allclose(table["v"][table["type"] == "distances"],
+                               result.residuals[k][:, 0], rtol=CSV_RTOL)
+    texts = {
+        "lab.out": out_text, "lab.res": res_text, "lab.sigma": sigma_text,
+        "results.json": results_json,
+    }
+    for name, text in texts.items():
+        assert (tmp_path / "out" / name).read_text() == text(project, result), name
 
 
 def test_json_correlations_and_ellipsoids(lab):
@@ -265,26 +292,92 @@ def test_json_correlations_and_ellipsoids(lab):
     assert list(data["points"][project.point_ids[-1]])[:3] == list(jaxba.POINT_PARAMETER_NAMES)
 
 
-def test_json_without_statistics(lab):
+def test_json_without_statistics(lab, tmp_path):
     """No reliability, components or rejections in the result: null / empty, no outliers."""
     project, result = lab
     data = json.loads(results_json(project, result))
     assert data["variance_components"] is None
     assert data["variance_component_iterations"] is None
     assert data["reliability"] is None and data["rejections"] == []
-    image = [o for o in data["observations"] if "type" not in o]
-    others = [o for o in data["observations"] if "type" in o]
-    assert len(image) == len(project.spec.image_points)
-    assert set(image[0]) == {"image", "point", "vx", "vy", "rx", "ry", "wx", "wy", "outlier"}
-    assert all(o["rx"] is None and o["wy"] is None and o["outlier"] is False for o in image)
-    assert len(others) == len(project.spec.distances)
+    assert data["observations_file"] == "observations.csv" and "observations" not in data
+    table = _observations(project, result, tmp_path)
+    image = table["type"] == "image_points"
+    assert list(table) == [
+        "type", "group", "image", "point", "point_b", "camera", "coordinate", "x", "y", "vx",
+        "vy", "rx", "ry", "wx", "wy", "v", "r", "w", "removed", "outlier",
+    ]
+    assert np.count_nonzero(image) == len(project.spec.image_points)
+    assert set(table["group"][image]) == {"image_points:C1"}
+    assert set(table["camera"][image]) == {"C1"}
+    for name in ("rx", "ry", "wx", "wy", "v", "r", "w"):
+        assert np.all(np.isnan(table[name][image])), name
+    assert not table["outlier"].any() and not table["removed"].any()
+    assert set(table["point_b"][image]) == set(table["coordinate"][image]) == {""}
+    assert np.count_nonzero(~image) == len(project.spec.distances)
     distances = {(d.a, d.b) for d in project.spec.distances}
-    assert {(o["point_a"], o["point_b"]) for o in others} == distances
-    assert {o["type"] for o in others} == {"distances"}
+    assert set(zip(table["point"][~image], table["point_b"][~image])) == distances
+    assert set(table["type"][~image]) == {"distances"}
+    assert np.all(np.isnan(table["vx"][~image])) and np.all(np.isfinite(table["v"][~image]))
     assert data["units"]["image"] == "mm" and data["units"]["image_cameras"] == {"C1": "mm"}
 
 
-def test_statistics_in_json(lab):
+def test_observation_table_rows(lab, tmp_path):
+    """observations.csv rows equal the result's residuals, measurements and IDs (%.10g)."""
+    project, result = lab
+    table = _observations(project, result, tmp_path)
+    image = table["type"] == "image_points"
+    group = result.problem.groups[0]
+    assert np.count_nonzero(image) == len(group.measured) == len(project.spec.image_points)
+    # Rows of the one image-point group, sorted by image (stable: file order within one).
+    order = np.argsort(np.asarray(group.image), kind="stable")
+    ids = [(project.image_ids[int(group.image[k])], project.point_ids[int(group.point[k])])
+           for k in order]
+    assert list(zip(table["image"][image], table["point"][image])) == ids
+    xy = np.column_stack([table["x"][image], table["y"][image]])
+    v = np.column_stack([table["vx"][image], table["vy"][image]])
+    np.testing.assert_allclose(xy, np.asarray(group.measured)[order], rtol=CSV_RTOL)
+    np.testing.assert_allclose(v, np.asarray(result.residuals[0])[order], rtol=CSV_RTOL)
+    k = len(result.problem.groups) - 1
+    np.testing.assert_allclose(table["v"][~image], result.residuals[k][:, 0], rtol=CSV_RTOL)
+
+
+def test_observation_table_other_types(tmp_path):
+    """Control, GNSS/INS and camera-prior rows: their IDs, coordinates and v (GNSS/INS angles
+    in degrees), one row per observed coordinate, group by group."""
+    folder = tmp_path / "block"
+    jaxba.write_synthetic_project(folder, n_images=6, n_targets=20, gnss_sigma=(0.01, 0.1))
+    _edit(folder / "ground_points.txt", " - - -", " 0.001 0.002 0.003")  # control point
+    cameras = folder / "cameras.toml"
+    cameras.write_text(cameras.read_text() + "[C1.sigma]\nP3 = 1e-6\n")
+    project = jaxba.build_project(jaxba.read_project(folder / "lab.toml"))
+    result = _fake_result(project)
+    table = _observations(project, result, tmp_path)
+    kinds = {"control", "gnss_ins", "camera_priors", "distances"}
+    assert set(table["type"]) == {"image_points"} | kinds
+    groups = {group.name: k for k, group in enumerate(result.problem.groups)}
+    expected = {
+        "control": ("point", "XYZ"), "gnss_ins": ("image", jaxba.IMAGE_PARAMETER_NAMES),
+        "camera_priors": ("camera", jaxba.CAMERA_MODELS["smac"].parameter_names),
+    }
+    for kind, (key, names) in expected.items():
+        chosen = table["type"] == kind
+        (name,) = set(table["group"][chosen])
+        group = result.problem.groups[groups[name]]
+        rows, coordinates = np.nonzero(np.asarray(group.mask()))
+        assert table["coordinate"][chosen].tolist() == [names[c] for c in coordinates], kind
+        v = np.asarray(result.residuals[groups[name]])[rows, coordinates]
+        if kind == "gnss_ins":
+            v = np.where(coordinates >= 3, np.degrees(v), v)
+        np.testing.assert_allclose(table["v"][chosen], v, rtol=CSV_RTOL, err_msg=kind)
+        assert np.all(table[key][chosen] != "") and np.all(np.isnan(table["vx"][chosen]))
+    assert set(table["point"][table["type"] == "control"]) == {"2"}
+    priors = table["type"] == "camera_priors"
+    assert table["camera"][priors].tolist() == ["C1"] and table["coordinate"][priors] == ["P3"]
+    gnss = table["type"] == "gnss_ins"
+    assert table["image"][gnss].tolist() == [iid for iid in project.image_ids for _ in range(6)]
+
+
+def test_statistics_in_json(lab, tmp_path):
     project, result = lab
     result = _with_statistics(project, result)
     data = json.loads(results_json(project, result))
@@ -300,7 +393,12 @@ def test_statistics_in_json(lab):
         "sigma0": 1.0, "redundancy": 1.5, "n_observations": group.measured.size - 2,
     }
     assert data["variance_components"]["distances"]["sigma0"] == pytest.approx(1.1)
-    image = {(o["image"], o["point"]): o for o in data["observations"] if "type" not in o}
+    table = _observations(project, result, tmp_path)
+    image = {
+        (iid, pid): {name: table[name][k] for name in table}
+        for k, (iid, pid) in enumerate(zip(table["image"], table["point"]))
+        if table["type"][k] == "image_points"
+    }
     # The removed point: its residual at the solution (observed - computed, σ = 1), no r,
     # w as rejected (with the sign of v), an outlier.
     entry = image[removed]
@@ -310,22 +408,25 @@ def test_statistics_in_json(lab):
         result.parameters.points[int(group.point[5])], group.measured[5], np.ones(2),
         result.problem.refraction,
     ))
-    assert [entry["vx"], entry["vy"]] == pytest.approx(unit.tolist(), rel=1e-12)
-    assert entry["rx"] is None and entry["ry"] is None and entry["wy"] is None
-    assert entry["wx"] == math.copysign(7.5, unit[0]) and entry["outlier"] is True
+    assert [entry["vx"], entry["vy"]] == pytest.approx(unit.tolist(), rel=CSV_RTOL)
+    assert math.isnan(entry["rx"]) and math.isnan(entry["ry"]) and math.isnan(entry["wy"])
+    assert entry["wx"] == math.copysign(7.5, unit[0]) and entry["outlier"] and entry["removed"]
     # |w| above the critical value: an outlier too; everything else is not.
-    assert image[flagged]["wy"] == 4.5 and image[flagged]["outlier"] is True
+    assert image[flagged]["wy"] == 4.5 and image[flagged]["outlier"]
+    assert not image[flagged]["removed"]
     assert sum(o["outlier"] for o in image.values()) == 2
     r0 = result.reliability.redundancy_numbers[0]
-    assert image[flagged]["rx"] == r0[0, 0] and image[flagged]["ry"] == r0[0, 1]
+    assert image[flagged]["rx"] == pytest.approx(r0[0, 0], rel=CSV_RTOL)
+    assert image[flagged]["ry"] == pytest.approx(r0[0, 1], rel=CSV_RTOL)
     reliability = data["reliability"]
     assert reliability["alpha"] == 0.001 and reliability["critical_value"] == CRITICAL
     total = sum(np.nansum(r) for r in result.reliability.redundancy_numbers)
     assert reliability["redundancy_sum"] == pytest.approx(total, rel=1e-12)
-    distances = [o for o in data["observations"] if o.get("type") == "distances"]
+    distances = table["type"] == "distances"
     k = len(result.problem.groups) - 1
-    assert [o["r"] for o in distances] == result.reliability.redundancy_numbers[k][:, 0].tolist()
-    assert [o["v"] for o in distances] == pytest.approx(result.residuals[k][:, 0].tolist())
+    np.testing.assert_allclose(
+        table["r"][distances], result.reliability.redundancy_numbers[k][:, 0], rtol=CSV_RTOL)
+    np.testing.assert_allclose(table["v"][distances], result.residuals[k][:, 0], rtol=CSV_RTOL)
     # RMS summaries leave the removed point out.
     assert data["image_residuals"]["all"]["n"] == len(project.spec.image_points) - 1
     assert data["image_residuals"]["all"]["n_removed"] == 1

@@ -44,6 +44,9 @@ class ParameterTable:
 class ImageResiduals:
     """Image residuals of all image-point groups, sorted by image (file order within one).
 
+    `image`, `point` (n,): rows of `project.image_ids` and `project.point_ids`; `group` (n,):
+    the index of the row's group in `result.problem.groups`; `image_ids`, `point_ids`,
+    `camera_ids` and `units` (n,) object arrays: the IDs, the image's camera and its units.
     `xy` and `v` are (n, 2) in the image units of each row's camera model (`units`: "mm", or
     "pixel" for pixel-unit models such as "opencv"); `v_px` is v in pixels (v divided by the
     pixel size for mm rows, v itself for pixel rows; same axes as xy), NaN for mm cameras
@@ -54,10 +57,13 @@ class ImageResiduals:
     |w| above the critical value on either coordinate.
     """
 
-    image_ids: list[str]
-    point_ids: list[str]
-    camera_ids: list[str]
-    units: list[str]
+    image: np.ndarray
+    point: np.ndarray
+    group: np.ndarray
+    image_ids: np.ndarray
+    point_ids: np.ndarray
+    camera_ids: np.ndarray
+    units: np.ndarray
     xy: np.ndarray
     v: np.ndarray
     v_px: np.ndarray
@@ -210,32 +216,44 @@ def _coordinate_names(project: Project, group: AbstractObservationGroup) -> tupl
     return ("distance",)
 
 
-def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
-    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+def _row_ids(project: Project, group, rows) -> list[dict[str, str]]:
+    """The IDs naming rows `rows` (k,) of `group`: image and point, the two points of a
+    distance, the point, image or camera of a parameter observation, else the row number."""
+    rows = np.asarray(rows, dtype=int)
+    images = np.asarray(project.image_ids, dtype=object)
+    points = np.asarray(project.point_ids, dtype=object)
     if isinstance(group, ImagePoints):
-        return {
-            "image": project.image_ids[int(group.image[row])],
-            "point": project.point_ids[int(group.point[row])],
-            "coordinate": ("x", "y")[coordinate],
-        }
+        pairs = zip(images[np.asarray(group.image)[rows]], points[np.asarray(group.point)[rows]])
+        return [{"image": image, "point": point} for image, point in pairs]
     if isinstance(group, Distances):
-        return {
-            "point_a": project.point_ids[int(group.a[row])],
-            "point_b": project.point_ids[int(group.b[row])],
-        }
+        pairs = zip(points[np.asarray(group.a)[rows]], points[np.asarray(group.b)[rows]])
+        return [{"point_a": a, "point_b": b} for a, b in pairs]
     if not isinstance(group, ParameterObservations):
-        return {"row": str(row), "coordinate": str(coordinate)}
-    names = _coordinate_names(project, group)
-    block_row = int(np.asarray(group.rows)[row])
+        return [{"row": str(row)} for row in rows.tolist()]
+    block_rows = np.asarray(group.rows)[rows]
     if group.block == "points":
-        key, value = "point", project.point_ids[block_row]
+        key, names = "point", points[block_rows]
     elif group.block == "images":
-        key, value = "image", project.image_ids[block_row]
+        key, names = "image", images[block_rows]
     else:
         model = group.block.removeprefix("cameras/")
-        owners = {rows: cid for cid, rows in project.camera_rows.items()}
-        key, value = "camera", owners[(model, block_row)]
-    return {key: value, "coordinate": names[coordinate]}
+        owners = {model_row: cid for cid, model_row in project.camera_rows.items()}
+        key, names = "camera", [owners[(model, row)] for row in block_rows.tolist()]
+    return [{key: name} for name in names]
+
+
+def _with_coordinate(project: Project, group, ids: dict[str, str], coordinate: int) -> dict:
+    """`ids` of a row and the name of its observed coordinate (none for a distance)."""
+    if isinstance(group, Distances):
+        return ids
+    if isinstance(group, ImagePoints | ParameterObservations):
+        return {**ids, "coordinate": _coordinate_names(project, group)[coordinate]}
+    return {**ids, "coordinate": str(coordinate)}
+
+
+def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
+    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+    return _with_coordinate(project, group, _row_ids(project, group, [row])[0], coordinate)
 
 
 def _prior_groups(project: Project, result: Adjustment) -> list:
@@ -281,36 +299,38 @@ def group_statistics(project: Project, result: Adjustment) -> list[GroupStatisti
 
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
-    parts = [s for s in group_statistics(project, result) if isinstance(s.group, ImagePoints)]
-    if not parts:
-        empty, none = np.zeros((0, 2)), np.zeros(0, dtype=bool)
-        return ImageResiduals([], [], [], [], empty, empty, empty, empty, empty, none, none)
+    statistics = list(enumerate(group_statistics(project, result)))
+    parts = [(k, s) for k, s in statistics if isinstance(s.group, ImagePoints)]
 
-    def stack(get):
-        return np.concatenate([np.asarray(get(part)) for part in parts])
+    def stack(get, shape=(0,)):
+        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
 
-    image_rows, point_rows = stack(lambda s: s.group.image), stack(lambda s: s.group.point)
-    order = np.argsort(image_rows, kind="stable")
-    image_ids = [project.image_ids[k] for k in image_rows[order]]
-    camera_ids = [project.spec.images[iid].camera for iid in image_ids]
-    units = [camera_units(project, cid) for cid in camera_ids]
+    image = stack(lambda k, s: s.group.image).astype(int)
+    order = np.argsort(image, kind="stable")
+    image = image[order]
+    cameras = [project.spec.images[iid].camera for iid in project.image_ids]
+    units = [camera_units(project, cid) for cid in cameras]
     pixel_size = np.array([
         (1.0, 1.0) if unit == PIXEL else _pixel_size(project, cid)
-        for cid, unit in zip(camera_ids, units)
+        for cid, unit in zip(cameras, units)
     ]).reshape(-1, 2)
-    v = stack(lambda s: s.v)[order]
+    point = stack(lambda k, s: s.group.point).astype(int)[order]
+    v = stack(lambda k, s: s.v, (0, 2))[order]
     return ImageResiduals(
-        image_ids=image_ids,
-        point_ids=[project.point_ids[k] for k in point_rows[order]],
-        camera_ids=camera_ids,
-        units=units,
-        xy=stack(lambda s: np.asarray(s.group.measured, dtype=float))[order],
+        image=image,
+        point=point,
+        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
+        image_ids=np.asarray(project.image_ids, dtype=object)[image],
+        point_ids=np.asarray(project.point_ids, dtype=object)[point],
+        camera_ids=np.asarray(cameras, dtype=object)[image],
+        units=np.asarray(units, dtype=object)[image],
+        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
         v=v,
-        v_px=v / pixel_size,
-        redundancy=stack(lambda s: s.r)[order],
-        w=stack(lambda s: s.w)[order],
-        removed=stack(lambda s: s.removed.any(axis=1))[order],
-        outlier=stack(lambda s: s.outlier.any(axis=1))[order],
+        v_px=v / pixel_size[image],
+        redundancy=stack(lambda k, s: s.r, (0, 2))[order],
+        w=stack(lambda k, s: s.w, (0, 2))[order],
+        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
+        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
     )
 
 
@@ -319,26 +339,28 @@ def other_observations(project: Project, result: Adjustment) -> list[ScalarObser
 
     GNSS/INS angle residuals are converted to decimal degrees (r and w have no unit).
     """
-    rows = []
+    observations = []
     for stats in group_statistics(project, result):
         if isinstance(stats.group, ImagePoints) or not is_measurement(stats.group):
             continue
-        names = _coordinate_names(project, stats.group)
-        for row, coordinate in zip(*np.nonzero(stats.observed)):
-            v = float(stats.v[row, coordinate])
-            if stats.kind == "gnss_ins" and names[coordinate] in ANGLE_NAMES:
-                v = math.degrees(v)
-            rows.append(ScalarObservation(
+        rows, coordinates = np.nonzero(stats.observed)
+        v = stats.v[rows, coordinates]
+        if stats.kind == "gnss_ins":
+            angles = np.isin(np.asarray(IMAGE_PARAMETER_NAMES)[coordinates], ANGLE_NAMES)
+            v = np.where(angles, np.degrees(v), v)
+        ids = _row_ids(project, stats.group, rows)
+        for k, coordinate in enumerate(coordinates.tolist()):
+            observations.append(ScalarObservation(
                 kind=stats.kind,
                 group=stats.group.name,
-                ids=observation_ids(project, stats.group, int(row), int(coordinate)),
-                v=v,
-                r=float(stats.r[row, coordinate]),
-                w=float(stats.w[row, coordinate]),
-                removed=bool(stats.removed[row, coordinate]),
-                outlier=bool(stats.outlier[row, coordinate]),
+                ids=_with_coordinate(project, stats.group, ids[k], coordinate),
+                v=float(v[k]),
+                r=float(stats.r[rows[k], coordinate]),
+                w=float(stats.w[rows[k], coordinate]),
+                removed=bool(stats.removed[rows[k], coordinate]),
+                outlier=bool(stats.outlier[rows[k], coordinate]),
             ))
-    return rows
+    return observations
 
 
 def rejections(project: Project, result: Adjustment) -> list[dict]:
@@ -442,42 +464,56 @@ def _pixel_size(project: Project, camera_id: str) -> tuple[float, float]:
     return (math.nan, math.nan) if grid is None else tuple(grid.pixel_size)
 
 
-def rms(values: np.ndarray) -> np.ndarray:
-    """Root mean square over the rows, per column; NaN for no rows."""
-    values = np.asarray(values, dtype=float)
-    if values.shape[0] == 0:
-        return np.full(values.shape[1:], math.nan)
-    return np.sqrt(np.mean(values**2, axis=0))
+def residual_summary(residuals: ImageResiduals, codes: np.ndarray, names: list[str]) -> dict:
+    """Per name: n and RMS of vx, vy in mm and in pixels over its rows (those with
+    `codes` (n,) == its index) not removed by data snooping (`n_removed` of them were).
 
-
-def residual_summary(residuals: ImageResiduals, selected: np.ndarray) -> dict:
-    """n and RMS of vx, vy in mm and in pixels, over the selected rows not removed by data
-    snooping (`n_removed` of them were). The mm RMS is NaN when a selected row is in pixels
-    (pixel-unit model); the pixel RMS is NaN when a row has no pixel size.
+    The mm RMS is NaN when a row is in pixels (pixel-unit model), the pixel RMS when a row has
+    no pixel size; both are NaN for no rows.
     """
-    used = np.asarray(selected, dtype=bool) & ~residuals.removed
-    units = np.asarray(residuals.units, dtype=object)
-    rms_mm = rms(residuals.v[used]) if np.all(units[used] == MM) else np.full(2, math.nan)
-    rms_px = rms(residuals.v_px[used])
+    used, k = ~residuals.removed, len(names)
+
+    def total(weights: np.ndarray) -> np.ndarray:
+        return np.bincount(codes[used], weights=weights, minlength=k)
+
+    n = np.bincount(codes[used], minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms_mm = np.sqrt([total(residuals.v[used, j] ** 2) / n for j in (0, 1)])
+        rms_px = np.sqrt([total(residuals.v_px[used, j] ** 2) / n for j in (0, 1)])
+    rms_mm[:, total((residuals.units[used] != MM).astype(float)) > 0] = math.nan
+    n_removed = np.bincount(codes[residuals.removed], minlength=k)
     return {
-        "n": int(np.count_nonzero(used)),
-        "n_removed": int(np.count_nonzero(selected & residuals.removed)),
-        "rms_x_mm": float(rms_mm[0]),
-        "rms_y_mm": float(rms_mm[1]),
-        "rms_x_px": float(rms_px[0]),
-        "rms_y_px": float(rms_px[1]),
+        name: {
+            "n": int(n[c]),
+            "n_removed": int(n_removed[c]),
+            "rms_x_mm": float(rms_mm[0, c]),
+            "rms_y_mm": float(rms_mm[1, c]),
+            "rms_x_px": float(rms_px[0, c]),
+            "rms_y_px": float(rms_px[1, c]),
+        }
+        for c, name in enumerate(names)
     }
 
 
 def residual_summaries(residuals: ImageResiduals) -> dict:
-    """Overall, per-camera and per-image residual summaries (see `residual_summary`)."""
-    cameras = np.asarray(residuals.camera_ids, dtype=object)
-    images = np.asarray(residuals.image_ids, dtype=object)
+    """Overall, per-camera and per-image residual summaries (see `residual_summary`); cameras
+    and images with rows only, in the order of the rows (sorted by image)."""
+    _, first, image_codes = np.unique(residuals.image, return_index=True, return_inverse=True)
+    image_cameras = residuals.camera_ids[first].tolist()
+    cameras = list(dict.fromkeys(image_cameras))
+    camera_codes = np.array([cameras.index(c) for c in image_cameras], dtype=int).reshape(-1)
+    everything = np.zeros(len(residuals.image), dtype=int)
     return {
-        "all": residual_summary(residuals, np.ones(len(images), dtype=bool)),
-        "cameras": {c: residual_summary(residuals, cameras == c) for c in dict.fromkeys(cameras)},
-        "images": {i: residual_summary(residuals, images == i) for i in dict.fromkeys(images)},
+        "all": residual_summary(residuals, everything, ["all"])["all"],
+        "cameras": residual_summary(residuals, camera_codes[image_codes], cameras),
+        "images": residual_summary(residuals, image_codes, residuals.image_ids[first].tolist()),
     }
+
+
+def row_tuples(table: np.ndarray):
+    """The rows of `table` (n, m) as tuples of Python numbers, one at a time (the columns are
+    converted at once: no list per row for the garbage collector to walk)."""
+    return zip(*(column.tolist() for column in np.asarray(table).T))
 
 
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:

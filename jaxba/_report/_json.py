@@ -15,7 +15,6 @@ from ._collect import (
     group_summaries,
     image_residuals,
     image_table,
-    other_observations,
     point_ellipsoids,
     point_table,
     project_units,
@@ -23,6 +22,7 @@ from ._collect import (
     reliability_summary,
     residual_summaries,
 )
+from ._paths import OBSERVATIONS_FILE
 
 
 def _number(value) -> float | None:
@@ -89,33 +89,6 @@ def _variance_components(result: Adjustment) -> dict[str, dict] | None:
     })
 
 
-def _observations(project: Project, result: Adjustment) -> list[dict]:
-    """One entry per image point (sorted by image), then the other observations by group."""
-    residuals = image_residuals(project, result)
-    entries = [
-        {
-            "image": iid,
-            "point": pid,
-            "vx": float(residuals.v[k, 0]),
-            "vy": float(residuals.v[k, 1]),
-            "rx": float(residuals.redundancy[k, 0]),
-            "ry": float(residuals.redundancy[k, 1]),
-            "wx": float(residuals.w[k, 0]),
-            "wy": float(residuals.w[k, 1]),
-            "outlier": bool(residuals.outlier[k]),
-        }
-        for k, (iid, pid) in enumerate(zip(residuals.image_ids, residuals.point_ids))
-    ]
-    entries += [
-        {
-            "type": row.kind, "group": row.group, **row.ids,
-            "v": row.v, "r": row.r, "w": row.w, "outlier": row.outlier,
-        }
-        for row in other_observations(project, result)
-    ]
-    return _nulls(entries)
-
-
 def _reliability(project: Project, result: Adjustment) -> dict | None:
     summary = reliability_summary(project, result)
     if summary is None:
@@ -141,13 +114,12 @@ def results_dict(project: Project, result: Adjustment) -> dict:
     in mm and px: overall, per camera, per image; data-snooping rejections left out),
     observation_groups (n, vᵀPv), correlations (per camera: the estimated IOPs and their
     correlation matrix), variance_components ({group: sigma0, redundancy, n_observations}) and
-    variance_component_iterations (null when not estimated), observations (one entry per image
-    point: image, point, vx, vy in the camera's image units, redundancy numbers rx, ry,
-    normalised residuals wx, wy, outlier; then the other observations with type, group, their
-    IDs, v, r, w, outlier), rejections (data snooping, in order of removal), reliability
-    (alpha, critical_value, redundancy_sum, ...; null when not computed) and per point with a
-    free coordinate its 1σ "ellipsoid". Iteration 0 is the approximations. Every parameter
-    carries "status": free, fixed or weighted.
+    variance_component_iterations (null when not estimated), observations_file (the name of
+    the per-observation table beside results.json, observations.csv: residuals, redundancy
+    numbers, normalised residuals, outlier flags), rejections (data snooping, in order of
+    removal), reliability (alpha, critical_value, redundancy_sum, ...; null when not computed)
+    and per point with a free coordinate its 1σ "ellipsoid". Iteration 0 is the approximations.
+    Every parameter carries "status": free, fixed or weighted.
     """
     precision = result.precision
     cameras = camera_tables(project, result)
@@ -188,12 +160,28 @@ def results_dict(project: Project, result: Adjustment) -> dict:
         "variance_component_iterations": (
             int(result.variance_iterations) if result.variance_components is not None else None
         ),
-        "observations": _observations(project, result),
+        "observations_file": OBSERVATIONS_FILE,
         "rejections": _nulls(rejections(project, result)),
         "reliability": _reliability(project, result),
     }
 
 
+def _layout(value, depth: int, indent: str = "") -> str:
+    """JSON text of `value`: dicts and lists indented by two spaces down to `depth` levels,
+    each deeper value on one line (json's C encoder, fast for thousands of points)."""
+    if depth == 0 or not isinstance(value, dict | list) or not value:
+        return json.dumps(value, allow_nan=False)
+    inner = indent + "  "
+    if isinstance(value, dict):
+        items = [f"{json.dumps(k)}: {_layout(v, depth - 1, inner)}" for k, v in value.items()]
+        opening, closing = "{", "}"
+    else:
+        items = [_layout(v, depth - 1, inner) for v in value]
+        opening, closing = "[", "]"
+    return f"{opening}\n{inner}" + f",\n{inner}".join(items) + f"\n{indent}{closing}"
+
+
 def results_json(project: Project, result: Adjustment) -> str:
-    """results.json as text (strict JSON: raises if a NaN slipped through)."""
-    return json.dumps(results_dict(project, result), indent=2, allow_nan=False) + "\n"
+    """results.json as text (strict JSON: raises if a NaN slipped through); indented to the
+    entries of each point, image, camera and iteration, these on one line each."""
+    return _layout(results_dict(project, result), 3) + "\n"

@@ -4,19 +4,23 @@ import pathlib
 
 from .._project._spec import ProjectSpec
 
+OBSERVATIONS_FILE = "observations.csv"
+
 
 class OutputError(ValueError):
     """A report file cannot be written where asked (it would replace an input file, ...)."""
 
 
 def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json."""
+    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json
+    and observations.csv."""
     out_dir = pathlib.Path(out_dir)
     return {
         "out": out_dir / f"{spec.name}.out",
         "res": out_dir / f"{spec.name}.res",
         "sigma": out_dir / f"{spec.name}.sigma",
         "json": out_dir / "results.json",
+        "observations": out_dir / OBSERVATIONS_FILE,
     }
 
 

@@ -5,6 +5,7 @@ and .sigma are comments, so the data lines read back with any whitespace splitte
 """
 
 import math
+import operator
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from ._collect import (
     rejections,
     reliability_summary,
     residual_summaries,
+    row_tuples,
 )
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
@@ -302,18 +304,16 @@ def out_text(project: Project, result: Adjustment) -> str:
 # --- NAME.res -------------------------------------------------------------------------------
 
 
-def _rms_comment(label: str, residuals: ImageResiduals, selected: np.ndarray) -> str:
-    used = selected & ~residuals.removed
-    v, v_px = residuals.v[used], residuals.v_px[used]
-    units = set(np.asarray(residuals.units, dtype=object)[used])
-    text = f"# RMS {label}  n {len(v)}"
-    if units == {MM}:
-        rms_mm = np.sqrt(np.mean(v**2, axis=0))
-        text += f"  vx {fixed(rms_mm[0], _MM_DECIMALS)}  vy {fixed(rms_mm[1], _MM_DECIMALS)} mm"
-    if len(v_px) and np.all(np.isfinite(v_px)):
-        rms_px = np.sqrt(np.mean(v_px**2, axis=0))
-        text += f"  vx {fixed(rms_px[0], _PX_DECIMALS)}  vy {fixed(rms_px[1], _PX_DECIMALS)} px"
-    removed = int(np.count_nonzero(selected & residuals.removed))
+def _rms_comment(label: str, summary: dict) -> str:
+    """`# RMS label  n ...  vx .. vy .. mm  vx .. vy .. px`, from a `residual_summary` entry."""
+    text = f"# RMS {label}  n {summary['n']}"
+    if math.isfinite(summary["rms_x_mm"]):
+        text += f"  vx {fixed(summary['rms_x_mm'], _MM_DECIMALS)}"
+        text += f"  vy {fixed(summary['rms_y_mm'], _MM_DECIMALS)} mm"
+    if math.isfinite(summary["rms_x_px"]):
+        text += f"  vx {fixed(summary['rms_x_px'], _PX_DECIMALS)}"
+        text += f"  vy {fixed(summary['rms_y_px'], _PX_DECIMALS)} px"
+    removed = summary["n_removed"]
     return text + (f"  ({removed} rejected, not counted)" if removed else "")
 
 
@@ -329,10 +329,6 @@ def res_text(project: Project, result: Adjustment) -> str:
     residuals = image_residuals(project, result)
     units = project_units(project)
     in_pixels = units == PIXEL
-    rows = _residual_rows(residuals, with_px=not in_pixels)
-    header = ["image_id", "point_id", "x", "y", "vx", "vy"]
-    header += [] if in_pixels else ["vx_px", "vy_px"]
-    header += ["rx", "ry", "wx", "wy", "outlier"]
     if in_pixels:
         unit_line = "x y vx vy in pixels (col, row: row down)"
     elif units == MM:
@@ -353,30 +349,69 @@ def res_text(project: Project, result: Adjustment) -> str:
         f"# v = observed - computed; {unit_line}",
         f"# r redundancy numbers, w normalised residuals ({test}); outlier 1: rejected by data"
         " snooping (its v at the final solution, which did not use it) or |w| > critical",
-        *table(header, rows, "ll" + "r" * (len(header) - 2), prefix="# "),
+        *_residual_table(residuals, with_px=not in_pixels),
         "#",
     ]
-    images = np.asarray(residuals.image_ids, dtype=object)
-    for iid in dict.fromkeys(residuals.image_ids):
-        lines.append(_rms_comment(f"image {iid}", residuals, images == iid))
-    lines.append(_rms_comment("all", residuals, np.ones(len(images), dtype=bool)))
+    summaries = residual_summaries(residuals)
+    lines += [_rms_comment(f"image {iid}", summary) for iid, summary in summaries["images"].items()]
+    lines.append(_rms_comment("all", summaries["all"]))
     return "\n".join(lines) + "\n"
 
 
-def _residual_rows(residuals: ImageResiduals, *, with_px: bool = True) -> list[list[str]]:
-    rows = []
-    for k, (iid, pid) in enumerate(zip(residuals.image_ids, residuals.point_ids)):
-        decimals = _MM_DECIMALS if residuals.units[k] == MM else _PX_DECIMALS + 1
-        rows.append([
-            iid, pid,
-            *(fixed(value, decimals) for value in residuals.xy[k]),
-            *(fixed(value, decimals) for value in residuals.v[k]),
-            *((_optional(value) for value in residuals.v_px[k]) if with_px else ()),
-            *(_optional(value, 3) for value in residuals.redundancy[k]),
-            *(_optional(value, 2) for value in residuals.w[k]),
-            "1" if residuals.outlier[k] else "0",
-        ])
-    return rows
+def _fixed_width(values: np.ndarray, decimals: int) -> int:
+    """Characters of the widest of `values` printed with `decimals` decimals: 3 for "nan"
+    among numbers, 1 for all NaN ("-"), 0 for no values."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return min(values.size, 1)
+    widths = [len(f"{v:.{decimals}f}") for v in (finite.min(), finite.max())]
+    return max(widths + [3] * (finite.size < values.size))
+
+
+def number_table(
+    header: list[str], labels: list[list[str]], numbers: np.ndarray, decimals: list[list[int]],
+    kind: np.ndarray, *, prefix: str = "# ",
+) -> list[str]:
+    """Aligned lines as `table`, fast for many rows: the text columns `labels` (one list of n
+    strings each, left aligned), then `numbers` (n, m) right aligned with `decimals[kind[i]][j]`
+    decimals in row i, column j (`kind` (n,) int) and `-` where not finite."""
+    n_text = len(labels)
+    numbers = np.where(np.isfinite(numbers), numbers, np.nan)
+    rows = [numbers[kind == k] for k in range(len(decimals))]
+    widths = [max(map(len, [name, *column])) for name, column in zip(header, labels)]
+    widths += [
+        max([len(name)] + [_fixed_width(r[:, j], places[j]) for r, places in zip(rows, decimals)])
+        for j, name in enumerate(header[n_text:])
+    ]
+    # A column of NaN only prints the first letter of "nan" ("%.1s"), made "-" below.
+    formats = np.array([
+        "  ".join(
+            f"%{w}.{d}f" if np.isfinite(r[:, j]).any() else f"%{w}.1s"
+            for j, (w, d) in enumerate(zip(widths[n_text:], places))
+        )
+        for r, places in zip(rows, decimals)
+    ], dtype=object)
+    body = "\n".join(map(operator.mod, formats[kind].tolist(), row_tuples(numbers)))
+    body = body.replace("nan", "  -").replace("n", "-")  # only numbers and NaN in `body`
+    label_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
+    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body.split("\n"))
+    cells = [c.ljust(w) for c, w in zip(header[:n_text], widths)]
+    cells += [c.rjust(w) for c, w in zip(header[n_text:], widths[n_text:])]
+    return [prefix + "  ".join(cells).rstrip(), *labelled]
+
+
+def _residual_table(residuals: ImageResiduals, *, with_px: bool = True) -> list[str]:
+    """The rows of NAME.res (see `res_text`) with their header line."""
+    header = ["image_id", "point_id", "x", "y", "vx", "vy"]
+    header += ["vx_px", "vy_px"] if with_px else []
+    header += ["rx", "ry", "wx", "wy", "outlier"]
+    columns = [residuals.xy, residuals.v, *([residuals.v_px] if with_px else [])]
+    columns += [residuals.redundancy, residuals.w, residuals.outlier[:, None]]
+    statistics = [_PX_DECIMALS] * (2 * with_px) + [3, 3, 2, 2, 0]
+    decimals = [[_MM_DECIMALS] * 4 + statistics, [_PX_DECIMALS + 1] * 4 + statistics]
+    labels = [residuals.image_ids.tolist(), residuals.point_ids.tolist()]
+    kind = (residuals.units != MM).astype(int)
+    return number_table(header, labels, np.column_stack(columns).astype(float), decimals, kind)
 
 
 # --- NAME.sigma -----------------------------------------------------------------------------

@@ -1,0 +1,114 @@
+"""observations.csv: one row per observation with its residual, redundancy number and w.
+
+Image points first (one row per point: x and y together, sorted by image like NAME.res), then
+the scalar observations of the other groups (control, GNSS/INS, camera priors, distances), group
+by group. Numbers are written with 10 significant digits (`%.10g`); an empty field is a value
+that does not apply to the row's type or is not available (no reliability computed, the r of
+an observation removed by data snooping).
+"""
+
+import csv
+import io
+import pathlib
+
+import numpy as np
+
+from .._project._build import Project
+from .._solve import Adjustment
+from ._collect import ScalarObservation, image_residuals, other_observations, row_tuples
+
+TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
+NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
+FLAG_COLUMNS = ("removed", "outlier")
+COLUMNS = TEXT_COLUMNS + NUMBER_COLUMNS + FLAG_COLUMNS
+
+
+def _field(text: str) -> str:
+    """`text` as one CSV field: quoted when it holds a comma, a quote or a line break."""
+    return text if not any(c in text for c in ',"\n\r') else '"' + text.replace('"', '""') + '"'
+
+
+def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> list[str]:
+    """CSV lines of rows: the text fields `texts` (one list per column, already CSV fields),
+    then the number and flag columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g`
+    (flags 0/1), empty where not finite, the others empty."""
+    fmt = ",".join(
+        "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
+        for name in NUMBER_COLUMNS + FLAG_COLUMNS
+    )
+    formatted = "\n".join(map(fmt.__mod__, row_tuples(numbers)))
+    # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
+    formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
+    return list(map("{},{}".format, map(",".join, zip(*texts)), formatted.split("\n")))
+
+
+def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray) -> list[str]:
+    """Rows of the image points; `groups`: the CSV fields of the result's group names."""
+    residuals = image_residuals(project, result)
+    n = len(residuals.image)
+    image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
+    point_ids = np.array([_field(p) for p in project.point_ids], dtype=object)
+    cameras = np.array([_field(project.spec.images[i].camera) for i in project.image_ids],
+                       dtype=object)
+    empty = [""] * n
+    texts = [
+        ["image_points"] * n,
+        groups[residuals.group].tolist(),
+        image_ids[residuals.image].tolist(),
+        point_ids[residuals.point].tolist(),
+        empty,
+        cameras[residuals.image].tolist(),
+        empty,
+    ]
+    numbers = np.column_stack([
+        residuals.xy, residuals.v, residuals.redundancy, residuals.w, residuals.removed,
+        residuals.outlier,
+    ])
+    return _lines(texts, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
+
+
+def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
+    """Rows of the observations other than image points: their IDs, v, r, w and flags."""
+    texts = [
+        [_field(value) for value in column]
+        for column in zip(*(
+            (row.kind, row.group, row.ids.get("image", ""),
+             row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
+             row.ids.get("camera", ""), row.ids.get("coordinate", ""))
+            for row in rows
+        ))
+    ]
+    filled = ("v", "r", "w") + FLAG_COLUMNS
+    numbers = np.array(
+        [[row.v, row.r, row.w, row.removed, row.outlier] for row in rows], dtype=float,
+    ).reshape(len(rows), len(filled))
+    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers, filled)
+
+
+def observations_csv(project: Project, result: Adjustment) -> str:
+    """observations.csv as text: header `COLUMNS`, image points, then the other observations."""
+    groups = np.array([_field(group.name) for group in result.problem.groups], dtype=object)
+    lines = [",".join(COLUMNS)]
+    lines += _image_point_lines(project, result, groups)
+    lines += _scalar_lines(other_observations(project, result))
+    return "\n".join(lines) + "\n"
+
+
+def read_observations(path) -> dict[str, np.ndarray]:
+    """observations.csv as columns: `COLUMNS` names -> (n,) arrays.
+
+    Text columns are str arrays ("" where empty), numbers float (NaN where empty), removed and
+    outlier bool.
+    """
+    text = pathlib.Path(path).read_text(encoding="utf-8")
+    header, *rows = list(csv.reader(io.StringIO(text)))
+    columns = dict(zip(header, map(list, zip(*rows)))) if rows else {name: [] for name in header}
+    table = {}
+    for name in header:
+        values = np.array(columns[name], dtype=str)
+        if name in TEXT_COLUMNS:
+            table[name] = values
+        else:
+            numbers = np.where(values == "", "nan", values).astype(float)
+            table[name] = numbers.astype(bool) if name in FLAG_COLUMNS else numbers
+    return table
