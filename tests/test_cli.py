@@ -183,6 +183,25 @@ def test_progress_and_summary(run):
     assert any(line.strip().startswith("c ") and "+/-" in line for line in lines)
     for name in OUTPUTS + PLOTS:
         assert any(line.strip().endswith(name) for line in lines)
+    assert any(line.startswith("converged after") and "dense backend" in line for line in lines)
+
+
+def test_timings_on_the_console_and_in_results_json(run):
+    """Where the time went: every phase on the console and in results.json, compilation apart,
+    and the phases add up to the total."""
+    timing = next(line for line in run["stdout"].splitlines() if line.startswith("seconds: "))
+    phases = ("read", "start-up", "datum check", "solve", "statistics", "reports")
+    for name in phases:
+        assert f"{name} " in timing
+    assert "compile " in timing and "from the cache" in timing
+    assert run["results"]["solver"] == "dense"
+    timings = run["results"]["timings"]
+    seconds = timings["seconds"]
+    assert list(seconds)[:5] == list(phases[:5])
+    assert all(value >= 0 for value in seconds.values())
+    assert sum(seconds[name] for name in phases[:5]) + seconds["compile"] == pytest.approx(
+        seconds["total"], abs=1e-3)
+    assert timings["compilations"] >= timings["cache_hits"] >= 0
 
 
 def test_res_statistics_columns(run):

@@ -104,6 +104,18 @@ def _reliability(project: Project, result: Adjustment) -> dict | None:
     })
 
 
+def _timings(result: Adjustment) -> dict:
+    """{"seconds": {phase: run seconds, ..., "compile": s, "total": s}, "compilations": n,
+    "cache_hits": n}: the phases timed before the reports are written (read, start-up, datum
+    check, solve, statistics, as far as the run timed them)."""
+    timings = result.timings
+    return {
+        "seconds": {name: round(seconds, 4) for name, seconds in timings.summary().items()},
+        "compilations": timings.compilations,
+        "cache_hits": timings.cache_hits,
+    }
+
+
 def results_dict(project: Project, result: Adjustment) -> dict:
     """Everything of results.json as plain Python (no NaN: null instead).
 
@@ -118,7 +130,9 @@ def results_dict(project: Project, result: Adjustment) -> dict:
     the per-observation table beside results.json, observations.csv: residuals, redundancy
     numbers, normalised residuals, outlier flags), rejections (data snooping, in order of
     removal), reliability (alpha, critical_value, redundancy_sum, ...; null when not computed)
-    and per point with a free coordinate its 1σ "ellipsoid". Iteration 0 is the approximations.
+    and per point with a free coordinate its 1σ "ellipsoid"; solver (the normal-equation
+    backend that ran: "dense" or "schur") and timings (seconds per phase up to the reports,
+    compilation apart; see `_timings`). Iteration 0 is the approximations.
     Every parameter carries "status": free, fixed or weighted.
     """
     precision = result.precision
@@ -129,6 +143,8 @@ def results_dict(project: Project, result: Adjustment) -> dict:
         "converged": bool(result.converged),
         "message": result.message,
         "steps": int(result.steps),
+        "solver": result.backend,
+        "timings": _timings(result),
         "sigma0": _number(math.sqrt(precision.sigma0_squared)),
         "sigma0_squared": _number(precision.sigma0_squared),
         "sigma0_prior": _number(project.spec.settings.sigma0),

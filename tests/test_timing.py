@@ -1,0 +1,44 @@
+"""Phase timings: compilations are counted inside the phase that triggers them, announced
+before a big one, and not counted again for a program already compiled."""
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from jaxba._timing import CompileLog, Phase, Timings
+
+N_OPS = 3000  # enough operations that lowering the program takes well over _LONG_LOWERING
+
+
+def _big(x):
+    for k in range(N_OPS):
+        x = jnp.sin(x) + k
+    return x
+
+
+def test_phases_count_compilations_and_announce_big_ones():
+    announced = []
+    timings = Timings(on_compile=announced.append)
+    big = jax.jit(_big)
+    with timings.phase("first"):
+        big(jnp.ones(3)).block_until_ready()
+    with timings.phase("again"):
+        big(jnp.ones(3)).block_until_ready()  # compiled already: nothing to count
+    first, again = timings.phases
+    assert announced == ["first"]
+    assert first.compilations >= 1 and 0 < first.compile_seconds <= first.seconds
+    assert again.compilations == 0 and again.compile_seconds == 0.0
+    summary = timings.summary()
+    assert summary["compile"] == pytest.approx(first.compile_seconds)
+    assert summary["total"] == pytest.approx(first.seconds + again.seconds)
+
+
+def test_nested_logs_both_count_and_a_repeated_phase_adds_up():
+    timings = Timings()
+    with CompileLog() as outer:
+        with timings.phase("solve"):
+            jax.jit(lambda x: x * 3.0 + 1.0)(jnp.ones(4)).block_until_ready()
+    assert outer.count == timings.compilations >= 1
+    timings.add(Phase("solve", 1.0, 0.5, 2, 1))
+    (solve,) = timings.phases
+    assert solve.compilations == outer.count + 2 and solve.cache_hits >= 1
