@@ -22,7 +22,6 @@ the other IOPs 0; fixed EOPs keep their true values. Deterministic for a given s
 import argparse
 import dataclasses
 import json
-import math
 import pathlib
 
 import numpy as np
