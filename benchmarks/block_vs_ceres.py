@@ -51,7 +51,7 @@ PHASES = ("read", "build", "datum", "solve", "precision", "reliability", "report
 CLI = "import sys; from jaxba._cli import main; sys.exit(main())"
 
 
-# --- jaxba's pipeline, phase by phase (run in a child: `block_vs_ceres.py --phases`) ------
+# --- jaxba's pipeline, phase by phase (run in a child: `--child phases`) -----------------
 
 
 def _timed(times: dict, name: str, function, *args, **kwargs):
@@ -140,13 +140,13 @@ def phases_main(project_file: pathlib.Path, out_dir: pathlib.Path) -> None:
 # --- the Ceres export ---------------------------------------------------------------------
 
 
-def export_problem(project_file: pathlib.Path, path: pathlib.Path) -> dict:
+def export_problem(project_file: pathlib.Path, path: pathlib.Path) -> None:
     """Write jaxba's problem of `project_file` as ceres_bundle.cc's text export.
 
     Supports one SMAC camera model, image points and distances, and a free network's inner
     constraints (exported as the first image's six EOPs fixed); angles in radians, image
-    coordinates and σ in mm. Returns {"initial_cost": jaxba's ½Σe² at the approximations,
-    "ceres_datum": what replaced the inner constraints, or None}.
+    coordinates and σ in mm. Prints JSON {"initial_cost": jaxba's ½Σe² at the
+    approximations, "ceres_datum": what replaced the inner constraints, or null}.
     """
     import jax
 
@@ -203,18 +203,21 @@ def export_problem(project_file: pathlib.Path, path: pathlib.Path) -> dict:
                                 np.asarray(g.stddev))),
     ]
     path.write_text("\n".join(line for line in lines if line) + "\n")
-    return {"initial_cost": initial_cost, "ceres_datum": datum}
+    print(json.dumps({"initial_cost": initial_cost, "ceres_datum": datum}))
+
+
+CHILD_TASKS = {"phases": phases_main, "export": export_problem}
 
 
 # --- running children ---------------------------------------------------------------------
 
 
 def measured_run(command: list[str], work: pathlib.Path, *, memory_gib: float, timeout: float,
-                 env: dict | None = None) -> dict:
+                 env: dict | None = None, ok_codes: tuple[int, ...] = (0,)) -> dict:
     """Run `command` under /usr/bin/time with an address-space cap (GiB) and a timeout (s).
 
-    Returns {"ok", "stdout", "wall_seconds", "peak_rss_mib"} and, when not ok, "failure"
-    (the reason: exit status and the last line of stderr, or the timeout).
+    Returns {"ok" (exit status in `ok_codes`), "stdout", "wall_seconds", "peak_rss_mib"}
+    and, when not ok, "failure" (the exit status and the last line of stderr, or the timeout).
     """
     limit = int(memory_gib * 2**30)
     timing = work / "time.txt"
@@ -234,7 +237,7 @@ def measured_run(command: list[str], work: pathlib.Path, *, memory_gib: float, t
         return {"ok": False, "failure": f"time cap {timeout:.0f} s reached"}
     wall, rss_kib = timing.read_text().split()[-2:]
     outcome = {"stdout": stdout, "wall_seconds": float(wall),
-               "peak_rss_mib": float(rss_kib) / 1024, "ok": child.returncode in (0, 1)}
+               "peak_rss_mib": float(rss_kib) / 1024, "ok": child.returncode in ok_codes}
     if not outcome["ok"]:
         last = (stderr.strip().splitlines() or ["no message"])[-1][:160]
         outcome["failure"] = f"exit {child.returncode} under a {memory_gib:g} GiB cap: {last}"
@@ -242,13 +245,16 @@ def measured_run(command: list[str], work: pathlib.Path, *, memory_gib: float, t
 
 
 def run_jaxba_cli(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
-    """`jaxba adjust PROJECT --out DIR` with a cold compilation cache; results.json read back."""
+    """`jaxba adjust PROJECT --out DIR` with a cold compilation cache; results.json read back.
+
+    Exit status 1 (not converged, reports written) counts as a run.
+    """
     out = work / "cli-out"
     home = work / "home"
     home.mkdir(exist_ok=True)
     run = measured_run([sys.executable, "-c", CLI, "adjust", str(project), "--out", str(out)],
-                       work, env=dict(os.environ, HOME=str(home)), **caps)
-    if run["ok"]:
+                       work, env=dict(os.environ, HOME=str(home)), ok_codes=(0, 1), **caps)
+    if run["ok"] and (out / "results.json").exists():
         results = json.loads((out / "results.json").read_text())
         run |= {"final_cost": results["iterations"][-1]["cost"],
                 "iterations": len(results["iterations"]) - 1,
@@ -256,10 +262,11 @@ def run_jaxba_cli(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
     return run
 
 
-def run_jaxba_phases(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
-    """`phases_main` in a fresh process."""
-    command = [sys.executable, str(pathlib.Path(__file__).resolve()), "--phases", str(project),
-               str(work / "phases-out")]
+def run_child(task: str, arguments: list[pathlib.Path], work: pathlib.Path, **caps) -> dict:
+    """This script's `--child TASK ARGS...` (`CHILD_TASKS`) in a fresh process, its JSON merged
+    into the run's record."""
+    command = [sys.executable, str(pathlib.Path(__file__).resolve()), "--child", task,
+               *map(str, arguments)]
     run = measured_run(command, work, **caps)
     if run["ok"]:
         run |= json.loads(run["stdout"].strip().splitlines()[-1])
@@ -286,12 +293,15 @@ def run_shape(name: str, executable: pathlib.Path, work: pathlib.Path, args) -> 
     results = {"block": block}
     results["jaxba_cli"] = run_jaxba_cli(project, folder, **caps)
     print(f"{name}: jaxba adjust done", file=sys.stderr, flush=True)
-    results["jaxba_phases"] = run_jaxba_phases(project, folder, **caps)
+    results["jaxba_phases"] = run_child("phases", [project, folder / "phases-out"], folder,
+                                        **caps)
     print(f"{name}: jaxba phases done", file=sys.stderr, flush=True)
     if name == "close-range-free":
         return results  # Ceres has no inner constraints: the close-range row is its reference
     export = folder / "export.txt"
-    results["export"] = export_problem(project, export)
+    results["export"] = run_child("export", [project, export], folder, **caps)
+    if not results["export"]["ok"]:
+        raise RuntimeError(f"{name}: export failed: {results['export']['failure']}")
     for linear_solver in LINEAR_SOLVERS:
         results[f"ceres_{linear_solver}"] = run_ceres(executable, export, linear_solver, folder,
                                                       **caps)
@@ -385,11 +395,12 @@ def main() -> None:
                         help="address-space cap of every child (GiB)")
     parser.add_argument("--timeout", type=float, default=1200.0, help="time cap per child (s)")
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write all results")
-    parser.add_argument("--phases", nargs=2, type=pathlib.Path, metavar=("PROJECT", "OUT"),
+    parser.add_argument("--child", nargs=3, metavar=("TASK", "PROJECT", "OUT"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.phases is not None:
-        phases_main(*args.phases)
+    if args.child is not None:
+        task, project, out = args.child
+        CHILD_TASKS[task](pathlib.Path(project), pathlib.Path(out))
         return
     shapes = [s for s in args.shapes if not (args.skip_free and s == "close-range-free")]
     all_results = {}
