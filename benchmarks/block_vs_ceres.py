@@ -68,7 +68,7 @@ def pipeline_pass(project_file: pathlib.Path, out_dir: pathlib.Path) -> tuple[di
     """One `jaxba adjust` of a plain project (no robust loss, variance components or data
     snooping), as `jaxba._solve.adjust` and `adjust_project` do it, each phase timed.
 
-    Returns ({phase: seconds}, {"final_cost", "iterations", "std_c"}).
+    Returns ({phase: seconds}, {"final_cost", "iterations" (accepted), "steps", "std_c"}).
     """
     import dataclasses
 
@@ -119,6 +119,7 @@ def pipeline_pass(project_file: pathlib.Path, out_dir: pathlib.Path) -> tuple[di
     outcome = {
         "final_cost": float(solution.cost),
         "iterations": len(recorder.iterations) - 1,
+        "steps": int(solution.steps),
         "std_c": c["std"],
     }
     return times, outcome
@@ -236,12 +237,17 @@ def measured_run(command: list[str], work: pathlib.Path, *, memory_gib: float, t
         child.communicate()
         return {"ok": False, "failure": f"time cap {timeout:.0f} s reached"}
     wall, rss_kib = timing.read_text().split()[-2:]
-    outcome = {"stdout": stdout, "wall_seconds": float(wall),
+    outcome = {"stdout": stdout, "stderr": stderr, "wall_seconds": float(wall),
                "peak_rss_mib": float(rss_kib) / 1024, "ok": child.returncode in ok_codes}
     if not outcome["ok"]:
-        last = (stderr.strip().splitlines() or ["no message"])[-1][:160]
-        outcome["failure"] = f"exit {child.returncode} under a {memory_gib:g} GiB cap: {last}"
+        outcome["failure"] = failure(child.returncode, stderr, memory_gib)
     return outcome
+
+
+def failure(returncode: int, stderr: str, memory_gib: float) -> str:
+    """Why a child failed: its exit status and the last line of its stderr."""
+    last = (stderr.strip().splitlines() or ["no message"])[-1][:160]
+    return f"exit {returncode} under a {memory_gib:g} GiB cap: {last}"
 
 
 def run_jaxba_cli(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
@@ -254,10 +260,12 @@ def run_jaxba_cli(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
     home.mkdir(exist_ok=True)
     run = measured_run([sys.executable, "-c", CLI, "adjust", str(project), "--out", str(out)],
                        work, env=dict(os.environ, HOME=str(home)), ok_codes=(0, 1), **caps)
-    if run["ok"] and (out / "results.json").exists():
+    if run["ok"] and not (out / "results.json").exists():
+        run |= {"ok": False, "failure": failure(1, run["stderr"], caps["memory_gib"])}
+    if run["ok"]:
         results = json.loads((out / "results.json").read_text())
         run |= {"final_cost": results["iterations"][-1]["cost"],
-                "iterations": len(results["iterations"]) - 1,
+                "iterations": len(results["iterations"]) - 1, "steps": results["steps"],
                 "std_c": results["cameras"]["C1"]["c"]["std"]}
     return run
 
@@ -345,10 +353,12 @@ def totals_table(all_results: dict) -> str:
                 statistics = second["precision"] + second["reliability"]
             elif key.startswith("ceres"):
                 solve, statistics = r["solve_seconds"], r["covariance_seconds"]
+            iterations = r["iterations"] if key.startswith("ceres") else (
+                f"{r['iterations']} ({r['steps']} steps)")
             ratio = "-" if reference_wall is None or key.startswith("ceres") else (
                 f"{whole / reference_wall:.2f}x")
             lines.append(
-                f"| {name} | {label} | {r['final_cost']:.4f} | {r['iterations']} |"
+                f"| {name} | {label} | {r['final_cost']:.4f} | {iterations} |"
                 f" {_number(solve, 2)} | {_number(compile_seconds, 1)} |"
                 f" {_number(statistics, 2)} | {whole:.2f} | {r.get('peak_rss_mib', 0):.0f} |"
                 f" {_number(None if r['std_c'] is None else 1e3 * r['std_c'], 4)} | {ratio} |")
@@ -409,16 +419,17 @@ def main() -> None:
         executable = build_ceres(work, "ceres_bundle.cc")
         for name in shapes:
             all_results[name] = run_shape(name, executable, work, args)
+    for results in all_results.values():
+        for r in results.values():
+            r.pop("stdout", None)
+            r.pop("stderr", None)
+    if args.json is not None:
+        args.json.write_text(json.dumps(all_results, indent=2) + "\n")
     print(totals_table(all_results))
     print()
     print(phases_table(all_results))
     print()
     print("\n".join(cost_checks(all_results)))
-    if args.json is not None:
-        for results in all_results.values():
-            for r in results.values():
-                r.pop("stdout", None)
-        args.json.write_text(json.dumps(all_results, indent=2) + "\n")
 
 
 if __name__ == "__main__":
