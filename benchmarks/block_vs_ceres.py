@@ -55,7 +55,7 @@ CLI = "import sys; from jaxba._cli import main; sys.exit(main())"
 
 
 def _timed(times: dict, name: str, function, *args, **kwargs):
-    """Call `function`, block on its jax arrays, add its wall seconds to `times[name]`."""
+    """Call `function`, block on its jax arrays, store its wall seconds in `times[name]`."""
     import jax
 
     start = time.perf_counter()
