@@ -36,15 +36,15 @@ print(json.dumps(results))
 """
 
 
-def build_ceres(work: pathlib.Path) -> pathlib.Path:
-    """Compile ceres_bal.cc; returns the executable."""
-    executable = work / "ceres_bal"
+def build_ceres(work: pathlib.Path, source: str = "ceres_bal.cc") -> pathlib.Path:
+    """Compile benchmarks/`source` with g++ into `work`; returns the executable."""
+    executable = work / pathlib.Path(source).stem
     command = [
         "g++",
         "-O3",
         "-DNDEBUG",
         "-std=c++17",
-        str(HERE / "ceres_bal.cc"),
+        str(HERE / source),
         "-o",
         str(executable),
         "-I/usr/include/eigen3",
