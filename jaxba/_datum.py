@@ -4,8 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._linearisation import dense_jacobian
 from ._parameters import Parameters, parameter_labels
-from ._problem import BundleProblem, dense_jacobian, free_indices
+from ._problem import BundleProblem, free_indices
 from ._rotation import matrix_to_opk, opk_to_matrix, rodrigues_to_matrix
 
 SIMILARITY_NAMES = (
@@ -80,7 +81,10 @@ def null_space(
     if jacobian is None:
         jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
     column_norms = np.linalg.norm(jacobian, axis=0)
-    _, singular, vt = np.linalg.svd(jacobian / column_norms, full_matrices=False)
+    scaled = jacobian / column_norms
+    if scaled.shape[0] > scaled.shape[1]:  # J = QR: R has J's singular values and V
+        scaled = np.linalg.qr(scaled, mode="r")
+    _, singular, vt = np.linalg.svd(scaled, full_matrices=False)
     null_rows = singular < rtol * singular[0]
     return vt[null_rows] / column_norms if null_rows.any() else None
 

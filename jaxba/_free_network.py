@@ -18,9 +18,10 @@ from jaxtyping import Array, Float
 
 from ._camera import AbstractRefraction
 from ._datum import DatumError, describe_defect, null_space
+from ._linearisation import dense_jacobian
 from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten, parameter_labels, unflatten
-from ._problem import BundleProblem, dense_jacobian, free_indices
+from ._problem import BundleProblem, free_indices
 
 STIFFNESS = 100.0
 

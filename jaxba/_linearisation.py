@@ -29,7 +29,7 @@ from jaxtyping import Array, Float, Int
 
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, free_indices, params_from_free
+from ._problem import BundleProblem, free_indices, observation_mask, params_from_free
 
 
 class LinearisationPlan(eqx.Module):
@@ -188,6 +188,47 @@ def normal_equations(
         normal = normal + rows.T @ rows
         gradient = gradient + rows.T @ e
     return normal, gradient
+
+
+def dense_jacobian(
+    problem: BundleProblem, params: Parameters
+) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
+    """Whitened Jacobian dẽ/dx_free and residuals ẽ (`problem.residuals`), real observations
+    only, in the order of the raveled residuals; columns in `free_indices` order.
+
+    Dense: for problems of up to a few thousand unknowns (statistics, datum check). Built
+    from the per-row reverse-mode blocks the solver uses (`row_jacobians`), scattered into
+    their free columns; groups that are not row-local are differentiated whole.
+    """
+    index = free_indices(problem)
+    column_of = np.full(flatten(problem.initial).size, index.size)
+    column_of[index] = np.arange(index.size)
+    columns = tuple(None if depends is None else jnp.asarray(column_of[depends])
+                    for depends in _local_positions(problem))
+    rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
+    return _dense_jacobian(problem, params, jnp.asarray(index), columns, rows)
+
+
+@eqx.filter_jit
+def _dense_jacobian(problem, params, index, columns, rows):
+    n = index.shape[0]
+    jacobians, residuals = [], []
+    for group, group_columns in zip(problem.groups, columns):
+        if group_columns is None:
+            jacobian, e = _whole_group_jacobian(problem, params, index, [group])
+        else:
+            mask = group.mask()
+            e, blocks = group.row_jacobians(params, problem.refraction)
+            e, chain = _robust(problem, group, jnp.where(mask, e, 0.0))  # as `residuals`
+            blocks = jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)
+            n_rows, k, _ = blocks.shape
+            jacobian = jnp.zeros((n_rows, k, n + 1), blocks.dtype).at[
+                jnp.arange(n_rows)[:, None, None], jnp.arange(k)[None, :, None],
+                group_columns[:, None, :]].add(blocks)
+            jacobian = jacobian.reshape(n_rows * k, n + 1)[:, :n]
+        jacobians.append(jacobian)
+        residuals.append(jnp.ravel(e))
+    return jnp.concatenate(jacobians)[rows], jnp.concatenate(residuals)[rows]
 
 
 def _whole_group_jacobian(problem, params, index, groups) -> tuple[Array, Array]:

@@ -1,7 +1,6 @@
 """A bundle-adjustment problem: parameter blocks, their fixing, and observation groups."""
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
@@ -95,27 +94,3 @@ def params_from_scaled(
     (x_free,0 from `problem.initial`), all other scalars as in `problem.initial`."""
     x_free = ravel_pytree(problem.initial)[0][index]
     return params_from_free(problem, x_free + scale * z, index)
-
-
-def dense_jacobian(
-    problem: BundleProblem, params: Parameters
-) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
-    """Whitened Jacobian d e / d x_free and whitened residuals e, real observations only.
-
-    Dense: for problems of up to a few thousand unknowns (statistics, datum check).
-    """
-    index = jnp.asarray(free_indices(problem))
-    rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
-    return _dense_jacobian(problem, params, index, rows)
-
-
-@eqx.filter_jit
-def _dense_jacobian(problem, params, index, rows):
-    at_params = eqx.tree_at(lambda p: p.initial, problem, params)
-
-    def residual_vector(x_free):
-        values = params_from_free(at_params, x_free, index)
-        return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(values)])[rows]
-
-    x_free = ravel_pytree(params)[0][index]
-    return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)

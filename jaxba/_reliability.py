@@ -16,8 +16,9 @@ import numpy as np
 import scipy.linalg
 import scipy.stats
 
+from ._linearisation import dense_jacobian
 from ._observations import ImagePoints
-from ._problem import BundleProblem, dense_jacobian, observation_mask
+from ._problem import BundleProblem, observation_mask
 from ._schur._reliability import schur_redundancy_numbers
 from ._solve import Adjustment, adjust
 

@@ -11,7 +11,11 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from ._datum import check_datum
-from ._levenberg_marquardt import DECREMENT_TOLERANCE, NormalLevenbergMarquardt
+from ._levenberg_marquardt import (
+    DECREMENT_TOLERANCE,
+    UNBATCHED_BLOCK,
+    NormalLevenbergMarquardt,
+)
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
 from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
@@ -121,17 +125,19 @@ def solve(
     if on_step is None:
         return _solve(problem, plan, **settings)
     solver, args, z0 = _normal_solver(problem, plan, rtol=rtol, atol=atol,
-                                      decrement_tolerance=decrement_tolerance)
+                                      decrement_tolerance=decrement_tolerance,
+                                      block_size=UNBATCHED_BLOCK)
     solution = least_squares_stepwise(
         _residual_fn, solver, z0, args, has_aux=True, max_steps=max_steps, on_step=on_step)
     return _normal_solution(args, solution)
 
 
-def _make_normal_solver(problem, plan, *, rtol, atol, decrement_tolerance):
+def _make_normal_solver(problem, plan, *, rtol, atol, decrement_tolerance, block_size=None):
     """The dense-backend solver, the residual function's args and the start z = 0."""
     scale = column_scale(problem, plan)
     solver = NormalLevenbergMarquardt(
-        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance)
+        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance,
+        block_size=block_size)
     return solver, (problem, plan.free_index, scale), jnp.zeros_like(scale)
 
 

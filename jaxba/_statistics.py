@@ -6,8 +6,9 @@ import numpy as np
 import scipy.linalg
 
 from ._free_network import InnerConstraints
+from ._linearisation import dense_jacobian
 from ._parameters import Parameters, flatten, unflatten
-from ._problem import BundleProblem, dense_jacobian, free_indices
+from ._problem import BundleProblem, free_indices
 
 
 @dataclasses.dataclass(frozen=True)

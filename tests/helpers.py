@@ -4,9 +4,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 import jaxba
 from jaxba._observations import ParameterObservations
+from jaxba._problem import free_indices, observation_mask, params_from_free
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
@@ -59,3 +61,24 @@ def with_control_and_huber(problem, rows):
     return eqx.tree_at(
         lambda p: p.robust, problem, jaxba.RobustLoss("huber", 1.5), is_leaf=lambda x: x is None
     )
+
+
+def jacfwd_jacobian(problem, params):
+    """Reference whitened Jacobian dẽ/dx_free and residuals ẽ of all residuals
+    (`problem.residuals`), by forward mode over the free unknowns, real observations only:
+    independent of the per-row blocks the library differentiates."""
+    index = jnp.asarray(free_indices(problem))
+    rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
+    return _jacfwd_jacobian(problem, params, index, rows)
+
+
+@eqx.filter_jit
+def _jacfwd_jacobian(problem, params, index, rows):
+    at_params = eqx.tree_at(lambda p: p.initial, problem, params)
+
+    def residual_vector(x_free):
+        values = params_from_free(at_params, x_free, index)
+        return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(values)])[rows]
+
+    x_free = ravel_pytree(params)[0][index]
+    return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)

@@ -11,13 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import with_control_and_huber
+from helpers import jacfwd_jacobian, with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
 from jaxba._observations import AbstractObservationGroup
 from jaxba._parameters import flatten
-from jaxba._problem import dense_jacobian, free_indices
+from jaxba._problem import free_indices
 from jaxba._reliability import redundancy_numbers
 from jaxba._schur._bundle import (
     FUNCTION_TOLERANCE,
@@ -96,7 +96,7 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     x_r, x_e = solve_bundle_damped(structure, normal, jnp.asarray(damping))
     step = flatten(_to_parameters(structure, params, x_r, x_e))[free_indices(problem)]
 
-    jacobian, residual = dense_jacobian(problem, params)
+    jacobian, residual = jacfwd_jacobian(problem, params)
     hessian = jacobian.T @ jacobian
     diagonal = marquardt_diagonal(jnp.diagonal(hessian), 1e-6, 1e32)
     expected = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), jacobian.T @ residual)
