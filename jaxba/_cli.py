@@ -218,15 +218,24 @@ def _add_bal(subparsers) -> None:
 
 
 def _bal(args: argparse.Namespace) -> int:
-    _setup_jax()
-    from jaxba._bal import BalFormatError, run_bal
+    from jaxba._bal import BalFormatError, read_bal
 
+    if args.max_steps < 1:
+        raise _UsageError(f"--max-steps {args.max_steps}: must be at least 1")
+    if args.out.exists() and not args.out.is_dir():
+        raise _UsageError(f"{args.out}: output folder is not a folder")
     try:
-        quiet = {"on_iteration": None} if args.no_progress else {}
-        results = run_bal(args.problem, args.out, max_steps=args.max_steps, **quiet)
+        bal = read_bal(args.problem)  # before jax: a bad file is reported at once
     except (OSError, BalFormatError) as error:
-        _error(str(error))
-        return EXIT_BAD_INPUT
+        raise _UsageError(str(error)) from None
+    _setup_jax()
+    from jaxba._bal import run_bal
+
+    quiet = {"on_iteration": None} if args.no_progress else {}
+    try:
+        results = run_bal(args.problem, args.out, max_steps=args.max_steps, bal=bal, **quiet)
+    except OSError as error:
+        raise _UsageError(str(error)) from None
     _say(
         f"final cost {results['final_cost']:.9e} after {results['iterations']} iterations"
         f" ({results['solve_seconds']:.2f} s solve, {results['compile_seconds']:.2f} s compile);"
@@ -257,11 +266,11 @@ def _add_batch(subparsers) -> None:
 
 
 def _batch(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.out.is_dir():
+        raise _UsageError(f"{args.out}: output folder is not a folder")
     _setup_jax()
     from jaxba._batch_run import run_batch
 
-    if args.out.exists() and not args.out.is_dir():
-        raise _UsageError(f"{args.out}: output folder is not a folder")
     rows = run_batch(args.projects, args.out, progress=_say)
     ok = sum(row["status"] == "ok" for row in rows)
     _say(f"{ok} of {len(rows)} projects converged")

@@ -10,6 +10,7 @@ import json
 import math
 import pathlib
 import shutil
+import subprocess
 import sys
 
 import numpy as np
@@ -301,3 +302,30 @@ def test_solver_option_and_setting(run, tmp_path):
     code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "free"),
                            "--solver", "schur")
     assert code == 2 and "free network" in stderr and "Traceback" not in stderr
+
+
+@pytest.mark.parametrize("command", ["adjust", "bal"])
+def test_bad_input_is_reported_before_jax_is_loaded(tmp_path, command):
+    """Fail fast: a bad project or BAL file ends with exit 2 and the file named, and jax
+    (over a second to import) was never loaded."""
+    if command == "adjust":
+        project_file = _copy_lab(tmp_path / "lab")
+        _edit(project_file.parent / "image_coordinates.txt", "img01", "no_such_image")
+        argv = ["adjust", str(project_file), "--out", str(tmp_path / "out")]
+        named = "image_coordinates.txt"
+    else:
+        (tmp_path / "bad.txt").write_text("2 3 4\n0 0 1.0\n")
+        argv = ["bal", str(tmp_path / "bad.txt"), "--out", str(tmp_path / "out")]
+        named = "bad.txt"
+    script = ("import sys; from jaxba._cli import main; code = main(sys.argv[1:]);"
+              " print(code, 'jax' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True,
+                          text=True, timeout=60)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert named in done.stderr and done.stderr.startswith("jaxba: error: ")
+    assert not (tmp_path / "out").exists()
+
+
+def test_bal_refuses_a_step_limit_below_one(tmp_path):
+    code, _, stderr = _run("bal", str(tmp_path / "any.txt"), "--max-steps", "-5")
+    assert code == 2 and "--max-steps -5" in stderr

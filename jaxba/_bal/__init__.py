@@ -1,16 +1,12 @@
-"""BAL ("Bundle Adjustment in the Large") problems: reader, camera model, benchmark runner."""
+"""BAL ("Bundle Adjustment in the Large") problems: reader, camera model, benchmark runner.
 
-from ._cli import run_bal as run_bal
-from ._model import (
-    bal_initial as bal_initial,
-    bal_project as bal_project,
-    bal_residual as bal_residual,
-    bal_two_block as bal_two_block,
-    rotate_point as rotate_point,
-)
-from ._reader import (
-    CAMERA_PARAMETER_NAMES as CAMERA_PARAMETER_NAMES,
-    BalFormatError as BalFormatError,
-    BalProblem as BalProblem,
-    read_bal as read_bal,
-)
+The reader needs no jax; the rest is imported when first used.
+"""
+
+from .._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._cli": ("run_bal",),
+    "._model": ("bal_initial", "bal_project", "bal_residual", "bal_two_block", "rotate_point"),
+    "._reader": ("CAMERA_PARAMETER_NAMES", "BalFormatError", "BalProblem", "read_bal"),
+})

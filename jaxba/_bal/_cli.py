@@ -22,7 +22,7 @@ from .._schur import SchurLevenbergMarquardt, TwoBlockProblem, TwoBlockY, two_bl
 from .._steps import least_squares_stepwise
 from .._timing import CompileLog
 from ._model import bal_initial, bal_two_block
-from ._reader import read_bal
+from ._reader import BalProblem, read_bal
 
 
 def _solver(problem: TwoBlockProblem, *, rtol, atol, function_tolerance):
@@ -55,6 +55,7 @@ def run_bal(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     on_iteration: Callable[[Iteration], None] | None = _print_iteration,
+    bal: BalProblem | None = None,
 ) -> dict:
     """Solve the BAL problem in `path` (plain, .bz2 or .gz) and write `out_dir/results.json`.
 
@@ -62,7 +63,8 @@ def run_bal(
     parameters free, no robust loss; stops when an accepted step changes the cost by less
     than `function_tolerance` (relative, as Ceres), on optimistix's rtol/atol test, or
     after `max_steps` steps (trial steps, rejected ones included, as Ceres counts
-    iterations). `on_iteration` is called for every accepted iterate (None: silent).
+    iterations). `on_iteration` is called for every accepted iterate (None: silent). `bal`:
+    the problem of `path` if already read (`read_bal`).
     With `on_iteration` the solver runs one compiled step at a time (`least_squares_stepwise`);
     without it the solve is one compiled program and "cost_history" holds only the initial
     and final costs. Neither holds a host callback, so jax's persistent compilation cache
@@ -85,7 +87,7 @@ def run_bal(
         )
     out_dir = pathlib.Path(out_dir)
     start = time.perf_counter()
-    bal = read_bal(path)
+    bal = read_bal(path) if bal is None else bal
     problem = bal_two_block(bal)
     y0 = bal_initial(bal)
     read_seconds = time.perf_counter() - start
