@@ -45,7 +45,18 @@ from .._trust_region import (
     normal_equations_result,
     silent,
 )
-from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
+from ._normal import (
+    _add_diagonal,
+    _matmul,
+    _matvec,
+    _small_inverse,
+    marquardt_diagonal,
+    pair_block_sums,
+)
+from ._problem import _block_rows, _same_point_pairs
+
+# Observation pairs per row of the S assembly (as `TwoBlockProblem.pair_row_size`).
+PAIR_ROW_SIZE = 8
 
 
 class BundleStructure(eqx.Module):
@@ -59,6 +70,11 @@ class BundleStructure(eqx.Module):
       point or the padding row;
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
       per-key blocks (n_keys, m) before one dense scatter;
+    - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
+      (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
+      eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
+      (`_problem._block_rows`; padding: observation n_image_obs, block n_key_pairs);
+      `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
     - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
       (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
       points (padding: observation n_image_obs / local point points_per_chunk / point
@@ -72,6 +88,10 @@ class BundleStructure(eqx.Module):
     image_point: Int[Array, " n_obs1"]
     key: Int[Array, " n_obs1"]
     key_columns: Int[Array, "n_keys m"]
+    pair_first: Int[Array, "n_pair_chunks rows row_size"]
+    pair_second: Int[Array, "n_pair_chunks rows row_size"]
+    pair_block: Int[Array, "n_pair_chunks rows"]
+    key_pairs: Int[Array, "n_key_pairs 2"]
     chunk_obs: Int[Array, "n_chunks max_obs"]
     chunk_local: Int[Array, "n_chunks max_obs"]
     chunk_points: Int[Array, "n_chunks points_per_chunk"]
@@ -89,13 +109,18 @@ class BundleStructure(eqx.Module):
 
 
 def bundle_structure(
-    problem: BundleProblem, *, chunk_mib: float = 64.0, jacobian_batch: int = 16384
+    problem: BundleProblem,
+    *,
+    chunk_mib: float = 64.0,
+    jacobian_batch: int = 16384,
+    pair_batch: int = 4096,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
 
     `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
-    doubles) in the S assembly; `jacobian_batch` is the number of image observations
-    differentiated at once. Raises `ValueError` for observation groups other than
+    doubles) in the point cofactors; `jacobian_batch` is the number of image observations
+    differentiated at once, `pair_batch` the number of observation pairs multiplied at
+    once in S. Raises `ValueError` for observation groups other than
     ImagePoints, ParameterObservations and Distances.
     """
     initial = problem.initial
@@ -144,7 +169,10 @@ def bundle_structure(
     point_rows.append(np.array([n_eliminated]))
     columns, point_rows = np.concatenate(columns), np.concatenate(point_rows)
     key_columns, key = np.unique(columns, axis=0, return_inverse=True)
+    key = np.ravel(key)
     n_obs = columns.shape[0] - 1
+    *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
+                                           pair_batch)
 
     points_per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
     n_chunks = max(1, -(-n_eliminated // points_per_chunk))
@@ -165,8 +193,12 @@ def bundle_structure(
     return BundleStructure(
         image_columns=jnp.asarray(columns),
         image_point=jnp.asarray(point_rows),
-        key=jnp.asarray(np.ravel(key)),
+        key=jnp.asarray(key),
         key_columns=jnp.asarray(key_columns),
+        pair_first=jnp.asarray(pairs[0]),
+        pair_second=jnp.asarray(pairs[1]),
+        pair_block=jnp.asarray(pairs[2]),
+        key_pairs=jnp.asarray(key_pairs),
         chunk_obs=jnp.asarray(chunk_obs),
         chunk_local=jnp.asarray(chunk_local),
         chunk_points=jnp.asarray(chunk_points),
@@ -182,6 +214,31 @@ def bundle_structure(
         points_per_chunk=points_per_chunk,
         jacobian_batch=int(jacobian_batch),
     )
+
+
+def _observation_pairs(
+    point_rows: np.ndarray, key: np.ndarray, n_eliminated: int, pair_batch: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of image observations of one eliminated point that S needs (NumPy).
+
+    `point_rows`, `key`: (n_image_obs,) eliminated-point row (n_eliminated: none) and key
+    of every observation. Returns first, second, block as `_problem._block_rows` lays them
+    out (pairs with key_i >= key_j, rows of `PAIR_ROW_SIZE` pairs of one key pair, padded
+    with observation n_image_obs) and the key pairs (n_key_pairs, 2).
+    """
+    observed = np.flatnonzero(point_rows < n_eliminated)
+    first, second = _same_point_pairs(point_rows[observed], n_eliminated)
+    first, second = observed[first], observed[second]
+    lower = key[first] >= key[second]
+    first, second = first[lower], second[lower]
+    key_pairs, block = np.unique(
+        np.stack([key[first], key[second]], axis=1).reshape(-1, 2), axis=0, return_inverse=True
+    )
+    rows = _block_rows(
+        first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
+    return *rows, key_pairs
 
 
 class BundleNormalEquations(eqx.Module):
@@ -269,9 +326,7 @@ def bundle_normal_equations(
     coupling = jnp.concatenate(couplings)
     per_key, gradient, point_hessian, point_gradient = totals
     key_columns = structure.key_columns
-    flat = key_columns[:, :, None] * (n_r + 1) + key_columns[:, None, :]
-    hessian = jnp.zeros(((n_r + 1) ** 2,), dtype).at[flat].add(per_key)
-    hessian = hessian.reshape(n_r + 1, n_r + 1)
+    hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
 
     residuals = problem.residuals(problem.with_free(params))
     for group, residual in zip(problem.groups, residuals):
@@ -513,7 +568,7 @@ def solve_bundle_damped(
 
 def _chunk_coupling(structure, normal, inverse, obs, local, points):
     """Y (points of the chunk, n_r + 1, 3) = the coupling blocks W of the chunk's
-    observations summed per point (last column: padding), and T = Y V_λ⁻¹ per point."""
+    observations summed per point (last column: padding), and T = Y V⁻¹ per point."""
     n_r, n_points = structure.n_reduced, structure.points_per_chunk
     flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
     y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
@@ -524,29 +579,50 @@ def _chunk_coupling(structure, normal, inverse, obs, local, points):
     return y, t
 
 
+def _dense_from_blocks(
+    n_r: int, rows: Int[Array, "n a"], columns: Int[Array, "n b"], blocks: Float[Array, "n a b"]
+) -> Float[Array, "n_r1 n_r1"]:
+    """Σ_k blocks[k] added at (rows[k], columns[k]) of a dense (n_r + 1, n_r + 1) matrix
+    (row and column n_r: padding)."""
+    flat = rows[:, :, None] * (n_r + 1) + columns[:, None, :]
+    dense = jnp.zeros(((n_r + 1) ** 2,), blocks.dtype).at[flat].add(blocks)
+    return dense.reshape(n_r + 1, n_r + 1)
+
+
 def _schur_complement(
     structure: BundleStructure, normal: BundleNormalEquations, point_inverse: Array
 ) -> tuple[Float[Array, "n_r n_r"], Float[Array, " n_r"]]:
-    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p, a chunk of points at a time."""
-    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p (`point_inverse`: V_λ⁻¹, (n_e, 3, 3)).
+
+    Pair-wise: Y_pᵀ V⁻¹ Y_p = Σ_{i,j ∈ p} W_i V⁻¹ W_jᵀ, and the blocks of the pairs of one
+    key pair (equal reduced columns; for one camera, one image pair) are summed first
+    (`pair_block_sums`, lower key triangle), then mirrored and scattered once. Only the
+    first m - 3 columns of W_i are nonzero for an eliminated point (no reduced point).
+    """
+    n_r, k = structure.n_reduced, structure.m - 3
     dtype = normal.reduced_gradient.dtype
-    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
-    eliminated_gradient = jnp.sum(inverse[:-1] * normal.point_gradient[:, None, :], axis=2)
-    eliminated_gradient = jnp.concatenate([eliminated_gradient, jnp.zeros((1, 3), dtype)])
-
-    def accumulate(totals, chunk):
-        product, rhs = totals
-        obs, local, points = chunk
-        y, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
-        y_flat = y.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-        product = product - t_flat @ y_flat.T
-        rhs = rhs + y_flat @ jnp.ravel(eliminated_gradient[points])
-        return (product, rhs), None
-
-    zeros = (jnp.zeros((n_r + 1, n_r + 1), dtype), jnp.zeros(n_r + 1, dtype))
-    (product, rhs), _ = jax.lax.scan(accumulate, zeros, _point_chunks(structure))
-    return product[:n_r, :n_r], rhs[:n_r]
+    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])[structure.image_point]
+    coupling_t = normal.coupling[:, :k, :].transpose(0, 2, 1)  # W_iᵀ (n_obs1, 3, k)
+    blocks = pair_block_sums(
+        _matmul(inverse, coupling_t), coupling_t, structure.pair_first, structure.pair_second,
+        structure.pair_block, structure.key_pairs.shape[0],
+    )
+    first = structure.key_columns[structure.key_pairs[:, 0], :k]
+    second = structure.key_columns[structure.key_pairs[:, 1], :k]
+    mirrored = jnp.where(
+        (structure.key_pairs[:, 0] != structure.key_pairs[:, 1])[:, None, None],
+        blocks.transpose(0, 2, 1), 0.0,
+    )
+    product = _dense_from_blocks(
+        n_r, jnp.concatenate([first, second]), jnp.concatenate([second, first]),
+        jnp.concatenate([blocks, mirrored]),
+    )
+    eliminated_gradient = jnp.concatenate(
+        [_matvec(point_inverse, normal.point_gradient), jnp.zeros((1, 3), dtype)]
+    )
+    per_observation = _matvec(normal.coupling[:, :k, :], eliminated_gradient[structure.image_point])
+    rhs = jnp.zeros(n_r + 1, dtype).at[structure.image_columns[:, :k]].add(per_observation)
+    return -product[:n_r, :n_r], rhs[:n_r]
 
 
 def bundle_predicted_reduction(
