@@ -2,14 +2,17 @@
 
     python benchmarks/close_range_block.py [--images 60] [--points 26000] [--repeat 3]
 
-`images` cameras on a ring of radius 15 m, at 1.5 m height, look at the axis of a cylinder
-(radius 5 m, height 3 m) carrying `points` points; each point is seen by the 3 or 4 images
-nearest to it in azimuth (3.4 on average: 60 x 26000 -> ~88k image points, ~79k unknowns).
+`images` cameras on a ring of radius 15 m, at 0.5 m and 2.5 m height in turn, every third
+rolled by 90°, look at the axis of a cylinder (radius 5 m, height 3 m) carrying `points`
+points; each point is seen by 3 or 4 images 3 ring steps apart around the nearest one in
+azimuth (3.4 on average: 60 x 26000 -> ~88k image points, ~79k unknowns).
 One SMAC camera (c = 35 mm), free xp, yp, c, K1, K2; image σ 0.004 mm with that noise; datum
 from 12 control points (5 mm) and 3 distances (1 mm). Approximations: EOPs ±0.05 m / ±0.2°,
 points ±0.05 m, c +0.05 mm. Prints the problem size, the seconds of one normal-equation
-build and of one damped solve (the per-trial-step work; best of `repeat`), then the compile
-and solve seconds of `solve_schur` (JSON on the last line).
+build (once per accepted iterate) and of one damped solve (every trial step), best of
+`repeat`, then the compile and solve seconds of `solve_schur` (JSON on the last line); CPU
+seconds count all threads of the process, a measure of the work that a loaded machine does
+not inflate.
 """
 
 import argparse
@@ -35,12 +38,15 @@ from jaxba._rotation import matrix_to_opk  # noqa: E402
 FREE_IOP = np.array([1, 1, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0], dtype=bool)
 
 
-def _look_at(station: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """ω, φ, κ of a camera at `station` whose viewing direction (-z) points at `target`."""
+def _look_at(station: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
+    """ω, φ, κ of a camera at `station` whose viewing direction (-z) points at `target`,
+    rolled by `roll` (rad) about it."""
     back = (station - target) / np.linalg.norm(station - target)
     right = np.cross([0.0, 0.0, 1.0], back)
     right /= np.linalg.norm(right)
-    rotation = np.stack([right, np.cross(back, right), back])  # rows: camera axes
+    up = np.cross(back, right)
+    x = np.cos(roll) * right + np.sin(roll) * up
+    rotation = np.stack([x, np.cross(back, x), back])  # rows: camera axes
     return np.asarray(matrix_to_opk(jnp.asarray(rotation)))
 
 
@@ -48,16 +54,18 @@ def close_range_block(n_images: int = 60, n_points: int = 26000, *, seed: int = 
     """The block described in the module docstring as a `BundleProblem`."""
     rng = np.random.default_rng(seed)
     azimuth = 2 * np.pi * np.arange(n_images) / n_images
-    stations = np.column_stack([15 * np.cos(azimuth), 15 * np.sin(azimuth),
-                                np.full(n_images, 1.5)])
-    eops = np.column_stack([stations, [_look_at(s, np.array([0, 0, 1.5])) for s in stations]])
+    heights = np.where(np.arange(n_images) % 2, 0.5, 2.5)
+    stations = np.column_stack([15 * np.cos(azimuth), 15 * np.sin(azimuth), heights])
+    rolls = np.pi / 2 * (np.arange(n_images) % 3 == 0)
+    angles = [_look_at(s, np.array([0, 0, 1.5]), roll) for s, roll in zip(stations, rolls)]
+    eops = np.column_stack([stations, angles])
     theta = rng.uniform(0, 2 * np.pi, n_points)
     points = np.column_stack([5 * np.cos(theta), 5 * np.sin(theta), rng.uniform(0, 3, n_points)])
 
     step = 2 * np.pi / n_images
     seen = 3 + (rng.random(n_points) < 0.4)
     nearest = np.round(theta / step).astype(int)
-    offsets = np.array([0, -1, 1, 2])
+    offsets = np.array([0, -3, 3, 6])
     image = np.concatenate([(nearest[seen > k] + offsets[k]) % n_images for k in range(4)])
     point = np.concatenate([np.flatnonzero(seen > k) for k in range(4)])
     measured = jax.jit(jax.vmap(_project, in_axes=(None, 0, 0)))(
@@ -100,15 +108,18 @@ def close_range_block(n_images: int = 60, n_points: int = 26000, *, seed: int = 
     return BundleProblem(initial=initial, free=free, groups=groups)
 
 
-def _best_seconds(function, *args, repeat: int) -> float:
-    """The fastest of `repeat` timed calls of a compiled `function` (after one warm-up)."""
+def _best_seconds(function, *args, repeat: int) -> tuple[float, float]:
+    """The fastest of `repeat` timed calls of a compiled `function` (after one warm-up):
+    wall seconds and the process's CPU seconds (all threads; a loaded machine does not
+    inflate them)."""
     jax.block_until_ready(function(*args))
-    times = []
+    wall, cpu = [], []
     for _ in range(repeat):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         jax.block_until_ready(function(*args))
-        times.append(time.perf_counter() - start)
-    return min(times)
+        wall.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+    return min(wall), min(cpu)
 
 
 def main() -> None:
@@ -139,29 +150,32 @@ def main() -> None:
     normal_seconds = _best_seconds(normal_fn, problem, structure, problem.initial,
                                    repeat=args.repeat)
     damped_seconds = _best_seconds(damped_fn, structure, normal, 1e-3, repeat=args.repeat)
-    print(f"normal equations {normal_seconds:.3f} s, damped solve {damped_seconds:.3f} s",
-          flush=True)
+    print(f"normal equations {normal_seconds[0]:.3f} s ({normal_seconds[1]:.3f} s CPU), damped"
+          f" solve {damped_seconds[0]:.3f} s ({damped_seconds[1]:.3f} s CPU)", flush=True)
 
     settings = (args.max_steps, 1e-10, 1e-10, FUNCTION_TOLERANCE, None)
     start = time.perf_counter()
     compiled = _solve_schur.lower(problem, structure, *settings).compile()
     compile_seconds = time.perf_counter() - start
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     solution = jax.block_until_ready(compiled(problem, structure, *settings))
-    solve_seconds = time.perf_counter() - start
+    solve_seconds, solve_cpu = time.perf_counter() - start, time.process_time() - start_cpu
     print(json.dumps({
         "n_images": args.images,
         "n_points": args.points,
         "n_residuals": n_residuals,
         "n_unknowns": problem.n_unknowns(),
         "n_reduced": structure.n_reduced,
-        "normal_equations_seconds": normal_seconds,
-        "damped_solve_seconds": damped_seconds,
+        "normal_equations_seconds": normal_seconds[0],
+        "normal_equations_cpu_seconds": normal_seconds[1],
+        "damped_solve_seconds": damped_seconds[0],
+        "damped_solve_cpu_seconds": damped_seconds[1],
         "final_cost": float(solution.cost),
         "steps": int(solution.steps),
         "converged": bool(solution.converged),
         "compile_seconds": compile_seconds,
         "solve_seconds": solve_seconds,
+        "solve_cpu_seconds": solve_cpu,
     }))
 
 

@@ -65,11 +65,14 @@ class BundleStructure(eqx.Module):
     Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
     then the reduced points); column n_reduced is a dummy that absorbs padding.
     - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
-      (all ImagePoints groups concatenated; the last row is a padding observation);
+      (all ImagePoints groups concatenated; the last row is a padding observation): the
+      model's IOPs in `iop_columns`, the 6 EOPs, padding, the 3 columns of a reduced point;
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
       point or the padding row;
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
-      per-key blocks (n_keys, m) before one dense scatter;
+      per-key blocks (n_keys, m) before one dense scatter; `key_rows` (n_key_chunks, rows,
+      PAIR_ROW_SIZE), `key_row_block` (n_key_chunks, rows): the image observations in rows
+      of one key each (`_problem._block_rows`, padding as for the pairs below);
     - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
       (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
       eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
@@ -81,13 +84,17 @@ class BundleStructure(eqx.Module):
       n_eliminated);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
-    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise.
+    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
+    - `iop_columns`: per model (in `models` order), the IOPs free in some camera of it: the
+      only IOP columns an observation carries (fixed ones would be zero).
     """
 
     image_columns: Int[Array, "n_obs1 m"]
     image_point: Int[Array, " n_obs1"]
     key: Int[Array, " n_obs1"]
     key_columns: Int[Array, "n_keys m"]
+    key_rows: Int[Array, "n_key_chunks rows row_size"]
+    key_row_block: Int[Array, "n_key_chunks rows"]
     pair_first: Int[Array, "n_pair_chunks rows row_size"]
     pair_second: Int[Array, "n_pair_chunks rows row_size"]
     pair_block: Int[Array, "n_pair_chunks rows"]
@@ -100,6 +107,7 @@ class BundleStructure(eqx.Module):
     point_column: Int[Array, " n_points"]
     eliminated_index: Int[Array, " n_points"]
     models: tuple[str, ...] = eqx.field(static=True)
+    iop_columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     camera_offsets: tuple[int, ...] = eqx.field(static=True)
     image_offset: int = eqx.field(static=True)
     n_reduced: int = eqx.field(static=True)
@@ -120,7 +128,8 @@ def bundle_structure(
     `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
     doubles) in the point cofactors; `jacobian_batch` is the number of image observations
     differentiated at once, `pair_batch` the number of observation pairs multiplied at
-    once in S. Raises `ValueError` for observation groups other than
+    once in S. The split depends on `problem.free` (`iop_columns`): rebuild it when the
+    free mask changes. Raises `ValueError` for observation groups other than
     ImagePoints, ParameterObservations and Distances.
     """
     initial = problem.initial
@@ -151,16 +160,23 @@ def bundle_structure(
     eliminated_index = np.full(n_points, n_eliminated, dtype=np.int64)
     eliminated_index[eliminated_points] = np.arange(n_eliminated)
 
+    iop_columns = tuple(
+        tuple(int(c) for c in np.flatnonzero(np.any(np.asarray(problem.free.cameras[model]), 0)))
+        for model in models
+    )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
-    m = max([int(initial.cameras[g.model].shape[1]) for g in images], default=0) + 9
+    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 9
     columns, point_rows = [], []
     for group in images:
         model_index = models.index(group.model)
         n_iop = int(initial.cameras[group.model].shape[1])
+        free_iop = np.asarray(iop_columns[model_index], dtype=np.int64)
         camera, image, point = (np.asarray(a) for a in (group.camera, group.image, group.point))
         block = np.full((camera.size, m), n_reduced, dtype=np.int64)
-        block[:, :n_iop] = offsets[model_index] + camera[:, None] * n_iop + np.arange(n_iop)
-        block[:, n_iop : n_iop + 6] = image_offset + image[:, None] * 6 + np.arange(6)
+        block[:, : free_iop.size] = offsets[model_index] + camera[:, None] * n_iop + free_iop
+        block[:, free_iop.size : free_iop.size + 6] = (
+            image_offset + image[:, None] * 6 + np.arange(6)
+        )
         reduced = point_column[point] >= 0
         block[reduced, m - 3 :] = point_column[point[reduced], None] + np.arange(3)
         columns.append(block)
@@ -173,6 +189,11 @@ def bundle_structure(
     n_obs = columns.shape[0] - 1
     *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
                                            pair_batch)
+    observations = np.arange(n_obs)
+    key_rows, _, key_row_block = _block_rows(
+        observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
 
     points_per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
     n_chunks = max(1, -(-n_eliminated // points_per_chunk))
@@ -195,6 +216,8 @@ def bundle_structure(
         image_point=jnp.asarray(point_rows),
         key=jnp.asarray(key),
         key_columns=jnp.asarray(key_columns),
+        key_rows=jnp.asarray(key_rows),
+        key_row_block=jnp.asarray(key_row_block),
         pair_first=jnp.asarray(pairs[0]),
         pair_second=jnp.asarray(pairs[1]),
         pair_block=jnp.asarray(pairs[2]),
@@ -207,6 +230,7 @@ def bundle_structure(
         point_column=jnp.asarray(point_column),
         eliminated_index=jnp.asarray(eliminated_index),
         models=models,
+        iop_columns=iop_columns,
         camera_offsets=tuple(offsets),
         image_offset=image_offset,
         n_reduced=int(n_reduced),
@@ -298,35 +322,25 @@ def bundle_normal_equations(
     max_diagonal: float = 1e32,
 ) -> BundleNormalEquations:
     """U, V, W, g and the Marquardt damping of `problem` at `params` (all unknowns' values)."""
-    n_r, m = structure.n_reduced, structure.m
+    n_r = structure.n_reduced
     n_e = structure.eliminated_points.shape[0]
     dtype = params.images.dtype
     free_r, free_e = _free_masks(problem, structure, dtype)
     free_points = problem.free.points.astype(dtype)
 
-    n_keys = structure.key_columns.shape[0]
-    totals = (
-        jnp.zeros((n_keys, m, m), dtype),
-        jnp.zeros(n_r + 1, dtype),
-        jnp.zeros((n_e + 1, 3, 3), dtype),
-        jnp.zeros((n_e + 1, 3), dtype),
+    jr, je, e = _image_blocks(problem, structure, params, free_r, free_e)
+    per_key = pair_block_sums(
+        jr, jr, structure.key_rows, structure.key_rows, structure.key_row_block,
+        structure.key_columns.shape[0],
     )
-    couplings, start = [], 0
-    for group in problem.groups:
-        if not isinstance(group, ImagePoints):
-            continue
-        n = group.point.shape[0]
-        stop = start + n
-        totals, coupling = _accumulate_image_group(
-            problem, structure, group, params, free_r, free_e, totals, start, stop
-        )
-        couplings.append(coupling)
-        start = stop
-    couplings.append(jnp.zeros((1, m, 3), dtype))
-    coupling = jnp.concatenate(couplings)
-    per_key, gradient, point_hessian, point_gradient = totals
     key_columns = structure.key_columns
     hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
+    gradient = jnp.zeros(n_r + 1, dtype).at[structure.image_columns].add(_transposed_product(jr, e))
+    point_hessian = jnp.zeros((n_e + 1, 3, 3), dtype).at[structure.image_point].add(_gram(je, je))
+    point_gradient = jnp.zeros((n_e + 1, 3), dtype).at[structure.image_point].add(
+        _transposed_product(je, e)
+    )
+    coupling = _gram(jr, je)
 
     residuals = problem.residuals(problem.with_free(params))
     for group, residual in zip(problem.groups, residuals):
@@ -411,42 +425,40 @@ def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n
     return sum(a[:, k, :, None] * b[:, k, None, :] for k in range(a.shape[1]))
 
 
-def _accumulate_image_group(
+def _transposed_product(a: Float[Array, "n k i"], e: Float[Array, "n k"]) -> Float[Array, "n i"]:
+    """aᵀe per observation (a Jacobian block times its residual: the gradient part)."""
+    return jnp.sum(a * e[:, :, None], axis=1)
+
+
+def _image_blocks(
     problem: BundleProblem,
     structure: BundleStructure,
-    group: ImagePoints,
     params: Parameters,
     free_r: Array,
     free_e: Array,
-    totals: tuple[Array, Array, Array, Array],
-    start: int,
-    stop: int,
-) -> tuple[tuple[Array, Array, Array, Array], Float[Array, "n m 3"]]:
-    """Add one ImagePoints group to (U per key, g_r, V, g_e), a chunk of observations at
-    a time (`jax.lax.scan`: the per-observation m x m products never exist for all
-    observations at once); returns the totals and the group's couplings W_i (n, m, 3).
-
-    Observations [start, stop) of the structure's concatenated image observations.
-    """
+) -> tuple[Float[Array, "n_obs1 2 m"], Float[Array, "n_obs1 2 3"], Float[Array, "n_obs1 2"]]:
+    """jr, je and e (`_image_jacobian_blocks`) of all image observations in the structure's
+    order, with a zero padding row last; `structure.jacobian_batch` observations are
+    differentiated at a time (`jax.lax.scan`). Memory O(n_obs m), as W's."""
     params = problem.with_free(params)
+    dtype = params.images.dtype
+    parts, start = [], 0
+    for group in problem.groups:
+        if not isinstance(group, ImagePoints):
+            continue
+        stop = start + group.point.shape[0]
 
-    def accumulate(totals, chunk):
-        per_key, gradient, point_hessian, point_gradient = totals
-        *observations, key = chunk
-        jr, je, e = _image_jacobian_blocks(
-            problem, structure, group, params, free_r, free_e, observations)
-        columns, point_row = observations[-2:]
-        totals = (
-            per_key + jax.ops.segment_sum(_gram(jr, jr), key, per_key.shape[0]),
-            gradient.at[columns].add(jnp.sum(jr * e[:, :, None], axis=1), mode="drop"),
-            point_hessian.at[point_row].add(_gram(je, je), mode="drop"),
-            point_gradient.at[point_row].add(jnp.sum(je * e[:, :, None], axis=1), mode="drop"),
-        )
-        return totals, _gram(jr, je)
+        def blocks(_, chunk, group=group):
+            observations = list(chunk[:-1])  # less the key
+            return None, _image_jacobian_blocks(
+                problem, structure, group, params, free_r, free_e, observations)
 
-    chunks = _image_group_chunks(structure, group, start, stop)
-    totals, coupling = jax.lax.scan(accumulate, totals, chunks)
-    return totals, coupling.reshape(-1, structure.m, 3)[: stop - start]
+        _, out = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start, stop))
+        parts.append([x.reshape(-1, *x.shape[2:])[: stop - start] for x in out])
+        start = stop
+    padding = [jnp.zeros((1, 2, structure.m), dtype), jnp.zeros((1, 2, 3), dtype),
+               jnp.zeros((1, 2), dtype)]
+    return tuple(jnp.concatenate([*(p[i] for p in parts), padding[i]]) for i in range(3))
 
 
 def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
@@ -492,12 +504,15 @@ def _image_jacobian_blocks(
     rows, less the key) at `params` (all values set): jr over the observation's reduced
     columns (a reduced point's columns included), je over its eliminated point (0 for a
     reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
-    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`)."""
+    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
+    Only the IOPs in `structure.iop_columns` are differentiated."""
     camera, image, point, measured, sigma, mask, columns, point_row = observations
-    m, n_iop = structure.m, params.cameras[group.model].shape[1]
+    iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
+    m, n_iop = structure.m, iop_columns.size
     dtype = params.images.dtype
 
-    def residual(iop, eop, point, measured, sigma, mask):
+    def residual(free_iop, iop, eop, point, measured, sigma, mask):
+        iop = iop.at[iop_columns].set(free_iop)
         e = collinearity_residual(
             group.model, iop, eop, point, measured, sigma, problem.refraction
         )
@@ -505,11 +520,9 @@ def _image_jacobian_blocks(
         return e if problem.robust is None else problem.robust(e)
 
     def one(iop, eop, point, measured, sigma, mask):
-        j_iop, j_eop, j_point = jax.jacfwd(residual, argnums=(0, 1, 2))(
-            iop, eop, point, measured, sigma, mask
-        )
-        e = residual(iop, eop, point, measured, sigma, mask)
-        return jnp.concatenate([j_iop, j_eop], axis=1), j_point, e
+        arguments = (iop[iop_columns], iop, eop, point, measured, sigma, mask)
+        j_iop, j_eop, j_point = jax.jacrev(residual, argnums=(0, 2, 3))(*arguments)
+        return jnp.concatenate([j_iop, j_eop], axis=1), j_point, residual(*arguments)
 
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
