@@ -8,18 +8,20 @@ The unknowns split into a reduced ("camera") side and an eliminated point side:
 - point side, e: every other object point, 3 unknowns each.
 
 Image observation i touches one IOP row, one EOP row and one point, so its Jacobian splits
-into J_r,i (2 x m: n_iop + 6, plus 3 for a reduced-side point) and J_e,i (2 x 3). With
-U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i + control (3 x 3 per
-point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations reduce to
+into J_r,i (2 x m: the model's free IOPs + 6 EOPs, plus 3 for a reduced-side point) and
+J_e,i (2 x 3). With U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i +
+control (3 x 3 per point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations
+reduce to
 
     S x_r = g_r - Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p,   S = U + λD_r - Σ_p Y_pᵀ V_λ,p⁻¹ Y_p,
 
 Y_p = Σ_{i∈p} W_iᵀ (3 x n_r, the coupling of point p with the reduced side), then
 x_e,p = V_λ,p⁻¹ (g_e,p - Y_p x_r) (Triggs et al., "Bundle adjustment - a modern synthesis",
-2000, section 6.1). S is assembled a chunk of points at a time: Y of a chunk is scattered
-into a dense (3 P x n_r) matrix and Σ_p Y_pᵀ V⁻¹ Y_p is one matrix product, so memory is
-O(n_obs + n_r² + P n_r) and the work O(n_points n_r²) per trial step (cheap when the
-reduced side is small and points are seen by many images, as in close-range blocks).
+2000, section 6.1). S is assembled pair-wise, as BAL's reduced camera matrix
+(`_normal.py`): Y_pᵀ V⁻¹ Y_p = Σ_{i,j∈p} W_i V⁻¹ W_jᵀ over the pairs of observations of
+each point, the pairs of one key pair (same reduced columns: for one camera, one pair of
+images) summed first and scattered once into the dense S. Work O(n_pairs m²) per trial step
+(n_pairs = Σ_p n_obs,p²/2), memory O(n_obs m + n_r²); U is summed per key the same way.
 
 Fixed unknowns (False in `problem.free`) get zero Jacobian columns and a unit diagonal:
 their step is exactly 0. Control points / GNSS-INS / IOP priors (`ParameterObservations`)
@@ -35,9 +37,15 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int, Scalar
 
 from .._cholesky import cholesky_solve
-from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
+from .._observations import (
+    Distances,
+    ImagePoints,
+    ParameterObservations,
+    _rotated_collinearity_residual,
+)
 from .._parameters import Parameters, flatten, unflatten
 from .._problem import BundleProblem, free_indices
+from .._rotation import opk_to_matrix
 from .._statistics import Precision, SchurCovariance
 from .._trust_region import (
     AbstractNormalDescent,
@@ -80,8 +88,8 @@ class BundleStructure(eqx.Module):
       `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
     - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
       (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
-      points (padding: observation n_image_obs / local point points_per_chunk / point
-      n_eliminated);
+      points, for the point cofactors (padding: observation n_image_obs / local point
+      points_per_chunk / point n_eliminated);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
     - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
@@ -505,28 +513,39 @@ def _image_jacobian_blocks(
     columns (a reduced point's columns included), je over its eliminated point (0 for a
     reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
     the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
-    Only the IOPs in `structure.iop_columns` are differentiated."""
+    Only the IOPs in `structure.iop_columns` are differentiated. The rotation M(ω, φ, κ)
+    and ∂M/∂(ω, φ, κ) are computed once per image, and the rotation of a row is
+    M + ∂M/∂(ω, φ, κ) δ at δ = 0, whose derivative in δ is the one in (ω, φ, κ)."""
     camera, image, point, measured, sigma, mask, columns, point_row = observations
     iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
     m, n_iop = structure.m, iop_columns.size
     dtype = params.images.dtype
+    angles = params.images[:, 3:]
+    rotations = jax.vmap(opk_to_matrix)(angles)  # (n_images, 3, 3)
+    rotation_derivatives = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)  # (n_images, 3, 3, 3)
 
-    def residual(free_iop, iop, eop, point, measured, sigma, mask):
+    def residual(free_iop, station, delta, point, iop, rotation, derivative, data):
         iop = iop.at[iop_columns].set(free_iop)
-        e = collinearity_residual(
-            group.model, iop, eop, point, measured, sigma, problem.refraction
+        e = _rotated_collinearity_residual(
+            group.model, iop, station, rotation + derivative @ delta, point, *data[:2],
+            problem.refraction,
         )
-        e = jnp.where(mask, e, 0.0)
+        e = jnp.where(data[2], e, 0.0)
         return e if problem.robust is None else problem.robust(e)
 
-    def one(iop, eop, point, measured, sigma, mask):
-        arguments = (iop[iop_columns], iop, eop, point, measured, sigma, mask)
-        j_iop, j_eop, j_point = jax.jacrev(residual, argnums=(0, 2, 3))(*arguments)
-        return jnp.concatenate([j_iop, j_eop], axis=1), j_point, residual(*arguments)
+    def one(iop, station, rotation, derivative, point, *data):
+        arguments = (iop[iop_columns], station, jnp.zeros(3, dtype), point, iop, rotation,
+                     derivative, data)
+        j_iop, j_station, j_angles, j_point = jax.jacrev(residual, argnums=(0, 1, 2, 3))(
+            *arguments)
+        jc = jnp.concatenate([j_iop, j_station, j_angles], axis=1)
+        return jc, j_point, residual(*arguments)
 
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
-        params.images.at[image].get(mode="clip"),
+        params.images[:, :3].at[image].get(mode="clip"),
+        rotations.at[image].get(mode="clip"),
+        rotation_derivatives.at[image].get(mode="clip"),
         params.points.at[point].get(mode="clip"),
         measured,
         sigma,
