@@ -771,7 +771,7 @@ def solve_schur(
     it). `progress=True` reports every step through `jaxba._progress.report_step` (as
     `solve`, for `adjust`'s iteration listing); progress=False has no host callback, so
     that the compiled solve can be stored in jax's persistent compilation cache.
-    Memory O(n_obs + n_r² + chunk), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
+    Memory O(n_obs m + n_r²), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
     distance points.
     """
     del free_index
