@@ -8,18 +8,20 @@ The unknowns split into a reduced ("camera") side and an eliminated point side:
 - point side, e: every other object point, 3 unknowns each.
 
 Image observation i touches one IOP row, one EOP row and one point, so its Jacobian splits
-into J_r,i (2 x m: n_iop + 6, plus 3 for a reduced-side point) and J_e,i (2 x 3). With
-U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i + control (3 x 3 per
-point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations reduce to
+into J_r,i (2 x m: the model's free IOPs + 6 EOPs, plus 3 for a reduced-side point) and
+J_e,i (2 x 3). With U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i +
+control (3 x 3 per point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations
+reduce to
 
     S x_r = g_r - Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p,   S = U + λD_r - Σ_p Y_pᵀ V_λ,p⁻¹ Y_p,
 
 Y_p = Σ_{i∈p} W_iᵀ (3 x n_r, the coupling of point p with the reduced side), then
 x_e,p = V_λ,p⁻¹ (g_e,p - Y_p x_r) (Triggs et al., "Bundle adjustment - a modern synthesis",
-2000, section 6.1). S is assembled a chunk of points at a time: Y of a chunk is scattered
-into a dense (3 P x n_r) matrix and Σ_p Y_pᵀ V⁻¹ Y_p is one matrix product, so memory is
-O(n_obs + n_r² + P n_r) and the work O(n_points n_r²) per trial step (cheap when the
-reduced side is small and points are seen by many images, as in close-range blocks).
+2000, section 6.1). S is assembled pair-wise, as BAL's reduced camera matrix
+(`_normal.py`): Y_pᵀ V⁻¹ Y_p = Σ_{i,j∈p} W_i V⁻¹ W_jᵀ over the pairs of observations of
+each point, the pairs of one key pair (same reduced columns: for one camera, one pair of
+images) summed first and scattered once into the dense S. Work O(n_pairs m²) per trial step
+(n_pairs = Σ_p n_obs,p²/2), memory O(n_obs m + n_r²); U is summed per key the same way.
 
 Fixed unknowns (False in `problem.free`) get zero Jacobian columns and a unit diagonal:
 their step is exactly 0. Control points / GNSS-INS / IOP priors (`ParameterObservations`)
@@ -36,14 +38,31 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int, Scalar
 
 from .._cholesky import cholesky_solve
-from .._observations import Distances, ImagePoints, ParameterObservations, collinearity_residual
+from .._observations import (
+    Distances,
+    ImagePoints,
+    ParameterObservations,
+    _rotated_collinearity_residual,
+)
 from .._parameters import Parameters, flatten, unflatten
 from .._problem import BundleProblem, free_indices
+from .._rotation import opk_to_matrix
 from .._solution import Solution
 from .._statistics import Precision, SchurCovariance
 from .._steps import StepInfo, least_squares_stepwise
 from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, normal_equations_result
-from ._normal import _add_diagonal, _small_inverse, marquardt_diagonal
+from ._normal import (
+    _add_diagonal,
+    _matmul,
+    _matvec,
+    _small_inverse,
+    marquardt_diagonal,
+    pair_block_sums,
+)
+from ._problem import _block_rows, _same_point_pairs
+
+# Observation pairs per row of the S assembly (as `TwoBlockProblem.pair_row_size`).
+PAIR_ROW_SIZE = 8
 
 
 class BundleStructure(eqx.Module):
@@ -52,24 +71,40 @@ class BundleStructure(eqx.Module):
     Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
     then the reduced points); column n_reduced is a dummy that absorbs padding.
     - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
-      (all ImagePoints groups concatenated; the last row is a padding observation);
+      (all ImagePoints groups concatenated; the last row is a padding observation): the
+      model's IOPs in `iop_columns`, the 6 EOPs, padding, the 3 columns of a reduced point;
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
       point or the padding row;
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
-      per-key blocks (n_keys, m) before one dense scatter;
+      per-key blocks (n_keys, m) before one dense scatter; `key_rows` (n_key_chunks, rows,
+      PAIR_ROW_SIZE), `key_row_block` (n_key_chunks, rows): the image observations in rows
+      of one key each (`_problem._block_rows`, padding as for the pairs below);
+    - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
+      (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
+      eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
+      (`_problem._block_rows`; padding: observation n_image_obs, block n_key_pairs);
+      `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
     - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
       (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
-      points (padding: observation n_image_obs / local point points_per_chunk / point
-      n_eliminated);
+      points, for the point cofactors (padding: observation n_image_obs / local point
+      points_per_chunk / point n_eliminated);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
-    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise.
+    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
+    - `iop_columns`: per model (in `models` order), the IOPs free in some camera of it: the
+      only IOP columns an observation carries (fixed ones would be zero).
     """
 
     image_columns: Int[Array, "n_obs1 m"]
     image_point: Int[Array, " n_obs1"]
     key: Int[Array, " n_obs1"]
     key_columns: Int[Array, "n_keys m"]
+    key_rows: Int[Array, "n_key_chunks rows row_size"]
+    key_row_block: Int[Array, "n_key_chunks rows"]
+    pair_first: Int[Array, "n_pair_chunks rows row_size"]
+    pair_second: Int[Array, "n_pair_chunks rows row_size"]
+    pair_block: Int[Array, "n_pair_chunks rows"]
+    key_pairs: Int[Array, "n_key_pairs 2"]
     chunk_obs: Int[Array, "n_chunks max_obs"]
     chunk_local: Int[Array, "n_chunks max_obs"]
     chunk_points: Int[Array, "n_chunks points_per_chunk"]
@@ -78,6 +113,7 @@ class BundleStructure(eqx.Module):
     point_column: Int[Array, " n_points"]
     eliminated_index: Int[Array, " n_points"]
     models: tuple[str, ...] = eqx.field(static=True)
+    iop_columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     camera_offsets: tuple[int, ...] = eqx.field(static=True)
     image_offset: int = eqx.field(static=True)
     n_reduced: int = eqx.field(static=True)
@@ -87,13 +123,19 @@ class BundleStructure(eqx.Module):
 
 
 def bundle_structure(
-    problem: BundleProblem, *, chunk_mib: float = 64.0, jacobian_batch: int = 16384
+    problem: BundleProblem,
+    *,
+    chunk_mib: float = 64.0,
+    jacobian_batch: int = 16384,
+    pair_batch: int = 4096,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
 
     `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
-    doubles) in the S assembly; `jacobian_batch` is the number of image observations
-    differentiated at once. Raises `ValueError` for observation groups other than
+    doubles) in the point cofactors; `jacobian_batch` is the number of image observations
+    differentiated at once, `pair_batch` the number of observation pairs multiplied at
+    once in S. The split depends on `problem.free` (`iop_columns`): rebuild it when the
+    free mask changes. Raises `ValueError` for observation groups other than
     ImagePoints, ParameterObservations and Distances.
     """
     initial = problem.initial
@@ -124,16 +166,23 @@ def bundle_structure(
     eliminated_index = np.full(n_points, n_eliminated, dtype=np.int64)
     eliminated_index[eliminated_points] = np.arange(n_eliminated)
 
+    iop_columns = tuple(
+        tuple(int(c) for c in np.flatnonzero(np.any(np.asarray(problem.free.cameras[model]), 0)))
+        for model in models
+    )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
-    m = max([int(initial.cameras[g.model].shape[1]) for g in images], default=0) + 9
+    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 9
     columns, point_rows = [], []
     for group in images:
         model_index = models.index(group.model)
         n_iop = int(initial.cameras[group.model].shape[1])
+        free_iop = np.asarray(iop_columns[model_index], dtype=np.int64)
         camera, image, point = (np.asarray(a) for a in (group.camera, group.image, group.point))
         block = np.full((camera.size, m), n_reduced, dtype=np.int64)
-        block[:, :n_iop] = offsets[model_index] + camera[:, None] * n_iop + np.arange(n_iop)
-        block[:, n_iop : n_iop + 6] = image_offset + image[:, None] * 6 + np.arange(6)
+        block[:, : free_iop.size] = offsets[model_index] + camera[:, None] * n_iop + free_iop
+        block[:, free_iop.size : free_iop.size + 6] = (
+            image_offset + image[:, None] * 6 + np.arange(6)
+        )
         reduced = point_column[point] >= 0
         block[reduced, m - 3 :] = point_column[point[reduced], None] + np.arange(3)
         columns.append(block)
@@ -142,7 +191,15 @@ def bundle_structure(
     point_rows.append(np.array([n_eliminated]))
     columns, point_rows = np.concatenate(columns), np.concatenate(point_rows)
     key_columns, key = np.unique(columns, axis=0, return_inverse=True)
+    key = np.ravel(key)
     n_obs = columns.shape[0] - 1
+    *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
+                                           pair_batch)
+    observations = np.arange(n_obs)
+    key_rows, _, key_row_block = _block_rows(
+        observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
 
     points_per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
     n_chunks = max(1, -(-n_eliminated // points_per_chunk))
@@ -163,8 +220,14 @@ def bundle_structure(
     return BundleStructure(
         image_columns=jnp.asarray(columns),
         image_point=jnp.asarray(point_rows),
-        key=jnp.asarray(np.ravel(key)),
+        key=jnp.asarray(key),
         key_columns=jnp.asarray(key_columns),
+        key_rows=jnp.asarray(key_rows),
+        key_row_block=jnp.asarray(key_row_block),
+        pair_first=jnp.asarray(pairs[0]),
+        pair_second=jnp.asarray(pairs[1]),
+        pair_block=jnp.asarray(pairs[2]),
+        key_pairs=jnp.asarray(key_pairs),
         chunk_obs=jnp.asarray(chunk_obs),
         chunk_local=jnp.asarray(chunk_local),
         chunk_points=jnp.asarray(chunk_points),
@@ -173,6 +236,7 @@ def bundle_structure(
         point_column=jnp.asarray(point_column),
         eliminated_index=jnp.asarray(eliminated_index),
         models=models,
+        iop_columns=iop_columns,
         camera_offsets=tuple(offsets),
         image_offset=image_offset,
         n_reduced=int(n_reduced),
@@ -180,6 +244,31 @@ def bundle_structure(
         points_per_chunk=points_per_chunk,
         jacobian_batch=int(jacobian_batch),
     )
+
+
+def _observation_pairs(
+    point_rows: np.ndarray, key: np.ndarray, n_eliminated: int, pair_batch: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of image observations of one eliminated point that S needs (NumPy).
+
+    `point_rows`, `key`: (n_image_obs,) eliminated-point row (n_eliminated: none) and key
+    of every observation. Returns first, second, block as `_problem._block_rows` lays them
+    out (pairs with key_i >= key_j, rows of `PAIR_ROW_SIZE` pairs of one key pair, padded
+    with observation n_image_obs) and the key pairs (n_key_pairs, 2).
+    """
+    observed = np.flatnonzero(point_rows < n_eliminated)
+    first, second = _same_point_pairs(point_rows[observed], n_eliminated)
+    first, second = observed[first], observed[second]
+    lower = key[first] >= key[second]
+    first, second = first[lower], second[lower]
+    key_pairs, block = np.unique(
+        np.stack([key[first], key[second]], axis=1).reshape(-1, 2), axis=0, return_inverse=True
+    )
+    rows = _block_rows(
+        first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
+    return *rows, key_pairs
 
 
 class BundleNormalEquations(eqx.Module):
@@ -239,37 +328,25 @@ def bundle_normal_equations(
     max_diagonal: float = 1e32,
 ) -> BundleNormalEquations:
     """U, V, W, g and the Marquardt damping of `problem` at `params` (all unknowns' values)."""
-    n_r, m = structure.n_reduced, structure.m
+    n_r = structure.n_reduced
     n_e = structure.eliminated_points.shape[0]
     dtype = params.images.dtype
     free_r, free_e = _free_masks(problem, structure, dtype)
     free_points = problem.free.points.astype(dtype)
 
-    n_keys = structure.key_columns.shape[0]
-    totals = (
-        jnp.zeros((n_keys, m, m), dtype),
-        jnp.zeros(n_r + 1, dtype),
-        jnp.zeros((n_e + 1, 3, 3), dtype),
-        jnp.zeros((n_e + 1, 3), dtype),
+    jr, je, e = _image_blocks(problem, structure, params, free_r, free_e)
+    per_key = pair_block_sums(
+        jr, jr, structure.key_rows, structure.key_rows, structure.key_row_block,
+        structure.key_columns.shape[0],
     )
-    couplings, start = [], 0
-    for group in problem.groups:
-        if not isinstance(group, ImagePoints):
-            continue
-        n = group.point.shape[0]
-        stop = start + n
-        totals, coupling = _accumulate_image_group(
-            problem, structure, group, params, free_r, free_e, totals, start, stop
-        )
-        couplings.append(coupling)
-        start = stop
-    couplings.append(jnp.zeros((1, m, 3), dtype))
-    coupling = jnp.concatenate(couplings)
-    per_key, gradient, point_hessian, point_gradient = totals
     key_columns = structure.key_columns
-    flat = key_columns[:, :, None] * (n_r + 1) + key_columns[:, None, :]
-    hessian = jnp.zeros(((n_r + 1) ** 2,), dtype).at[flat].add(per_key)
-    hessian = hessian.reshape(n_r + 1, n_r + 1)
+    hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
+    gradient = jnp.zeros(n_r + 1, dtype).at[structure.image_columns].add(_transposed_product(jr, e))
+    point_hessian = jnp.zeros((n_e + 1, 3, 3), dtype).at[structure.image_point].add(_gram(je, je))
+    point_gradient = jnp.zeros((n_e + 1, 3), dtype).at[structure.image_point].add(
+        _transposed_product(je, e)
+    )
+    coupling = _gram(jr, je)
 
     residuals = problem.residuals(problem.with_free(params))
     for group, residual in zip(problem.groups, residuals):
@@ -354,42 +431,40 @@ def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n
     return sum(a[:, k, :, None] * b[:, k, None, :] for k in range(a.shape[1]))
 
 
-def _accumulate_image_group(
+def _transposed_product(a: Float[Array, "n k i"], e: Float[Array, "n k"]) -> Float[Array, "n i"]:
+    """aᵀe per observation (a Jacobian block times its residual: the gradient part)."""
+    return jnp.sum(a * e[:, :, None], axis=1)
+
+
+def _image_blocks(
     problem: BundleProblem,
     structure: BundleStructure,
-    group: ImagePoints,
     params: Parameters,
     free_r: Array,
     free_e: Array,
-    totals: tuple[Array, Array, Array, Array],
-    start: int,
-    stop: int,
-) -> tuple[tuple[Array, Array, Array, Array], Float[Array, "n m 3"]]:
-    """Add one ImagePoints group to (U per key, g_r, V, g_e), a chunk of observations at
-    a time (`jax.lax.scan`: the per-observation m x m products never exist for all
-    observations at once); returns the totals and the group's couplings W_i (n, m, 3).
-
-    Observations [start, stop) of the structure's concatenated image observations.
-    """
+) -> tuple[Float[Array, "n_obs1 2 m"], Float[Array, "n_obs1 2 3"], Float[Array, "n_obs1 2"]]:
+    """jr, je and e (`_image_jacobian_blocks`) of all image observations in the structure's
+    order, with a zero padding row last; `structure.jacobian_batch` observations are
+    differentiated at a time (`jax.lax.scan`). Memory O(n_obs m), as W's."""
     params = problem.with_free(params)
+    dtype = params.images.dtype
+    parts, start = [], 0
+    for group in problem.groups:
+        if not isinstance(group, ImagePoints):
+            continue
+        stop = start + group.point.shape[0]
 
-    def accumulate(totals, chunk):
-        per_key, gradient, point_hessian, point_gradient = totals
-        *observations, key = chunk
-        jr, je, e = _image_jacobian_blocks(
-            problem, structure, group, params, free_r, free_e, observations)
-        columns, point_row = observations[-2:]
-        totals = (
-            per_key + jax.ops.segment_sum(_gram(jr, jr), key, per_key.shape[0]),
-            gradient.at[columns].add(jnp.sum(jr * e[:, :, None], axis=1), mode="drop"),
-            point_hessian.at[point_row].add(_gram(je, je), mode="drop"),
-            point_gradient.at[point_row].add(jnp.sum(je * e[:, :, None], axis=1), mode="drop"),
-        )
-        return totals, _gram(jr, je)
+        def blocks(_, chunk, group=group):
+            observations = list(chunk[:-1])  # less the key
+            return None, _image_jacobian_blocks(
+                problem, structure, group, params, free_r, free_e, observations)
 
-    chunks = _image_group_chunks(structure, group, start, stop)
-    totals, coupling = jax.lax.scan(accumulate, totals, chunks)
-    return totals, coupling.reshape(-1, structure.m, 3)[: stop - start]
+        _, out = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start, stop))
+        parts.append([x.reshape(-1, *x.shape[2:])[: stop - start] for x in out])
+        start = stop
+    padding = [jnp.zeros((1, 2, structure.m), dtype), jnp.zeros((1, 2, 3), dtype),
+               jnp.zeros((1, 2), dtype)]
+    return tuple(jnp.concatenate([*(p[i] for p in parts), padding[i]]) for i in range(3))
 
 
 def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
@@ -435,28 +510,40 @@ def _image_jacobian_blocks(
     rows, less the key) at `params` (all values set): jr over the observation's reduced
     columns (a reduced point's columns included), je over its eliminated point (0 for a
     reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
-    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`)."""
+    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
+    Only the IOPs in `structure.iop_columns` are differentiated. The rotation M(ω, φ, κ)
+    and ∂M/∂(ω, φ, κ) are computed once per image, and the rotation of a row is
+    M + ∂M/∂(ω, φ, κ) δ at δ = 0, whose derivative in δ is the one in (ω, φ, κ)."""
     camera, image, point, measured, sigma, mask, columns, point_row = observations
-    m, n_iop = structure.m, params.cameras[group.model].shape[1]
+    iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
+    m, n_iop = structure.m, iop_columns.size
     dtype = params.images.dtype
+    angles = params.images[:, 3:]
+    rotations = jax.vmap(opk_to_matrix)(angles)  # (n_images, 3, 3)
+    rotation_derivatives = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)  # (n_images, 3, 3, 3)
 
-    def residual(iop, eop, point, measured, sigma, mask):
-        e = collinearity_residual(
-            group.model, iop, eop, point, measured, sigma, problem.refraction
+    def residual(free_iop, station, delta, point, iop, rotation, derivative, data):
+        iop = iop.at[iop_columns].set(free_iop)
+        e = _rotated_collinearity_residual(
+            group.model, iop, station, rotation + derivative @ delta, point, *data[:2],
+            problem.refraction,
         )
-        e = jnp.where(mask, e, 0.0)
+        e = jnp.where(data[2], e, 0.0)
         return e if problem.robust is None else problem.robust(e)
 
-    def one(iop, eop, point, measured, sigma, mask):
-        j_iop, j_eop, j_point = jax.jacfwd(residual, argnums=(0, 1, 2))(
-            iop, eop, point, measured, sigma, mask
-        )
-        e = residual(iop, eop, point, measured, sigma, mask)
-        return jnp.concatenate([j_iop, j_eop], axis=1), j_point, e
+    def one(iop, station, rotation, derivative, point, *data):
+        arguments = (iop[iop_columns], station, jnp.zeros(3, dtype), point, iop, rotation,
+                     derivative, data)
+        j_iop, j_station, j_angles, j_point = jax.jacrev(residual, argnums=(0, 1, 2, 3))(
+            *arguments)
+        jc = jnp.concatenate([j_iop, j_station, j_angles], axis=1)
+        return jc, j_point, residual(*arguments)
 
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
-        params.images.at[image].get(mode="clip"),
+        params.images[:, :3].at[image].get(mode="clip"),
+        rotations.at[image].get(mode="clip"),
+        rotation_derivatives.at[image].get(mode="clip"),
         params.points.at[point].get(mode="clip"),
         measured,
         sigma,
@@ -511,7 +598,7 @@ def solve_bundle_damped(
 
 def _chunk_coupling(structure, normal, inverse, obs, local, points):
     """Y (points of the chunk, n_r + 1, 3) = the coupling blocks W of the chunk's
-    observations summed per point (last column: padding), and T = Y V_λ⁻¹ per point."""
+    observations summed per point (last column: padding), and T = Y V⁻¹ per point."""
     n_r, n_points = structure.n_reduced, structure.points_per_chunk
     flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
     y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
@@ -522,29 +609,50 @@ def _chunk_coupling(structure, normal, inverse, obs, local, points):
     return y, t
 
 
+def _dense_from_blocks(
+    n_r: int, rows: Int[Array, "n a"], columns: Int[Array, "n b"], blocks: Float[Array, "n a b"]
+) -> Float[Array, "n_r1 n_r1"]:
+    """Σ_k blocks[k] added at (rows[k], columns[k]) of a dense (n_r + 1, n_r + 1) matrix
+    (row and column n_r: padding)."""
+    flat = rows[:, :, None] * (n_r + 1) + columns[:, None, :]
+    dense = jnp.zeros(((n_r + 1) ** 2,), blocks.dtype).at[flat].add(blocks)
+    return dense.reshape(n_r + 1, n_r + 1)
+
+
 def _schur_complement(
     structure: BundleStructure, normal: BundleNormalEquations, point_inverse: Array
 ) -> tuple[Float[Array, "n_r n_r"], Float[Array, " n_r"]]:
-    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p, a chunk of points at a time."""
-    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p (`point_inverse`: V_λ⁻¹, (n_e, 3, 3)).
+
+    Pair-wise: Y_pᵀ V⁻¹ Y_p = Σ_{i,j ∈ p} W_i V⁻¹ W_jᵀ, and the blocks of the pairs of one
+    key pair (equal reduced columns; for one camera, one image pair) are summed first
+    (`pair_block_sums`, lower key triangle), then mirrored and scattered once. Only the
+    first m - 3 columns of W_i are nonzero for an eliminated point (no reduced point).
+    """
+    n_r, k = structure.n_reduced, structure.m - 3
     dtype = normal.reduced_gradient.dtype
-    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
-    eliminated_gradient = jnp.sum(inverse[:-1] * normal.point_gradient[:, None, :], axis=2)
-    eliminated_gradient = jnp.concatenate([eliminated_gradient, jnp.zeros((1, 3), dtype)])
-
-    def accumulate(totals, chunk):
-        product, rhs = totals
-        obs, local, points = chunk
-        y, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
-        y_flat = y.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-        product = product - t_flat @ y_flat.T
-        rhs = rhs + y_flat @ jnp.ravel(eliminated_gradient[points])
-        return (product, rhs), None
-
-    zeros = (jnp.zeros((n_r + 1, n_r + 1), dtype), jnp.zeros(n_r + 1, dtype))
-    (product, rhs), _ = jax.lax.scan(accumulate, zeros, _point_chunks(structure))
-    return product[:n_r, :n_r], rhs[:n_r]
+    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])[structure.image_point]
+    coupling_t = normal.coupling[:, :k, :].transpose(0, 2, 1)  # W_iᵀ (n_obs1, 3, k)
+    blocks = pair_block_sums(
+        _matmul(inverse, coupling_t), coupling_t, structure.pair_first, structure.pair_second,
+        structure.pair_block, structure.key_pairs.shape[0],
+    )
+    first = structure.key_columns[structure.key_pairs[:, 0], :k]
+    second = structure.key_columns[structure.key_pairs[:, 1], :k]
+    mirrored = jnp.where(
+        (structure.key_pairs[:, 0] != structure.key_pairs[:, 1])[:, None, None],
+        blocks.transpose(0, 2, 1), 0.0,
+    )
+    product = _dense_from_blocks(
+        n_r, jnp.concatenate([first, second]), jnp.concatenate([second, first]),
+        jnp.concatenate([blocks, mirrored]),
+    )
+    eliminated_gradient = jnp.concatenate(
+        [_matvec(point_inverse, normal.point_gradient), jnp.zeros((1, 3), dtype)]
+    )
+    per_observation = _matvec(normal.coupling[:, :k, :], eliminated_gradient[structure.image_point])
+    rhs = jnp.zeros(n_r + 1, dtype).at[structure.image_columns[:, :k]].add(per_observation)
+    return -product[:n_r, :n_r], rhs[:n_r]
 
 
 def bundle_predicted_reduction(
@@ -670,7 +778,7 @@ def solve_schur(
     NumPy from the problem's indices; pass `structure=bundle_structure(problem)` to reuse
     it). As for `solve`: without `on_step` one compiled `optx.least_squares`; with it, one
     compiled step at a time, `on_step(StepInfo)` hearing every step.
-    Memory O(n_obs + n_r² + chunk), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
+    Memory O(n_obs m + n_r²), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
     distance points.
     """
     del free_index

@@ -27,7 +27,7 @@ once, and products of tiny matrices are written as short sums of broadcast produ
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Scalar
+from jaxtyping import Array, Float, Int, Scalar
 
 from .._cholesky import cholesky_solve
 from ._problem import TwoBlockProblem, TwoBlockY
@@ -187,25 +187,13 @@ def _reduced_camera_matrix(
 
     Block (a_i, a_j) of W V_λ⁻¹ Wᵀ collects (W_i V_λ⁻¹) W_jᵀ over all pairs (i, j) of
     observations of the same point; only the lower block triangle (a_i >= a_j) is
-    accumulated and the rest mirrored. Each row of `problem.pair_*` holds pairs of one
-    block: their products sum as one (n_c x row_size n_p) @ (row_size n_p x n_c) matrix
-    product, and one block per row is scattered.
+    accumulated (`pair_block_sums` over `problem.pair_*`) and the rest mirrored.
     """
     n_cameras, n_c = normal.camera_gradient.shape
-
-    def accumulate(total, chunk):
-        first, second, block = chunk  # (rows, row_size), (rows, row_size), (rows,)
-        rows = first.shape[0]
-        left = eliminated.at[first].get(mode="fill", fill_value=0.0).reshape(rows, -1, n_c)
-        right = normal.coupling.at[second].get(mode="fill", fill_value=0.0).reshape(rows, -1, n_c)
-        # A sum of broadcast products, not an einsum: 20 ms against 29 ms per S on
-        # Dubrovnik-16 (XLA's batched dot of tiny matrices is slow on the CPU).
-        products = _matmul(left.transpose(0, 2, 1), right)
-        return total.at[block].add(products, mode="drop", indices_are_sorted=True), None
-
-    zero = jnp.zeros((n_cameras * n_cameras, n_c, n_c), normal.coupling.dtype)
-    chunks = (problem.pair_first, problem.pair_second, problem.pair_block)
-    lower, _ = jax.lax.scan(accumulate, zero, chunks)
+    lower = pair_block_sums(
+        eliminated, normal.coupling, problem.pair_first, problem.pair_second,
+        problem.pair_block, n_cameras * n_cameras,
+    )
     lower = lower.reshape(n_cameras, n_cameras, n_c, n_c)
     off_diagonal = ~jnp.eye(n_cameras, dtype=bool)[:, :, None, None]
     product = lower + jnp.where(off_diagonal, lower.transpose(1, 0, 3, 2), 0.0)
@@ -213,6 +201,38 @@ def _reduced_camera_matrix(
     diagonal = _add_diagonal(normal.camera_hessian, damping * normal.camera_damping)
     blocks = (-product).at[index, index].add(diagonal)
     return blocks.transpose(0, 2, 1, 3).reshape(n_cameras * n_c, n_cameras * n_c)
+
+
+def pair_block_sums(
+    left: Float[Array, "n_obs k a"],
+    right: Float[Array, "n_obs k b"],
+    first: Int[Array, "n_chunks rows row_size"],
+    second: Int[Array, "n_chunks rows row_size"],
+    block: Int[Array, "n_chunks rows"],
+    n_blocks: int,
+) -> Float[Array, "n_blocks a b"]:
+    """Σ left_iᵀ right_j over the pairs (i, j) of every block, (n_blocks, a, b).
+
+    The pairs come in rows of one block each (`_problem._block_rows`; padding pairs hold
+    an out-of-range observation, gathered as zeros, padding rows block `n_blocks`,
+    dropped): a row's products sum as one (a x row_size k) @ (row_size k x b) product,
+    and one block per row is scattered, a chunk of rows at a time (`jax.lax.scan`).
+    """
+
+    def accumulate(total, chunk):
+        first, second, block = chunk  # (rows, row_size), (rows, row_size), (rows,)
+        rows = first.shape[0]
+        lhs = left.at[first].get(mode="fill", fill_value=0.0).reshape(rows, -1, left.shape[-1])
+        rhs = right.at[second].get(mode="fill", fill_value=0.0)
+        rhs = rhs.reshape(rows, -1, right.shape[-1])
+        # A sum of broadcast products, not an einsum: 20 ms against 29 ms per S on
+        # Dubrovnik-16 (XLA's batched dot of tiny matrices is slow on the CPU).
+        products = _matmul(lhs.transpose(0, 2, 1), rhs)
+        return total.at[block].add(products, mode="drop", indices_are_sorted=True), None
+
+    zero = jnp.zeros((n_blocks, left.shape[-1], right.shape[-1]), left.dtype)
+    total, _ = jax.lax.scan(accumulate, zero, (first, second, block))
+    return total
 
 
 def _chunked(x: Array, chunk_size: int, fill: int | None = None) -> Array:
