@@ -6,10 +6,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import jacfwd_jacobian
 
 import jaxba
 from jaxba._parameters import flatten, unflatten
-from jaxba._problem import dense_jacobian, free_indices
+from jaxba._problem import free_indices
 from jaxba._schur._bundle import (
     _reduced_positions,
     _schur_complement,
@@ -36,7 +37,7 @@ def block(tmp_path_factory):
 
 def _dense_normal(problem):
     """JᵀJ over the free unknowns and the flatten positions of its rows."""
-    jacobian, _ = dense_jacobian(problem, problem.initial)
+    jacobian, _ = jacfwd_jacobian(problem, problem.initial)
     return np.asarray(jacobian.T @ jacobian), np.asarray(free_indices(problem))
 
 
@@ -71,7 +72,7 @@ def test_cameras_freeing_different_iops(block):
     normal = bundle_normal_equations(problem, structure, problem.initial)
     x_r, x_e = solve_bundle_damped(structure, normal, jnp.asarray(1e-3))
     step = flatten(_to_parameters(structure, problem.initial, x_r, x_e))
-    jacobian, residual = dense_jacobian(problem, problem.initial)
+    jacobian, residual = jacfwd_jacobian(problem, problem.initial)
     hessian = jacobian.T @ jacobian
     diagonal = marquardt_diagonal(jnp.diagonal(hessian), 1e-6, 1e32)
     expected = jnp.linalg.solve(hessian + 1e-3 * jnp.diag(diagonal), jacobian.T @ residual)

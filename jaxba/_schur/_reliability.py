@@ -30,8 +30,7 @@ from ._bundle import (
     _distance_columns,
     _distance_jacobians,
     _free_masks,
-    _image_group_chunks,
-    _image_jacobian_blocks,
+    _image_blocks,
     _point_chunks,
     _point_cofactors,
     _reduced_cofactor,
@@ -61,7 +60,8 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
     normal = bundle_normal_equations(problem, structure, params)
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
-    jr, je = _image_jacobians(problem, structure, params)
+    jr, je, _ = _image_blocks(problem, structure, params,
+                              *_free_masks(problem, structure, dtype))
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
 
@@ -83,34 +83,6 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
             block = cofactor[columns[:, :, None], columns[:, None, :]]
             leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
     return leverages, residuals
-
-
-def _image_jacobians(problem, structure, params) -> tuple[Array, Array]:
-    """jr (n_obs1, 2, m) and je (n_obs1, 2, 3) of all image observations, in the structure's
-    order, with a zero padding row last (`_image_jacobian_blocks`)."""
-    full = problem.with_free(params)
-    dtype = full.images.dtype
-    free_r, free_e = _free_masks(problem, structure, dtype)
-    blocks_r, blocks_e, start = [], [], 0
-    for group in problem.groups:
-        if not isinstance(group, ImagePoints):
-            continue
-        stop = start + group.point.shape[0]
-
-        def blocks(_, chunk, group=group):
-            jr, je, _ = _image_jacobian_blocks(
-                problem, structure, group, full, free_r, free_e, list(chunk[:-1]))
-            return None, (jr, je)
-
-        _, (jr, je) = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start,
-                                                                     stop))
-        blocks_r.append(jr.reshape(-1, *jr.shape[2:])[: stop - start])
-        blocks_e.append(je.reshape(-1, *je.shape[2:])[: stop - start])
-        start = stop
-    k = blocks_r[0].shape[1]
-    blocks_r.append(jnp.zeros((1, k, structure.m), dtype))
-    blocks_e.append(jnp.zeros((1, k, 3), dtype))
-    return jnp.concatenate(blocks_r), jnp.concatenate(blocks_e)
 
 
 def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:
