@@ -78,10 +78,6 @@ def _residual_fn(z, args):
     return problem.residuals(params_from_scaled(problem, z, index, scale)), None
 
 
-def _flat_residuals(problem: BundleProblem, params: Parameters) -> Float[Array, " n"]:
-    return jnp.concatenate([jnp.ravel(r) for r in problem.residuals(params)])
-
-
 def column_scale(problem: BundleProblem, plan: LinearisationPlan) -> Float[Array, " n_free"]:
     """Jacobi scaling: 1/‖column‖ of the residuals' Jacobian at the approximations.
 
@@ -148,7 +144,7 @@ def _make_normal_solution(args, solution: optx.Solution) -> Solution:
         parameters=params,
         converged=solution.result == optx.RESULTS.successful,
         steps=solution.stats["num_steps"],
-        cost=0.5 * jnp.sum(_flat_residuals(problem, params) ** 2),
+        cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
         result=solution.result,
     )
 

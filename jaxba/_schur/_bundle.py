@@ -733,13 +733,11 @@ def _make_schur_solver(problem, structure, *, rtol, atol, function_tolerance):
 
 
 def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
-    params = problem.with_free(solution.value)
-    residuals = problem.residuals(params)
     return Solution(
-        parameters=params,
+        parameters=problem.with_free(solution.value),
         converged=solution.result == optx.RESULTS.successful,
         steps=solution.stats["num_steps"],
-        cost=0.5 * sum(jnp.sum(r**2) for r in residuals),
+        cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
         result=solution.result,
     )
 
