@@ -34,8 +34,9 @@ def _setup_jax() -> None:
     compilation cache.
 
     OpenBLAS threads and XLA's own threads oversubscribe small machines (the dense QR of
-    the LM step ran 3x slower), so BLAS is limited to one thread for the run. The cache
-    is best effort: if its folder cannot be made or written, jax runs without it.
+    the LM step ran 3x slower), so BLAS is limited to one thread for the run. The cache is
+    `~/.cache/jaxba/jax`, or jax's own `JAX_COMPILATION_CACHE_DIR` where that is set; best
+    effort: if its folder cannot be made or written, jax runs without it.
     """
     import jax
     import threadpoolctl
@@ -43,13 +44,14 @@ def _setup_jax() -> None:
     threadpoolctl.threadpool_limits(1, user_api="blas")
     jax.config.update("jax_enable_x64", True)
     try:
-        cache = CACHE_DIR.expanduser()
+        cache = pathlib.Path(os.environ.get("JAX_COMPILATION_CACHE_DIR") or CACHE_DIR)
+        cache = cache.expanduser()
         cache.mkdir(parents=True, exist_ok=True)
         if not os.access(cache, os.W_OK):
             return
         jax.config.update("jax_compilation_cache_dir", str(cache))
-        # Every program, however small: a run compiles ~150 (most of them eager operations
-        # of a few ms each), and loading one is several times faster than compiling it.
+        # Every program, however small: loading one is several times faster than compiling
+        # it, even for the few small eager operations of a run.
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     except (OSError, RuntimeError, ValueError):
