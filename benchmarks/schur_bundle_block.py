@@ -130,13 +130,14 @@ def main() -> None:
     build_seconds = time.perf_counter() - start
     print(f"{n_residuals} residuals, {problem.n_unknowns()} unknowns,"
           f" reduced side {structure.n_reduced}; built in {build_seconds:.1f} s", flush=True)
-    settings = (args.max_steps, 1e-10, 1e-10, FUNCTION_TOLERANCE, None)
+    settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
+                    function_tolerance=FUNCTION_TOLERANCE)
     start, cpu = time.perf_counter(), time.process_time()
-    compiled = _solve_schur.lower(problem, structure, *settings).compile()
+    compiled = _solve_schur.lower(problem, structure, **settings).compile()
     compile_seconds, compile_cpu = time.perf_counter() - start, time.process_time() - cpu
     initial_cost = 0.5 * sum(float(jnp.sum(r**2)) for r in problem.residuals(problem.initial))
     start, cpu = time.perf_counter(), time.process_time()
-    solution = jax.block_until_ready(compiled(problem, structure, *settings))
+    solution = jax.block_until_ready(compiled(problem, structure, **settings))
     solve_seconds, solve_cpu = time.perf_counter() - start, time.process_time() - cpu
     results = {
         "n_images": args.images,
