@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 import scipy.stats
+from helpers import SYNTHETIC_BLOCK
 
 import jaxba
 
@@ -34,9 +35,8 @@ def _with_settings(truth, **settings):
 
 
 @pytest.fixture(scope="module")
-def block(tmp_path_factory):
-    truth, project = _project(tmp_path_factory.mktemp("block"), seed=21, noise_px=0.3)
-    return truth, project, jaxba.adjust_project(project)
+def block(synthetic_block):
+    return synthetic_block
 
 
 # --- an independent adjustment: NumPy model (CONVENTIONS.md), SciPy least squares ---------
@@ -212,7 +212,7 @@ def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
 def test_data_snooping_flags_a_planted_blunder(tmp_path):
     sigma_mm = 0.3 * 0.00369
     truth = jaxba.write_synthetic_project(
-        tmp_path, seed=9, noise_px=0.3, blunders=[("img07", "33", 1, 30 * sigma_mm)]
+        tmp_path, **SYNTHETIC_BLOCK, blunders=[("img07", "33", 1, 30 * sigma_mm)]
     )
     project = _with_settings(truth, data_snooping=True)
     result = jaxba.adjust_project(project)
@@ -231,11 +231,11 @@ def test_data_snooping_flags_a_planted_blunder(tmp_path):
 
 def test_robust_loss_resists_blunders(tmp_path):
     sigma_mm = 0.3 * 0.00369
-    clean = jaxba.write_synthetic_project(tmp_path / "clean", seed=13, noise_px=0.3)
+    clean = jaxba.write_synthetic_project(tmp_path / "clean", **SYNTHETIC_BLOCK)
     measured = clean.project_file.parent.joinpath("image_coordinates.txt").read_text().split("\n")
     rows = [line.split()[:2] for line in measured if line and not line.startswith("#")]
     blunders = [(*rows[k], k % 2, 40 * sigma_mm) for k in range(7, len(rows), len(rows) // 6)]
-    truth = jaxba.write_synthetic_project(tmp_path, seed=13, noise_px=0.3, blunders=blunders)
+    truth = jaxba.write_synthetic_project(tmp_path, **SYNTHETIC_BLOCK, blunders=blunders)
     plain = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(truth.project_file)))
     robust = jaxba.adjust_project(_with_settings(truth, robust='"huber"', robust_scale=2.0))
     names = jaxba.SmacCamera.parameter_names
