@@ -195,6 +195,7 @@ def test_propagation_of_a_distance(block):
 # --- variance components and data snooping ------------------------------------------------
 
 
+@pytest.mark.slow  # ~45 s: a two-camera block, several variance-component rounds
 def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
     truth = jaxba.write_synthetic_project(
         tmp_path, seed=5, n_cameras=2, noise_px=0.3, camera_noise_px=[0.3, 0.9]
@@ -210,6 +211,7 @@ def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
     assert r_image < result.precision.redundancy + 1e-6
 
 
+@pytest.mark.slow  # ~1 min: one re-adjustment per rejected observation
 def test_data_snooping_flags_a_planted_blunder(tmp_path):
     sigma_mm = 0.3 * 0.00369
     truth = jaxba.write_synthetic_project(
@@ -230,6 +232,7 @@ def test_data_snooping_flags_a_planted_blunder(tmp_path):
         result.rejections)
 
 
+@pytest.mark.slow  # ~1 min: a plain and a robust adjustment
 def test_robust_loss_resists_blunders(tmp_path):
     sigma_mm = 0.3 * 0.00369
     clean = jaxba.write_synthetic_project(tmp_path / "clean", **SYNTHETIC_BLOCK)
