@@ -7,11 +7,14 @@ where that is set), so every run starts as a fresh clone does. Programs are cach
 their compile time; the environment variables carry the cache to subprocesses (the notebook
 kernels). Programs that contain a host callback are never cached (jax's rule).
 
-After each test module jax's in-memory caches are cleared: compiled executables otherwise
-pile up over the session (7 GB on the whole suite); a later module that needs one of them
-again loads it from the persistent cache instead of compiling it.
+After each test module jax's in-memory caches are cleared and the freed memory is handed
+back to the system: compiled executables otherwise pile up over the session (7 GB peak on
+the whole suite); a later module that needs one of them again loads it from the persistent
+cache instead of compiling it.
 """
 
+import ctypes
+import gc
 import os
 import shutil
 import tempfile
@@ -38,11 +41,19 @@ from helpers import SYNTHETIC_BLOCK  # noqa: E402
 
 import jaxba  # noqa: E402
 
+try:  # glibc: hand freed heap pages back to the system (else RSS keeps its high-water mark)
+    _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+except (OSError, AttributeError):
+    _malloc_trim = None
+
 
 @pytest.fixture(scope="module", autouse=True)
 def _clear_jax_caches_after_module():
     yield
     jax.clear_caches()
+    gc.collect()
+    if _malloc_trim is not None:
+        _malloc_trim(0)
 
 
 @pytest.fixture(scope="session")
