@@ -1,10 +1,72 @@
-"""Test configuration: float64 everywhere (the library never flips it at import), and one
-OpenBLAS thread: OpenBLAS and XLA threads oversubscribe the cores (3x slower suite)."""
+"""Test configuration: float64 everywhere (the library never flips it at import), one
+OpenBLAS thread (OpenBLAS and XLA threads oversubscribe the cores: 3x slower suite), and
+compiled programs shared across the session through jax's persistent compilation cache.
 
+The cache lives in a temporary folder made for this run (or in $JAX_COMPILATION_CACHE_DIR
+where that is set), so every run starts as a fresh clone does. Programs are cached whatever
+their compile time; the environment variables carry the cache to subprocesses (the notebook
+kernels). Programs that contain a host callback are never cached (jax's rule).
+
+After each test module jax's in-memory caches are cleared and the freed memory is handed
+back to the system: compiled executables otherwise pile up over the session (7 GB peak on
+the whole suite); a later module that needs one of them again loads it from the persistent
+cache instead of compiling it.
+"""
+
+import ctypes
+import gc
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy is loaded
 
+_CACHE_OWNED = "JAX_COMPILATION_CACHE_DIR" not in os.environ
+if _CACHE_OWNED:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxba-tests-jit-")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                  float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
+jax.config.update("jax_persistent_cache_min_entry_size_bytes",
+                  int(os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"]))
+
+from helpers import SYNTHETIC_BLOCK  # noqa: E402
+
+import jaxba  # noqa: E402
+
+try:  # glibc: hand freed heap pages back to the system (else RSS keeps its high-water mark)
+    _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+except (OSError, AttributeError):
+    _malloc_trim = None
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _clear_jax_caches_after_module():
+    yield
+    jax.clear_caches()
+    gc.collect()
+    if _malloc_trim is not None:
+        _malloc_trim(0)
+
+
+@pytest.fixture(scope="session")
+def synthetic_block(tmp_path_factory):
+    """(truth, project, result): `SYNTHETIC_BLOCK` written, read and adjusted once per session.
+
+    Shared: read it, never write into its folder (a test that edits the project writes its
+    own copy with `write_synthetic_project(directory, **SYNTHETIC_BLOCK)`)."""
+    truth = jaxba.write_synthetic_project(tmp_path_factory.mktemp("block"), **SYNTHETIC_BLOCK)
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    return truth, project, jaxba.adjust_project(project)
+
+
+def pytest_sessionfinish(session):
+    if _CACHE_OWNED:
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)

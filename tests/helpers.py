@@ -18,6 +18,12 @@ FD_STEP = 1e-6  # central-difference step, relative to max(1, |x_i|)
 FD_RTOL = 1e-6  # jax.jacfwd against central differences (truncation ~ step², rounding ~ 1e-16/step)
 FD_ATOL = 1e-8  # absolute floor of the same comparison, for entries that are (near) zero
 
+# The synthetic self-calibration block that several modules adjust (18 images, 80 targets, the
+# lab's datum and distances, 0.3 px noise): adjusted once per session by the `synthetic_block`
+# fixture (conftest.py). Variants written with these arguments (blunders, other settings) have
+# the same array shapes, so they reuse its compiled programs.
+SYNTHETIC_BLOCK = {"seed": 21, "noise_px": 0.3}
+
 
 def central_difference(f, x, eps):
     """Jacobian of `f` at `x` by central differences, (f(x + h e_i) - f(x - h e_i)) / 2h.

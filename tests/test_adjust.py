@@ -6,6 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import SYNTHETIC_BLOCK
 
 import jaxba
 from jaxba._schur._datum import check_datum_schur
@@ -24,9 +25,9 @@ def _adjust(directory, **kwargs):
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
+def lab(synthetic_block):
     """An 18-image block, datum of 6 fixed coordinates plus four distances (the lab's)."""
-    return _adjust(tmp_path_factory.mktemp("lab"), seed=7, noise_px=0.3)
+    return synthetic_block
 
 
 def test_converges_with_unit_variance_factor(lab):
@@ -85,7 +86,7 @@ def test_fixed_control_stays_put_and_points_are_recovered(lab):
 
 def test_pixel_units_give_the_same_adjustment(tmp_path, lab):
     _, _, result_mm = lab
-    _, _, result_px = _adjust(tmp_path, seed=7, noise_px=0.3, image_units="pixel")
+    _, _, result_px = _adjust(tmp_path, **SYNTHETIC_BLOCK, image_units="pixel")
     # Files round coordinates to 1e-8 (mm or px): results agree far below their σ.
     iop_mm = np.asarray(result_mm.parameters.cameras["smac"][0])
     iop_px = np.asarray(result_px.parameters.cameras["smac"][0])

@@ -22,6 +22,7 @@ def block(tmp_path_factory):
     return jaxba.build_project(jaxba.read_project(truth.project_file)).problem
 
 
+@pytest.mark.slow  # ~1 min: ten re-solved bundles and the implicit adjoint
 def test_iop_gradients_match_central_differences(block):
     problem = block
     start = jaxba.adjust(problem, check=False).parameters
@@ -45,6 +46,7 @@ def test_iop_gradients_match_central_differences(block):
         assert np.all(error < GRAD_RTOL), dict(zip(names, error))
 
 
+@pytest.mark.slow  # ~45 s: iop_trace_gradient runs eagerly (not jittable), five calls
 def test_network_design_gradient(block):
     problem = block
     params = jaxba.adjust(problem, check=False).parameters

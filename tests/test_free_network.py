@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import SYNTHETIC_BLOCK
 
 import jaxba
 
@@ -19,13 +20,12 @@ def _adjust(truth, **settings):
 
 
 @pytest.fixture(scope="module")
-def both(tmp_path_factory):
+def both(tmp_path_factory, synthetic_block):
     """The same block with the lab datum (6 fixed coordinates) and as a free network."""
-    directory = tmp_path_factory.mktemp("network")
-    truth = jaxba.write_synthetic_project(directory, seed=4, noise_px=0.3)
-    control = _adjust(truth)
+    _, project, result = synthetic_block
+    truth = jaxba.write_synthetic_project(tmp_path_factory.mktemp("network"), **SYNTHETIC_BLOCK)
     free = _adjust(truth, datum='"free"')
-    return control, free
+    return (project, result), free
 
 
 def test_free_network_converges_with_the_same_redundancy(both):

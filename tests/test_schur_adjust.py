@@ -17,6 +17,10 @@ SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ
 PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ
 REDUNDANCY_ATOL = 1e-6
 
+# ~2 min for the module: one dense and one Schur adjustment with variance components and data
+# snooping (each re-adjusts), shared by every test.
+pytestmark = pytest.mark.slow
+
 
 def _project(directory, **settings):
     sigma_mm = 0.3 * 0.00369

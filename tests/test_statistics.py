@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 import scipy.stats
+from helpers import SYNTHETIC_BLOCK
 
 import jaxba
 
@@ -34,9 +35,8 @@ def _with_settings(truth, **settings):
 
 
 @pytest.fixture(scope="module")
-def block(tmp_path_factory):
-    truth, project = _project(tmp_path_factory.mktemp("block"), seed=21, noise_px=0.3)
-    return truth, project, jaxba.adjust_project(project)
+def block(synthetic_block):
+    return synthetic_block
 
 
 # --- an independent adjustment: NumPy model (CONVENTIONS.md), SciPy least squares ---------
@@ -141,12 +141,13 @@ def test_covariance_matches_finite_difference_jacobian_and_numpy_inverse(block):
     index = jaxba.free_indices(problem)
     base = jaxba.flatten(result.parameters)
     rows = np.concatenate([np.ravel(np.asarray(g.mask())) for g in problem.groups])
+    residuals = jax.jit(lambda values: problem.residuals(values))  # one compile, 700 calls
 
     def residual(x_free):
         flat = base.copy()
         flat[index] = x_free
         values = jaxba.unflatten(result.parameters, flat)
-        return np.concatenate([np.ravel(np.asarray(r)) for r in problem.residuals(values)])[rows]
+        return np.concatenate([np.ravel(np.asarray(r)) for r in residuals(values)])[rows]
 
     x = base[index]
     steps = 1e-6 * np.maximum(np.abs(x), 1.0) * np.where(np.abs(x) < 1e-3, 1e-3, 1.0)
@@ -194,6 +195,7 @@ def test_propagation_of_a_distance(block):
 # --- variance components and data snooping ------------------------------------------------
 
 
+@pytest.mark.slow  # ~45 s: a two-camera block, several variance-component rounds
 def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
     truth = jaxba.write_synthetic_project(
         tmp_path, seed=5, n_cameras=2, noise_px=0.3, camera_noise_px=[0.3, 0.9]
@@ -209,10 +211,11 @@ def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
     assert r_image < result.precision.redundancy + 1e-6
 
 
+@pytest.mark.slow  # ~1 min: one re-adjustment per rejected observation
 def test_data_snooping_flags_a_planted_blunder(tmp_path):
     sigma_mm = 0.3 * 0.00369
     truth = jaxba.write_synthetic_project(
-        tmp_path, seed=9, noise_px=0.3, blunders=[("img07", "33", 1, 30 * sigma_mm)]
+        tmp_path, **SYNTHETIC_BLOCK, blunders=[("img07", "33", 1, 30 * sigma_mm)]
     )
     project = _with_settings(truth, data_snooping=True)
     result = jaxba.adjust_project(project)
@@ -229,13 +232,14 @@ def test_data_snooping_flags_a_planted_blunder(tmp_path):
         result.rejections)
 
 
+@pytest.mark.slow  # ~1 min: a plain and a robust adjustment
 def test_robust_loss_resists_blunders(tmp_path):
     sigma_mm = 0.3 * 0.00369
-    clean = jaxba.write_synthetic_project(tmp_path / "clean", seed=13, noise_px=0.3)
+    clean = jaxba.write_synthetic_project(tmp_path / "clean", **SYNTHETIC_BLOCK)
     measured = clean.project_file.parent.joinpath("image_coordinates.txt").read_text().split("\n")
     rows = [line.split()[:2] for line in measured if line and not line.startswith("#")]
     blunders = [(*rows[k], k % 2, 40 * sigma_mm) for k in range(7, len(rows), len(rows) // 6)]
-    truth = jaxba.write_synthetic_project(tmp_path, seed=13, noise_px=0.3, blunders=blunders)
+    truth = jaxba.write_synthetic_project(tmp_path, **SYNTHETIC_BLOCK, blunders=blunders)
     plain = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(truth.project_file)))
     robust = jaxba.adjust_project(_with_settings(truth, robust='"huber"', robust_scale=2.0))
     names = jaxba.SmacCamera.parameter_names
