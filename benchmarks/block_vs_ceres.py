@@ -9,8 +9,8 @@ each in a fresh process with OPENBLAS_NUM_THREADS=1, wall time and peak RSS from
 - `jaxba adjust PROJECT --out DIR` (the CLI, with HOME in the temporary folder so that
   jaxba's persistent compilation cache starts cold): read, datum check, solve, statistics
   (covariance, reliability), reports, compilation included;
-- the same pipeline through the Python API (`phases`), timing every phase, twice in one
-  process: the second pass is the run time, the first minus the second the compile time;
+- the same pipeline through the Python API (`phases`: `adjust_project` with its `Timings`),
+  every phase's run seconds and, apart, the seconds it spent compiling;
 - benchmarks/ceres_bundle.cc (built with g++) with SPARSE_SCHUR and DENSE_SCHUR, 1 thread,
   on a text export of the same jaxba problem (`export_problem`, from jaxba's own readers):
   solve, then the IOP covariance (SPARSE_QR). A free network has no inner constraints in Ceres:
@@ -31,7 +31,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 
 import numpy as np
 
@@ -47,95 +46,53 @@ SHAPES = {  # name -> (blocks.py shape, free datum)
     "free-network": ("free-network", True),
 }
 LINEAR_SOLVERS = ("SPARSE_SCHUR", "DENSE_SCHUR")
-PHASES = ("read", "build", "datum", "solve", "precision", "reliability", "reports")
+PHASES = ("read", "build", "datum check", "solve", "statistics", "reports")
 CLI = "import sys; from jaxba._cli import main; sys.exit(main())"
 
 
 # --- jaxba's pipeline, phase by phase (run in a child: `--child phases`) -----------------
 
 
-def _timed(times: dict, name: str, function, *args, **kwargs):
-    """Call `function`, block on its jax arrays, store its wall seconds in `times[name]`."""
-    import jax
-
-    start = time.perf_counter()
-    value = jax.block_until_ready(function(*args, **kwargs))
-    times[name] = time.perf_counter() - start
-    return value
-
-
 def pipeline_pass(project_file: pathlib.Path, out_dir: pathlib.Path) -> tuple[dict, dict]:
-    """One `jaxba adjust` of a plain project (no robust loss, variance components or data
-    snooping), as `jaxba._solve.adjust` and `adjust_project` do it, each phase timed.
-
-    Returns ({phase: seconds}, {"final_cost", "iterations" (accepted), "steps", "std_c"}).
-    """
-    import dataclasses
-
+    """One `jaxba adjust` through the API, its phases timed by `jaxba._timing.Timings`
+    (as the CLI does). Returns ({"run": {phase: seconds}, "compile": {phase: seconds}},
+    {"final_cost", "iterations" (accepted), "steps", "std_c"})."""
     import jaxba
-    from jaxba._datum import check_datum
-    from jaxba._problem import observed_minus_computed
-    from jaxba._progress import StepRecorder, listening
-    from jaxba._reliability import reliability
     from jaxba._report import write_reports
-    from jaxba._schur._bundle import schur_precision, solve_schur
-    from jaxba._schur._choice import use_schur
-    from jaxba._schur._datum import check_datum_schur
-    from jaxba._solve import Adjustment, solve
-    from jaxba._statistics import precision
+    from jaxba._timing import Timings
 
-    times: dict[str, float] = {}
-    spec = _timed(times, "read", jaxba.read_project, project_file)
-    settings = spec.settings
-    if settings.robust != "none" or settings.variance_components or settings.data_snooping:
-        raise ValueError("phases time the plain least-squares pipeline only")
-    project = _timed(times, "build", jaxba.build_project, spec)
-    problem = project.problem
-    schur = use_schur(problem, settings.solver)
-    check = check_datum_schur if schur else check_datum
-    _timed(times, "datum", check, problem, labels=project.labels)
-    options = dict(max_steps=settings.max_iterations, rtol=settings.rtol, atol=settings.atol)
-    redundancy = problem.n_observations() - problem.n_unknowns()
-    recorder = StepRecorder(redundancy, settings.sigma0, None)
-    with listening(recorder):
-        solution = _timed(times, "solve", solve_schur if schur else solve, problem, **options)
-    params = solution.parameters
-    statistics = schur_precision if schur else precision
-    result = Adjustment(
-        problem=problem,
-        parameters=params,
-        precision=_timed(times, "precision", statistics, problem, params, sigma0=settings.sigma0),
-        residuals=observed_minus_computed(problem, problem.whitened(params)),
-        iterations=recorder.iterations,
-        converged=bool(solution.converged),
-        message="",
-        steps=int(solution.steps),
-    )
-    snooping = dict(alpha=settings.snooping_alpha, familywise=settings.snooping_familywise)
-    result = dataclasses.replace(
-        result, reliability=_timed(times, "reliability", reliability, result, **snooping))
-    _timed(times, "reports", write_reports, project, result, out_dir)
+    timings = Timings()
+    with timings.phase("read"):
+        spec = jaxba.read_project(project_file)
+    with timings.phase("build"):
+        project = jaxba.build_project(spec)
+    result = jaxba.adjust_project(project, timings=timings)
+    with timings.phase("reports"):
+        write_reports(project, result, out_dir)
+    by_name = {phase.name: phase for phase in timings.phases}
+    times = {
+        "run": {p: by_name[p].seconds - by_name[p].compile_seconds for p in PHASES},
+        "compile": {p: by_name[p].compile_seconds for p in PHASES},
+    }
     c = json.loads((out_dir / "results.json").read_text())["cameras"]["C1"]["c"]
     outcome = {
-        "final_cost": float(solution.cost),
-        "iterations": len(recorder.iterations) - 1,
-        "steps": int(solution.steps),
+        "final_cost": float(result.iterations[-1].cost),
+        "iterations": len(result.iterations) - 1,
+        "steps": result.steps,
         "std_c": c["std"],
     }
     return times, outcome
 
 
 def phases_main(project_file: pathlib.Path, out_dir: pathlib.Path) -> None:
-    """Two passes in this process; prints JSON {"first", "second", "compile", ...outcome}."""
+    """One pass in this process; prints JSON {"run", "compile", ...outcome}."""
     import jax
     import threadpoolctl
 
     threadpoolctl.threadpool_limits(1, user_api="blas")
     jax.config.update("jax_enable_x64", True)
-    first, _ = pipeline_pass(project_file, out_dir)
-    second, outcome = pipeline_pass(project_file, out_dir)
-    compile_seconds = {k: max(first[k] - second[k], 0.0) for k in PHASES}
-    print(json.dumps({"first": first, "second": second, "compile": compile_seconds, **outcome}))
+    times, outcome = pipeline_pass(project_file, out_dir)
+    print(json.dumps({**times, **outcome}))
 
 
 # --- the Ceres export ---------------------------------------------------------------------
@@ -335,7 +292,7 @@ def totals_table(all_results: dict) -> str:
         reference = results.get("ceres_SPARSE_SCHUR", {})
         reference_wall = reference.get("wall_seconds") if reference.get("ok") else None
         for key, label in (("jaxba_cli", "jaxba adjust (CLI, cold)"),
-                           ("jaxba_phases", "jaxba API, 2nd pass"),
+                           ("jaxba_phases", "jaxba API, compile apart"),
                            *((f"ceres_{s}", f"Ceres {s}") for s in LINEAR_SOLVERS)):
             if key not in results:
                 continue
@@ -347,10 +304,10 @@ def totals_table(all_results: dict) -> str:
             solve = compile_seconds = statistics = None
             whole = r["wall_seconds"]
             if key == "jaxba_phases":
-                second = r["second"]
-                solve, whole = second["solve"], sum(second.values())
+                run = r["run"]
+                solve, whole = run["solve"], sum(run.values())
                 compile_seconds = sum(r["compile"].values())
-                statistics = second["precision"] + second["reliability"]
+                statistics = run["statistics"]
             elif key.startswith("ceres"):
                 solve, statistics = r["solve_seconds"], r["covariance_seconds"]
             iterations = r["iterations"] if key.startswith("ceres") else (
@@ -366,14 +323,14 @@ def totals_table(all_results: dict) -> str:
 
 
 def phases_table(all_results: dict) -> str:
-    """jaxba's phases: second pass (run) and first minus second (compile), seconds."""
+    """jaxba's phases: run seconds and, apart, compile seconds."""
     lines = ["| block | | " + " | ".join(PHASES) + " | total |",
              "|---|---|" + "---|" * (len(PHASES) + 1)]
     for name, results in all_results.items():
         r = results.get("jaxba_phases", {})
         if not r.get("ok"):
             continue
-        for key, label in (("second", "run"), ("compile", "compile")):
+        for key, label in (("run", "run"), ("compile", "compile")):
             values = [r[key][p] for p in PHASES]
             lines.append(f"| {name} | {label} | " + " | ".join(f"{v:.2f}" for v in values)
                          + f" | {sum(values):.2f} |")
