@@ -213,8 +213,8 @@ def _add_bal(subparsers) -> None:
     parser.add_argument("--max-steps", type=int, default=100, metavar="N")
     parser.add_argument(
         "--no-progress", action="store_true",
-        help="no per-iteration output; lets jax's persistent cache store the compiled solve"
-        " (jax never caches executables with host callbacks)",
+        help="no per-iteration output: the solve runs as one compiled program instead of one"
+        " compiled step at a time",
     )
     parser.set_defaults(run=_bal)
 
