@@ -66,6 +66,14 @@ def _local_positions(problem: BundleProblem) -> list[np.ndarray | None]:
             for depends in _local_positions_jit(problem, positions)]
 
 
+def _free_columns(problem: BundleProblem, free_index: np.ndarray) -> np.ndarray:
+    """(n_all,) the free column of every position in `flatten` order; len(free_index), a
+    dummy column, for fixed unknowns (a repeated, padding position keeps its last column)."""
+    column_of = np.full(flatten(problem.initial).size, free_index.size)
+    column_of[free_index] = np.arange(free_index.size)
+    return column_of
+
+
 def live_slots(problem: BundleProblem, free_index: np.ndarray, local=None) -> list:
     """Per group: the slots (columns of `local_values`) that hold a free unknown in at least
     one row, or None for a group that is not row-local. `local`: `_local_positions`."""
@@ -89,9 +97,7 @@ def linearisation_plan(
     free_index = free_indices(problem) if free_index is None else np.asarray(free_index)
     local = _local_positions(problem)
     live = live_slots(problem, free_index, local) if live is None else live
-    n_free = free_index.size
-    column_of = np.full(flatten(problem.initial).size, n_free)
-    column_of[free_index] = np.arange(n_free)  # a repeated (padding) position keeps the last
+    column_of = _free_columns(problem, free_index)
     key_rows, key_columns = [], []
     for group, slots, depends in zip(problem.groups, live, local):
         if slots is None:
@@ -201,8 +207,7 @@ def dense_jacobian(
     their free columns; groups that are not row-local are differentiated whole.
     """
     index = free_indices(problem)
-    column_of = np.full(flatten(problem.initial).size, index.size)
-    column_of[index] = np.arange(index.size)
+    column_of = _free_columns(problem, index)
     columns = tuple(None if depends is None else jnp.asarray(column_of[depends])
                     for depends in _local_positions(problem))
     rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
