@@ -38,7 +38,7 @@ def _solve(problem: TwoBlockProblem, y0: TwoBlockY, *, max_steps, **settings) ->
 
 
 @eqx.filter_jit
-def _final_cost(problem: TwoBlockProblem, y: TwoBlockY):
+def _cost(problem: TwoBlockProblem, y: TwoBlockY):
     return 0.5 * jnp.sum(two_block_residuals(y, problem) ** 2)
 
 
@@ -99,14 +99,14 @@ def run_bal(
     )
     with CompileLog() as compiles:
         start = time.perf_counter()
-        initial_cost = float(_final_cost(problem, y0))
+        initial_cost = float(_cost(problem, y0))
         if on_iteration is None:
             solution = _solve(problem, y0, max_steps=max_steps, **settings)
         else:
             solution = least_squares_stepwise(
                 two_block_residuals, _solver(problem, **settings), y0, problem,
                 max_steps=max_steps, on_step=recorder)
-        final_cost = float(_final_cost(problem, solution.value))
+        final_cost = float(solution.state.cost)  # ½|r|² at the final (accepted) iterate
         wall = time.perf_counter() - start
     result = solution.result
     steps = int(solution.stats["num_steps"])
