@@ -37,7 +37,6 @@ def _on_duration(event: str, duration: float, **kwargs) -> None:
                 log.on_compile()
         if event == _COMPILE:
             log.count += 1
-            log.programs.append((str(kwargs.get("fun_name", "?")), duration))
 
 
 def _on_event(event: str, **kwargs) -> None:
@@ -56,18 +55,17 @@ def _register() -> None:
 
 @dataclasses.dataclass(eq=False)  # identity: nested logs must not be confused
 class CompileLog:
-    """Tracing + lowering + compiling seconds, the number of programs compiled (or loaded from
-    the persistent cache: `cache_hits` of them) and each program's (name, compile seconds),
-    while the `with` block runs. `on_compile()` is called once, when the first big program
-    (lowered in `_LONG_LOWERING` seconds or more) has been lowered, just before its backend
-    compilation (or its look-up in the persistent cache) starts."""
+    """Tracing + lowering + compiling seconds and the number of programs compiled (or loaded
+    from the persistent cache: `cache_hits` of them) while the `with` block runs.
+    `on_compile()` is called once, when the first big program (lowered in `_LONG_LOWERING`
+    seconds or more) has been lowered, just before its backend compilation (or its look-up
+    in the persistent cache) starts."""
 
     on_compile: Callable[[], None] | None = None
     seconds: float = 0.0
     count: int = 0
     cache_hits: int = 0
     announced: bool = False
-    programs: list[tuple[str, float]] = dataclasses.field(default_factory=list)
 
     def __enter__(self) -> "CompileLog":
         _register()
