@@ -19,10 +19,11 @@ class DatumError(ValueError):
     """The observations and constraints do not determine all unknowns."""
 
 
-def _similarity(params: Parameters, theta, centre) -> Parameters:
+def similarity_transform(params: Parameters, theta, centre) -> Parameters:
     """Apply X -> centre + (1 + s) R(a) (X - centre) + t to all points and stations.
 
-    theta = (t, a, s); camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay.
+    theta = (t, a, s) (7,): translation (object units), Rodrigues rotation vector (rad),
+    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay.
     """
     t, a, s = theta[:3], theta[3:6], theta[6]
     rotation = rodrigues_to_matrix(a)
@@ -37,15 +38,20 @@ def _similarity(params: Parameters, theta, centre) -> Parameters:
     return Parameters(params.cameras, images, move(params.points))
 
 
-def _similarity_directions(problem: BundleProblem) -> np.ndarray:
-    """(7, n_all): how every unknown changes under each similarity direction."""
-    centre = jnp.mean(problem.initial.points, axis=0)
+def similarity_directions(params: Parameters, centre) -> np.ndarray:
+    """(7, n_all): how every unknown (`flatten` order) changes under each similarity
+    direction of `similarity_transform` about `centre` (3,), at `params`."""
 
     def flat(theta):
-        moved = _similarity(problem.initial, theta, centre)
+        moved = similarity_transform(params, theta, centre)
         return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(moved)])
 
     return np.asarray(jax.jacfwd(flat)(jnp.zeros(7))).T
+
+
+def network_centre(problem: BundleProblem) -> np.ndarray:
+    """(3,) the centroid of the object points' approximations: the similarity's fixed point."""
+    return np.mean(np.asarray(problem.initial.points), axis=0)
 
 
 def _describe_similarity(null_basis, directions, index) -> str | None:
@@ -89,20 +95,16 @@ def null_space(
     return vt[null_rows] / column_norms if null_rows.any() else None
 
 
-def describe_defect(
-    problem, null_basis, index, labels, *, allow_similarity=False, column_norms=None
-) -> None:
+def describe_defect(problem, null_basis, index, labels, *, column_norms=None) -> None:
     """Raise `DatumError` naming the defect spanned by `null_basis` (d, n_free).
 
-    With `allow_similarity`, a defect that is a similarity transformation of the
-    network (what inner constraints fix) passes silently. `column_norms` (n_free,): the
-    norms of the whitened Jacobian's columns (default: from the dense Jacobian).
+    `column_norms` (n_free,): the norms of the whitened Jacobian's columns (default: from
+    the dense Jacobian).
     """
     rank_defect = null_basis.shape[0]
-    similarity = _describe_similarity(null_basis, _similarity_directions(problem), index)
+    directions = similarity_directions(problem.initial, network_centre(problem))
+    similarity = _describe_similarity(null_basis, directions, index)
     if similarity is not None:
-        if allow_similarity:
-            return
         hint = (
             " The scale is not defined: add distance observations or control coordinates "
             "that fix the scale."

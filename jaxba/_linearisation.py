@@ -159,6 +159,16 @@ def _robust(problem: BundleProblem, group, e: Array) -> tuple[Array, Array]:
     return jax.jvp(problem.robust, (e,), (jnp.ones_like(e),))
 
 
+def _row_blocks(problem: BundleProblem, group, params: Parameters) -> tuple[Array, Array]:
+    """A row-local group's residuals (n, k) as `problem.residuals` gives them (masked
+    entries 0, robustified) and their Jacobian blocks (n, k, width) w.r.t. each row's
+    unknowns (`local_values`), masked rows 0."""
+    mask = group.mask()
+    residuals, blocks = group.row_jacobians(params, problem.refraction)
+    e, chain = _robust(problem, group, jnp.where(mask, residuals, 0.0))
+    return e, jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)
+
+
 def normal_equations(
     problem: BundleProblem, params: Parameters, plan: LinearisationPlan
 ) -> tuple[Float[Array, "n_free n_free"], Float[Array, " n_free"]]:
@@ -175,11 +185,8 @@ def normal_equations(
         if slots is None:
             whole_groups.append(group)
             continue
-        mask = group.mask()
-        residuals, blocks = group.row_jacobians(params, problem.refraction)
-        e, chain = _robust(problem, group, jnp.where(mask, residuals, 0.0))  # as `whitened`
-        blocks = blocks[:, :, list(slots)]
-        blocks = jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)  # (n, k, n_live)
+        e, blocks = _row_blocks(problem, group, params)
+        blocks = blocks[:, :, list(slots)]  # (n, k, n_live)
         # Gather every key's rows into (n_keys, max_rows·k, ·); row -1 is an appended zero.
         blocks = jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]
         blocks = blocks.reshape(rows.shape[0], -1, blocks.shape[-1])
@@ -196,6 +203,35 @@ def normal_equations(
     return normal, gradient
 
 
+def _group_columns(problem: BundleProblem, index: np.ndarray) -> tuple:
+    """Per group, the free column (n_free: none) of every row's unknowns (`local_values`),
+    or None for a group that is not row-local."""
+    column_of = _free_columns(problem, index)
+    return tuple(None if depends is None else jnp.asarray(column_of[depends])
+                 for depends in _local_positions(problem))
+
+
+def column_norms(problem: BundleProblem, params: Parameters) -> Float[Array, " n_free"]:
+    """‖column‖ of the whitened Jacobian dẽ/dx_free at `params` (`free_indices` order),
+    summed from the per-row blocks: no dense Jacobian or normal matrix at any size."""
+    index = free_indices(problem)
+    return _column_norms(problem, params, jnp.asarray(index), _group_columns(problem, index))
+
+
+@eqx.filter_jit
+def _column_norms(problem, params, index, columns):
+    n = index.shape[0]
+    squares = jnp.zeros(n + 1, ravel_pytree(params)[0].dtype)
+    for group, group_columns in zip(problem.groups, columns):
+        if group_columns is None:
+            jacobian, _ = _whole_group_jacobian(problem, params, index, [group])
+            squares = squares.at[:n].add(jnp.sum(jacobian**2, axis=0))
+        else:
+            blocks = _row_blocks(problem, group, params)[1]
+            squares = squares.at[group_columns].add(jnp.sum(blocks**2, axis=1))
+    return jnp.sqrt(squares[:n])
+
+
 def dense_jacobian(
     problem: BundleProblem, params: Parameters
 ) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
@@ -207,11 +243,9 @@ def dense_jacobian(
     their free columns; groups that are not row-local are differentiated whole.
     """
     index = free_indices(problem)
-    column_of = _free_columns(problem, index)
-    columns = tuple(None if depends is None else jnp.asarray(column_of[depends])
-                    for depends in _local_positions(problem))
     rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
-    return _dense_jacobian(problem, params, jnp.asarray(index), columns, rows)
+    return _dense_jacobian(problem, params, jnp.asarray(index), _group_columns(problem, index),
+                           rows)
 
 
 @eqx.filter_jit
@@ -222,10 +256,7 @@ def _dense_jacobian(problem, params, index, columns, rows):
         if group_columns is None:
             jacobian, e = _whole_group_jacobian(problem, params, index, [group])
         else:
-            mask = group.mask()
-            e, blocks = group.row_jacobians(params, problem.refraction)
-            e, chain = _robust(problem, group, jnp.where(mask, e, 0.0))  # as `residuals`
-            blocks = jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)
+            e, blocks = _row_blocks(problem, group, params)
             n_rows, k, _ = blocks.shape
             jacobian = jnp.zeros((n_rows, k, n + 1), blocks.dtype).at[
                 jnp.arange(n_rows)[:, None, None], jnp.arange(k)[None, :, None],

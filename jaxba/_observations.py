@@ -5,6 +5,7 @@ Residuals are whitened, e = (observed - computed) / σ, so that the solver minim
 (`mask`), so that padding entries (a coordinate with no observation) count nowhere.
 """
 
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -34,6 +35,9 @@ class AbstractObservationGroup(eqx.Module):
 
     name: eqx.AbstractVar[str]
     stddev: eqx.AbstractVar[Float[Array, "n k"]]
+    # True for rows that fix a datum (inner constraints): counted as constraints, not
+    # as observations, by the covariance.
+    constraint: ClassVar[bool] = False
 
     def local_values(self, params: Parameters) -> Array | None:
         """(n, width): the values of the unknowns row i depends on, taken from `params`

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 import scipy.stats
 
+from ._free_network import free_network_redundancy_numbers, inner_constraint_group
 from ._linearisation import dense_jacobian
 from ._observations import ImagePoints
 from ._problem import BundleProblem, observation_mask
@@ -57,7 +58,10 @@ def redundancy_numbers(
     problem: BundleProblem, params, *, schur: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """(r_i, e_i) of the real observations, flat, at `params`: dense, or with `schur` from
-    the Schur split (`schur_redundancy_numbers`, for bundles adjusted that way)."""
+    the Schur split (`schur_redundancy_numbers`, for bundles adjusted that way; free
+    networks through their minimal datum)."""
+    if schur and inner_constraint_group(problem) is not None:
+        return free_network_redundancy_numbers(problem, params)
     if schur:
         return schur_redundancy_numbers(problem, params)
     jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))

@@ -11,6 +11,12 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from ._datum import check_datum
+from ._free_network import (
+    free_network_precision,
+    inner_constraint_group,
+    minimal_constraints,
+    to_inner_datum,
+)
 from ._levenberg_marquardt import (
     DECREMENT_TOLERANCE,
     UNBATCHED_BLOCK,
@@ -187,22 +193,30 @@ def adjust(
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
-    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" above
-    `SCHUR_MIN_UNKNOWNS` unknowns). The phases are timed into `timings` (a new `Timings`
-    when None), which the result holds.
+    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" for large
+    bundles). A free network on the Schur backend is solved with a minimal datum and
+    carried over to its inner constraints (`jaxba._free_network`). The phases are timed
+    into `timings` (a new `Timings` when None), which the result holds.
     """
     timings = Timings() if timings is None else timings
     schur = use_schur(problem, solver)
+    free_network = schur and inner_constraint_group(problem) is not None
+    solved = minimal_constraints(problem, problem.initial) if free_network else problem
     if check:
         with timings.phase("datum check"):
-            (check_datum_schur if schur else check_datum)(problem, labels=labels)
+            if schur:
+                check_datum_schur(solved, labels=labels)
+            else:
+                check_datum(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):
         solution = (solve_schur if schur else solve)(
-            problem, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
+            solved, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
+    if free_network:
+        params = to_inner_datum(problem, params)
     final_cost = float(solution.cost)
     if not np.isfinite(final_cost):
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
@@ -212,8 +226,11 @@ def adjust(
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
         residuals = observed_minus_computed(problem, _whitened(problem, params))
-        parameter_precision = (schur_precision if schur else precision)(
-            problem, params, sigma0=sigma0)
+        if free_network:
+            parameter_precision = free_network_precision(problem, params, sigma0=sigma0)
+        else:
+            parameter_precision = (schur_precision if schur else precision)(
+                problem, params, sigma0=sigma0)
     return Adjustment(
         problem=problem,
         parameters=params,

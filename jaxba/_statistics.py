@@ -5,7 +5,6 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 
-from ._free_network import InnerConstraints
 from ._linearisation import dense_jacobian
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices
@@ -95,9 +94,9 @@ def _schur_block(schur: SchurCovariance, std: Parameters, positions: np.ndarray)
 
 
 def _constraint_rows(problem: BundleProblem) -> np.ndarray:
-    """Flat mask over the real observations: True on rows of inner-constraint groups."""
+    """Flat mask over the real observations: True on rows of constraint groups."""
     return np.concatenate([
-        np.full(int(np.sum(np.asarray(group.mask()))), isinstance(group, InnerConstraints))
+        np.full(int(np.sum(np.asarray(group.mask()))), group.constraint)
         for group in problem.groups
     ])
 

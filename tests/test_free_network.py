@@ -5,6 +5,9 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._datum import similarity_transform
+from jaxba._free_network import free_network_precision, inner_constraint_group, to_inner_datum
+from jaxba._reliability import redundancy_numbers
 
 GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
 
@@ -98,3 +101,68 @@ def test_unknown_datum_point_is_refused(tmp_path):
     truth.project_file.write_text(text)
     with pytest.raises(jaxba.ProjectError, match="nope"):
         jaxba.build_project(jaxba.read_project(truth.project_file))
+
+
+@pytest.fixture(scope="module")
+def free_block(tmp_path_factory):
+    """The seed-4 block as a free network without distances (a 7-parameter defect),
+    adjusted on the dense backend (inner constraints adjusted as observations)."""
+    truth = jaxba.write_synthetic_project(
+        tmp_path_factory.mktemp("free"), seed=4, noise_px=0.3, n_distances=0)
+    return _adjust(truth, datum='"free"', solver='"dense"')
+
+
+def _similar(params, theta):
+    centre = np.mean(np.asarray(params.points), axis=0)
+    return similarity_transform(params, jnp.asarray(theta), centre)
+
+
+def test_schur_free_network_solves_to_the_inner_constraint_datum(free_block):
+    project, dense = free_block
+    schur = jaxba.adjust_project(project, solver="schur")
+    assert schur.converged and schur.backend == "schur"
+    assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-9)
+    assert schur.precision.redundancy == dense.precision.redundancy
+    group = inner_constraint_group(project.problem)
+    violation = np.asarray(group.residuals(schur.parameters, project.problem.refraction))
+    assert np.abs(violation).max() < 1e-9
+    std = np.asarray(jaxba.flatten(dense.precision.std))
+    free = std > 0
+    difference = np.abs(np.asarray(jaxba.flatten(schur.parameters))
+                        - np.asarray(jaxba.flatten(dense.parameters)))
+    assert np.max(difference[free] / std[free]) < 1e-3  # two solves, each converged
+
+
+def test_to_inner_datum_undoes_a_similarity(free_block):
+    project, dense = free_block
+    moved = _similar(dense.parameters, [0.3, -0.2, 0.1, 2e-3, -1e-3, 3e-3, 1e-3])
+    back = to_inner_datum(project.problem, moved)
+    np.testing.assert_allclose(jaxba.flatten(back), jaxba.flatten(dense.parameters),
+                               rtol=0, atol=1e-9)
+
+
+def test_s_transformed_covariance_equals_the_bordered_inverse(free_block):
+    """At the same parameters the Schur route's covariance blocks and redundancy numbers
+    equal the dense inner-constraint ones (bordered normal matrix), and the datum points'
+    constraint directions carry no variance."""
+    project, dense = free_block
+    problem, params = project.problem, dense.parameters
+    transformed = free_network_precision(problem, params)
+    bordered = jaxba.precision(problem, params)
+    np.testing.assert_allclose(jaxba.flatten(transformed.std), jaxba.flatten(bordered.std),
+                               rtol=1e-9, atol=0)
+    np.testing.assert_allclose(transformed.schur.points, _point_blocks(bordered, params),
+                               rtol=0, atol=1e-9 * np.abs(transformed.schur.points).max())
+    reduced = transformed.schur.reduced_positions
+    np.testing.assert_allclose(transformed.schur.reduced, bordered.covariance_of(reduced),
+                               rtol=0, atol=1e-9 * np.abs(transformed.schur.reduced).max())
+    r_schur, e_schur = redundancy_numbers(problem, params, schur=True)
+    r_dense, e_dense = redundancy_numbers(problem, params)
+    np.testing.assert_allclose(r_schur, r_dense, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(e_schur, e_dense, rtol=0, atol=1e-9)
+
+
+def _point_blocks(precision, params):
+    positions = np.asarray(jaxba.unflatten(params, np.arange(jaxba.flatten(params).size))
+                           .points)
+    return np.stack([precision.covariance_of(row) for row in positions])

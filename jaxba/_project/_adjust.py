@@ -15,7 +15,6 @@ from .._solve import Adjustment, adjust
 from .._timing import Timings
 from .._variance_components import estimate_variance_components
 from ._build import Project
-from ._errors import ProjectError
 
 
 def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list[Iteration]:
@@ -38,10 +37,6 @@ def adjust_project(
     "statistics"."""
     settings = project.spec.settings
     solver = solver or settings.solver
-    if solver == "schur" and settings.datum == "free":
-        raise ProjectError(
-            f"{project.spec.path}: solver 'schur' eliminates the object points and cannot "
-            "hold a free network's inner constraints (datum = \"free\"); use 'dense' or 'auto'")
     options = dict(
         sigma0=settings.sigma0, max_steps=settings.max_iterations,
         rtol=settings.rtol, atol=settings.atol, solver=solver,

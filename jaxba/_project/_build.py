@@ -218,8 +218,6 @@ def build_project(spec: ProjectSpec) -> Project:
         camera_ids.setdefault(model, []).append(cid)
     labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
     if settings.datum == "free":
-        problem = inner_constraints(
-            problem, datum_points=_datum_rows(spec, point_index), labels=labels
-        )
+        problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
     return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels)
 

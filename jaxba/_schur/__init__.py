@@ -5,6 +5,7 @@ from ._bundle import (
     bundle_structure as bundle_structure,
     schur_cofactors as schur_cofactors,
     schur_precision as schur_precision,
+    schur_solve as schur_solve,
     solve_schur as solve_schur,
 )
 from ._choice import SCHUR_MIN_UNKNOWNS as SCHUR_MIN_UNKNOWNS, use_schur as use_schur

@@ -596,6 +596,42 @@ def solve_bundle_damped(
     return x_r, x_e
 
 
+def schur_solve(
+    problem: BundleProblem,
+    params: Parameters,
+    rhs: Float[np.ndarray, "m n_all"],
+    *,
+    structure: BundleStructure | None = None,
+) -> Float[np.ndarray, "m n_all"]:
+    """(JᵀJ)⁻¹ r for each right-hand side r (a row of `rhs`, `flatten` positions) of the
+    whitened bundle at `params`, by the Schur split: no dense n x n matrix. Entries of fixed
+    unknowns are ignored in `rhs` and 0 in the result."""
+    structure = structure or bundle_structure(problem)
+    rhs = np.asarray(rhs)
+    positions = unflatten(problem.initial, np.arange(rhs.shape[1]))
+    reduced = _reduced_positions(problem, structure)
+    points = np.asarray(positions.points)[np.asarray(structure.eliminated_points)]
+    x_r, x_e = _schur_solve(problem, structure, params, jnp.asarray(rhs[:, reduced]),
+                            jnp.asarray(rhs[:, points]))
+    out = np.zeros_like(rhs)
+    out[:, reduced] = np.asarray(x_r)
+    out[:, points] = np.asarray(x_e)
+    return out
+
+
+@eqx.filter_jit
+def _schur_solve(problem, structure, params, rhs_r, rhs_e):
+    normal = bundle_normal_equations(problem, structure, params)
+    free_r, free_e = _free_masks(problem, structure, rhs_r.dtype)
+
+    def one(r, e):  # vmapped over the right-hand sides; S is assembled once
+        system = eqx.tree_at(lambda n: (n.reduced_gradient, n.point_gradient), normal,
+                             (r * free_r[:-1], e * free_e[:-1]))
+        return solve_bundle_damped(structure, system, 0.0)
+
+    return jax.vmap(one)(rhs_r, rhs_e)
+
+
 def _chunk_coupling(structure, normal, inverse, obs, local, points):
     """Y (points of the chunk, n_r + 1, 3) = the coupling blocks W of the chunk's
     observations summed per point (last column: padding), and T = Y V⁻¹ per point."""
