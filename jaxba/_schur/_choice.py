@@ -17,9 +17,10 @@ def use_schur(problem: BundleProblem, solver: str = "auto") -> bool:
     """Whether to adjust `problem` with its object points eliminated.
 
     `solver`: "dense" never, "schur" always, "auto" for a bundle of more than
-    `SCHUR_MIN_UNKNOWNS` unknowns or `SCHUR_MIN_JACOBIAN_ENTRIES` Jacobian entries whose observations the Schur split supports (image
-    points, direct observations of unknowns, distances; a free network's inner constraints
-    through `jaxba._free_network.minimal_constraints`).
+    `SCHUR_MIN_UNKNOWNS` unknowns or `SCHUR_MIN_JACOBIAN_ENTRIES` Jacobian entries whose
+    observations the Schur split supports (image points, direct observations of unknowns,
+    distances; a free network's inner constraints through
+    `jaxba._free_network.minimal_constraints`).
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
