@@ -175,6 +175,8 @@ def normal_equations(
         if slots is None:
             whole_groups.append(group)
             continue
+        if not slots:  # no free unknown in any row (a scale bar between fixed points)
+            continue
         mask = group.mask()
         residuals, blocks = group.row_jacobians(params, problem.refraction)
         e, chain = _robust(problem, group, jnp.where(mask, residuals, 0.0))  # as `whitened`
