@@ -201,6 +201,8 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
     _say("wrote")
     for path in written:
         _say(f"  {path}")
+    for line in _report.warning_lines(project, result):
+        _error(line, "warning")
     if not result.converged:
         _error(f"the adjustment did not converge: {result.message}", "warning")
         return EXIT_NOT_CONVERGED
