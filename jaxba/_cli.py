@@ -9,6 +9,7 @@ Each subcommand is an `_add_<name>` function that registers its parser and its `
 """
 
 import argparse
+import io
 import os
 import pathlib
 import sys
@@ -103,9 +104,11 @@ def _plot_name(camera_id: str) -> str:
 def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
     """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
 
-    Never over an input (an input's name is skipped with a warning).
+    Never over an input (an input's name is skipped with a warning); the files replace the
+    old ones together (`replace_files`).
     """
     import jaxba
+    from jaxba._report import replace_files
 
     out_dir = pathlib.Path(out_dir)
     inputs = {pathlib.Path(path).resolve() for path in project.spec.input_files}
@@ -115,15 +118,17 @@ def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
             figures[_plot_name(cid) + ".png"] = (
                 lambda cid=cid: jaxba.plot_correlation(result, project, cid)
             )
-    written = []
+    images = {}
     for name, make in figures.items():
         path = out_dir / name
         if path.resolve() in inputs:
             _error(f"--plots: {path} is an input file of the project; not written", "warning")
             continue
-        make().savefig(path, dpi=100)
-        written.append(path)
-    return written
+        image = io.BytesIO()
+        make().savefig(image, dpi=100, format="png")
+        images[path] = image.getvalue()
+    replace_files(images)
+    return list(images)
 
 
 def _read_checked(args: argparse.Namespace):

@@ -9,8 +9,8 @@ import threading
 from collections.abc import Mapping
 
 
-def replace_files(texts: Mapping[pathlib.Path, str]) -> None:
-    """Write every text to its path (UTF-8), the folders existing.
+def replace_files(texts: Mapping[pathlib.Path, str | bytes]) -> None:
+    """Write every text (UTF-8) or bytes to its path, the folders existing.
 
     Every file is first written and flushed to disk under a temporary name beside its
     target; only then are they renamed over the targets, with Ctrl-C held back until the
@@ -24,8 +24,8 @@ def replace_files(texts: Mapping[pathlib.Path, str]) -> None:
         for path, text in texts.items():
             handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
             temporary[path] = pathlib.Path(name)
-            with os.fdopen(handle, "w", encoding="utf-8", newline="") as file:
-                file.write(text)
+            with os.fdopen(handle, "wb") as file:
+                file.write(text if isinstance(text, bytes) else text.encode("utf-8"))
                 file.flush()
                 os.fchmod(file.fileno(), mode)
                 os.fsync(file.fileno())
