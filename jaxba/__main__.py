@@ -1,5 +1,5 @@
 """`python -m jaxba ...`: the `jaxba` command line."""
 
-from ._cli import main
+from ._cli import entry
 
-raise SystemExit(main())
+entry()

@@ -1,7 +1,8 @@
 """`jaxba batch`: adjust many project files in padded batches, write reports and a summary.
 
-Plain Python around the jitted core (`_batch.adjust_batch`). Projects are read and built one
-by one; a file or datum error marks that project failed and the others go on. Projects of
+Plain Python around the jitted core (`_batch.adjust_batch`). Projects are read and their
+outputs checked first (`_batch_read.read_batch`, no jax), then built one by one; a file or
+datum error marks that project failed and the others go on. Projects of
 one kind (same observation groups, camera models, iteration settings) share one padded,
 vmapped solve: one compilation for all of them. A project that asks for a robust loss,
 variance components or data snooping is adjusted alone with `adjust_project` (those are
@@ -9,7 +10,7 @@ sequential re-adjustments); its summary row says so.
 """
 
 import csv
-import dataclasses
+import io
 import json
 import math
 import pathlib
@@ -19,24 +20,12 @@ from collections.abc import Callable
 import numpy as np
 
 from ._batch import _signature, adjust_batch, check_datum_batch
+from ._batch_read import BatchEntry, read_batch, summary_paths
 from ._camera import CAMERA_MODELS
 from ._datum import DatumError
-from ._project import ProjectError, adjust_project, build_project, read_project
+from ._project import ProjectError, adjust_project, build_project
+from ._report._atomic import replace_files
 from ._solve import NotConvergedError
-
-
-@dataclasses.dataclass
-class BatchEntry:
-    """One project of a batch: where it came from, what happened, and its result."""
-
-    path: pathlib.Path
-    name: str
-    status: str = "pending"  # ok | not converged | failed
-    reason: str = ""
-    mode: str = ""  # batch | single
-    project: object = None
-    result: object = None
-    out_dir: pathlib.Path | None = None
 
 
 def _needs_single(project) -> bool:
@@ -45,46 +34,38 @@ def _needs_single(project) -> bool:
             or settings.data_snooping)
 
 
-def _unique_folder(name: str, taken: set[str]) -> str:
-    folder, k = name, 2
-    while folder in taken:
-        folder, k = f"{name}_{k}", k + 1
-    taken.add(folder)
-    return folder
-
-
 def run_batch(
     paths,
     out_dir,
     *,
     progress: Callable[[str], None] | None = None,
+    entries: list[BatchEntry] | None = None,
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
+
+    Nothing is computed when a report would overwrite an input file or DIR cannot be
+    written (`OutputError`, from `read_batch`; `entries`: its result, if already read).
 
     Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch" or
     "single"), converged, sigma0, redundancy, and per camera parameter `<camera>.<name>` and
     `<camera>.<name>.std` (the model's units: mm for mm-models, pixels for "opencv").
     `progress` receives one line per stage and per project.
     """
-    from ._report import check_outputs, write_reports
+    from ._report import write_reports
 
     say = progress or (lambda line: None)
     out_dir = pathlib.Path(out_dir)
-    entries, taken = [], set()
     started = time.perf_counter()
-    for path in map(pathlib.Path, paths):
-        entry = BatchEntry(path=path, name=path.stem)
-        entries.append(entry)
-        try:
-            spec = read_project(path)
-            entry.name = spec.name
-            entry.out_dir = out_dir / _unique_folder(spec.name, taken)
-            check_outputs(spec, entry.out_dir)
-            entry.project = build_project(spec)
-        except (ProjectError, ValueError, OSError) as error:
-            entry.status, entry.reason = "failed", str(error)
-            say(f"failed  {path}: {error}")
+    entries = read_batch(paths, out_dir) if entries is None else entries
+    for entry in entries:
+        if entry.status == "pending":
+            try:
+                entry.project = build_project(entry.spec)
+            except (ProjectError, ValueError, OSError) as error:
+                entry.status, entry.reason = "failed", str(error)
+        if entry.status == "failed":
+            say(f"failed  {entry.path}: {entry.reason}")
     ready = [e for e in entries if e.status == "pending"]
     say(f"read {len(entries)} projects ({len(ready)} ok) in {time.perf_counter() - started:.1f} s")
 
@@ -190,10 +171,12 @@ def _json_number(value):
 def _write_summary(rows: list[dict], out_dir: pathlib.Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(key for row in rows for key in row))
-    with open(out_dir / "summary.csv", "w", newline="", encoding="utf-8") as file:
-        writer = csv.DictWriter(file, fieldnames=columns, restval="")
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: ("" if v is None else v) for k, v in row.items()})
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=columns, restval="")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if v is None else v) for k, v in row.items()})
     cleaned = [{k: _json_number(v) for k, v in row.items()} for row in rows]
-    (out_dir / "summary.json").write_text(json.dumps(cleaned, indent=1), encoding="utf-8")
+    paths = summary_paths(out_dir)
+    replace_files({paths["csv"]: table.getvalue(),
+                   paths["json"]: json.dumps(cleaned, indent=1)})

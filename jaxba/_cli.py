@@ -1,19 +1,28 @@
 """The `jaxba` command line: `jaxba adjust PROJECT.toml [--out DIR]`, `jaxba bal PROBLEM`.
 
 Thin: reading, adjusting and reporting live in the library and `jaxba._report`; this module
-parses arguments, sets up jax (float64, persistent compilation cache), prints progress and maps
-outcomes to exit codes: 0 success, 1 not converged (reports still written), 2 bad input.
+parses arguments, sets up jax (float64, persistent compilation cache), holds the output
+folder's lock for the run, prints progress and maps outcomes to exit codes: 0 success, 1 not
+converged (reports still written), 2 bad input (or an output folder that cannot be used),
+3 internal error (a bug: one line, the traceback with --debug), 130 interrupted (Ctrl-C).
 Each subcommand is an `_add_<name>` function that registers its parser and its `run` function.
 """
 
 import argparse
+import io
 import os
 import pathlib
 import sys
 import time
+import traceback
 from collections.abc import Sequence
 
-EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
+EXIT_CODES = (
+    "Exit codes: 0 converged, 1 not converged (reports written), 2 bad input, 3 internal"
+    " error, 130 interrupted."
+)
 CACHE_DIR = pathlib.Path("~/.cache/jaxba/jax")
 
 
@@ -67,9 +76,9 @@ def _add_adjust(subparsers) -> None:
         help="adjust a project and write its reports",
         description=(
             "Adjust the bundle of PROJECT.toml and write NAME.out, NAME.res, NAME.sigma and"
-            " results.json (NAME = the project name). Exit codes: 0 converged, 1 not converged"
-            " (reports written), 2 bad input."
+            " results.json (NAME = the project name). " + EXIT_CODES
         ),
+        parents=[_common_options()],
     )
     parser.add_argument("project", type=pathlib.Path, help="the project file (TOML)")
     parser.add_argument(
@@ -95,9 +104,11 @@ def _plot_name(camera_id: str) -> str:
 def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
     """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
 
-    Never over an input (an input's name is skipped with a warning).
+    Never over an input (an input's name is skipped with a warning); the files replace the
+    old ones together (`replace_files`).
     """
     import jaxba
+    from jaxba._report import replace_files
 
     out_dir = pathlib.Path(out_dir)
     inputs = {pathlib.Path(path).resolve() for path in project.spec.input_files}
@@ -107,15 +118,17 @@ def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
             figures[_plot_name(cid) + ".png"] = (
                 lambda cid=cid: jaxba.plot_correlation(result, project, cid)
             )
-    written = []
+    images = {}
     for name, make in figures.items():
         path = out_dir / name
         if path.resolve() in inputs:
             _error(f"--plots: {path} is an input file of the project; not written", "warning")
             continue
-        make().savefig(path, dpi=100)
-        written.append(path)
-    return written
+        image = io.BytesIO()
+        make().savefig(image, dpi=100, format="png")
+        images[path] = image.getvalue()
+    replace_files(images)
+    return list(images)
 
 
 def _read_checked(args: argparse.Namespace):
@@ -147,8 +160,15 @@ def _plots_possible() -> bool:
 
 
 def _adjust(args: argparse.Namespace) -> int:
+    from jaxba._report import output_lock
+
     spec, out_dir, read_seconds = _read_checked(args)
     plots = args.plots and _plots_possible()
+    with output_lock(out_dir):
+        return _adjust_locked(args, spec, out_dir, read_seconds, plots)
+
+
+def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int:
     start = time.perf_counter()
     _setup_jax()
     import jaxba
@@ -186,6 +206,8 @@ def _adjust(args: argparse.Namespace) -> int:
     _say("wrote")
     for path in written:
         _say(f"  {path}")
+    for line in _report.warning_lines(project, result):
+        _error(line, "warning")
     if not result.converged:
         _error(f"the adjustment did not converge: {result.message}", "warning")
         return EXIT_NOT_CONVERGED
@@ -201,9 +223,9 @@ def _add_bal(subparsers) -> None:
         help="solve a BAL problem file (Schur-complement LM) and write results.json",
         description=(
             "Solve a 'Bundle Adjustment in the Large' problem (plain, .bz2 or .gz) with the"
-            " Schur-complement Levenberg-Marquardt and write results.json. Exit codes: 0"
-            " converged, 1 not converged (results written), 2 bad input."
+            " Schur-complement Levenberg-Marquardt and write results.json. " + EXIT_CODES
         ),
+        parents=[_common_options()],
     )
     parser.add_argument("problem", type=pathlib.Path, help="the BAL problem file")
     parser.add_argument(
@@ -221,15 +243,26 @@ def _add_bal(subparsers) -> None:
 
 def _bal(args: argparse.Namespace) -> int:
     from jaxba._bal import BalFormatError, read_bal
+    from jaxba._report import check_folder, check_targets, output_lock
 
     if args.max_steps < 1:
         raise _UsageError(f"--max-steps {args.max_steps}: must be at least 1")
-    if args.out.exists() and not args.out.is_dir():
-        raise _UsageError(f"{args.out}: output folder is not a folder")
+    check_folder(args.out)
+    check_targets([args.out / "results.json"], [args.problem], "the BAL problem")
     try:
         bal = read_bal(args.problem)  # before jax: a bad file is reported at once
     except (OSError, BalFormatError) as error:
         raise _UsageError(str(error)) from None
+    residuals, unknowns = 2 * bal.n_observations, 9 * bal.n_cameras + 3 * bal.n_points
+    if residuals < unknowns:
+        raise _UsageError(
+            f"{args.problem}: under-determined: {bal.n_observations} observations give"
+            f" {residuals} residuals for {unknowns} unknowns")
+    with output_lock(args.out):
+        return _bal_locked(args, bal)
+
+
+def _bal_locked(args: argparse.Namespace, bal) -> int:
     _setup_jax()
     from jaxba._bal import run_bal
 
@@ -258,8 +291,10 @@ def _add_batch(subparsers) -> None:
             " write each project's reports into DIR/<project name>/ and summary.csv and"
             " summary.json into DIR. A failing project is reported in the summary and does"
             " not stop the others. Exit codes: 0 all converged, 1 some project failed or did"
-            " not converge, 2 bad usage."
+            " not converge, 2 bad usage (or a report would overwrite an input), 3 internal"
+            " error, 130 interrupted."
         ),
+        parents=[_common_options()],
     )
     parser.add_argument("projects", type=pathlib.Path, nargs="+", metavar="PROJECT.toml")
     parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
@@ -268,12 +303,15 @@ def _add_batch(subparsers) -> None:
 
 
 def _batch(args: argparse.Namespace) -> int:
-    if args.out.exists() and not args.out.is_dir():
-        raise _UsageError(f"{args.out}: output folder is not a folder")
-    _setup_jax()
-    from jaxba._batch_run import run_batch
+    from jaxba._batch_read import read_batch
+    from jaxba._report import output_lock
 
-    rows = run_batch(args.projects, args.out, progress=_say)
+    entries = read_batch(args.projects, args.out)  # checks every report against every input
+    with output_lock(args.out):
+        _setup_jax()
+        from jaxba._batch_run import run_batch
+
+        rows = run_batch(args.projects, args.out, progress=_say, entries=entries)
     ok = sum(row["status"] == "ok" for row in rows)
     _say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED
@@ -282,9 +320,20 @@ def _batch(args: argparse.Namespace) -> int:
 # --- entry point ----------------------------------------------------------------------------
 
 
+def _common_options() -> argparse.ArgumentParser:
+    """Options of every subcommand (also accepted before it)."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--debug", action="store_true", default=argparse.SUPPRESS,
+        help="on an internal error, print the traceback",
+    )
+    return common
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="jaxba", description="Self-calibrating photogrammetric bundle adjustment in JAX."
+        prog="jaxba", description="Self-calibrating photogrammetric bundle adjustment in JAX.",
+        epilog=EXIT_CODES, parents=[_common_options()],
     )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_adjust(subparsers)
@@ -294,7 +343,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 1 not converged, 2 bad input)."""
+    """Run the command line; returns the exit code: 0 ok, 1 not converged, 2 bad input,
+    3 internal error, 130 interrupted."""
+    from jaxba._report import OutputError
+
     parser = _parser()
     try:
         args = parser.parse_args(argv)
@@ -302,13 +354,37 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_.code if isinstance(exit_.code, int) else EXIT_BAD_INPUT
     try:
         return args.run(args)
-    except _UsageError as error:
+    except (_UsageError, OutputError) as error:
         _error(str(error))
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        _error("interrupted")
-        return 130
+        print("jaxba: interrupted", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+    except Exception as error:  # a bug: one line, the traceback only when asked for
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        lines = str(error).strip().splitlines()
+        what = type(error).__name__ + (f": {lines[0]}" if lines else "")
+        hint = "" if getattr(args, "debug", False) else "; run with --debug for the traceback"
+        _error(f"{what}. This is a bug in jaxba: please report it with the command and its"
+               f" input{hint}", "internal error")
+        return EXIT_INTERNAL
+
+
+def entry() -> None:
+    """The `jaxba` program: `main`, then exit with its code.
+
+    After Ctrl-C the process ends at once (`os._exit`), without the interpreter's clean-up:
+    an interrupt during compilation left XLA's threads running while the interpreter shut
+    down, which ended in a segmentation fault.
+    """
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -185,6 +185,8 @@ def normal_equations(
         if slots is None:
             whole_groups.append(group)
             continue
+        if not slots:  # no free unknown in any row (a scale bar between fixed points)
+            continue
         e, blocks = _row_blocks(problem, group, params)
         blocks = blocks[:, :, list(slots)]  # (n, k, n_live)
         # Gather every key's rows into (n_keys, max_rows·k, ·); row -1 is an appended zero.

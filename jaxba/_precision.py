@@ -62,13 +62,16 @@ def error_ellipsoids(
 ) -> tuple[Float[np.ndarray, "n 3"], Float[np.ndarray, "n 3 3"]]:
     """Semi-axes (descending, object units) and axis directions (columns) of each ellipsoid.
 
-    `scale` multiplies the standard (1σ) ellipsoid, e.g. 2.7955 for 95 % in 3D.
+    `scale` multiplies the standard (1σ) ellipsoid, e.g. 2.7955 for 95 % in 3D. A
+    covariance with a non-finite entry (statistics unavailable) gives NaN axes and directions.
     """
-    eigenvalues, eigenvectors = np.linalg.eigh(covariances)
+    finite = np.all(np.isfinite(covariances), axis=(-2, -1))
+    eigenvalues, eigenvectors = np.linalg.eigh(np.where(finite[:, None, None], covariances, 0.0))
     order = np.argsort(-eigenvalues, axis=-1)
     axes = scale * np.sqrt(np.clip(np.take_along_axis(eigenvalues, order, -1), 0, None))
     directions = np.take_along_axis(eigenvectors, order[:, None, :], -1)
-    return axes, directions
+    return (np.where(finite[:, None], axes, np.nan),
+            np.where(finite[:, None, None], directions, np.nan))
 
 
 def propagate(

@@ -11,6 +11,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from ._datum import check_datum
+from ._float64 import require_float64
 from ._free_network import (
     free_network_precision,
     inner_constraint_group,
@@ -24,13 +25,13 @@ from ._levenberg_marquardt import (
 )
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
-from ._problem import BundleProblem, observed_minus_computed, params_from_scaled
+from ._problem import BundleProblem, free_indices, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder
 from ._schur._bundle import schur_precision, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
 from ._solution import Solution
-from ._statistics import Precision, precision
+from ._statistics import Precision, precision, precision_from_covariance
 from ._steps import StepInfo, least_squares_stepwise
 from ._timing import Timings
 
@@ -169,6 +170,14 @@ def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance) -> Solu
     return _make_normal_solution(args, solution)
 
 
+def _precision_unavailable(problem, params, sigma0, final_cost, redundancy) -> Precision:
+    """σ̂0² from the final cost; covariance and σ NaN (the normal matrix was singular)."""
+    n_free = free_indices(problem).size
+    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy if redundancy > 0 else np.nan
+    return precision_from_covariance(problem, params, np.full((n_free, n_free), np.nan),
+                                     sigma0_squared, redundancy, problem.n_observations())
+
+
 def adjust(
     problem: BundleProblem,
     *,
@@ -189,7 +198,10 @@ def adjust(
     `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
     re-adjusting a checked bundle with new weights). `on_iteration` is called for
     every accepted iterate. With `throw=True` a non-converged solve raises
-    `NotConvergedError`; otherwise `converged` and `message` say what happened.
+    `NotConvergedError`; otherwise `converged` and `message` say what happened. Where the
+    normal matrix at the solution is singular (a degenerate solution, e.g. from far-off
+    approximations) the statistics are unavailable (σ and covariance NaN) and the result
+    is marked not converged. Needs float64 (`ValueError` otherwise).
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
@@ -198,6 +210,7 @@ def adjust(
     carried over to its inner constraints (`jaxba._free_network`). The phases are timed
     into `timings` (a new `Timings` when None), which the result holds.
     """
+    require_float64("jaxba.adjust")
     timings = Timings() if timings is None else timings
     schur = use_schur(problem, solver)
     free_network = schur and inner_constraint_group(problem) is not None
@@ -226,11 +239,18 @@ def adjust(
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
         residuals = observed_minus_computed(problem, _whitened(problem, params))
-        if free_network:
-            parameter_precision = free_network_precision(problem, params, sigma0=sigma0)
-        else:
-            parameter_precision = (schur_precision if schur else precision)(
-                problem, params, sigma0=sigma0)
+        try:
+            if free_network:
+                parameter_precision = free_network_precision(problem, params, sigma0=sigma0)
+            else:
+                parameter_precision = (schur_precision if schur else precision)(
+                    problem, params, sigma0=sigma0)
+        except np.linalg.LinAlgError as error:
+            parameter_precision = _precision_unavailable(
+                problem, params, sigma0, final_cost, redundancy)
+            converged, message = False, (
+                f"the normal matrix at the solution is singular ({error}): no σ, no"
+                " correlations; check the approximations and which parameters are free")
     return Adjustment(
         problem=problem,
         parameters=params,

@@ -335,3 +335,29 @@ def test_bad_input_is_reported_before_jax_is_loaded(tmp_path, command):
 def test_bal_refuses_a_step_limit_below_one(tmp_path):
     code, _, stderr = _run("bal", str(tmp_path / "any.txt"), "--max-steps", "-5")
     assert code == 2 and "--max-steps -5" in stderr
+
+
+@pytest.mark.parametrize("snooping", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_blunder_warnings(tmp_path, snooping):
+    """A 27-pixel blunder on img01 point 5 x: without data snooping the χ² test rejects σ̂0
+    and the warning names the observation with the largest |w|; with it, the warning names
+    the removed observation and σ̂0 passes the test."""
+    project_file = _copy_lab(tmp_path / "lab")
+    _edit(project_file.parent / "image_coordinates.txt", "img01 5 -1.19359937",
+          "img01 5 -1.09359937")
+    if snooping:
+        _edit(project_file, "[adjustment]", "[adjustment]\ndata_snooping = true")
+    code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "out"))
+    assert code == 0, stderr
+    warnings = stderr.splitlines()
+    assert all(line.startswith("jaxba: warning: ") for line in warnings)
+    variance = [line for line in warnings if "chi-square test of the variance factor" in line]
+    large = [line for line in warnings if "above the critical value" in line]
+    removed = [line for line in warnings if "data snooping removed" in line]
+    if snooping:
+        assert not variance and not large
+        assert len(removed) == 1 and "removed 1 observation(s): image img01 point 5 x" in stderr
+    else:
+        assert len(variance) == 1 and "blunders" in variance[0]
+        assert len(large) == 1 and ": image img01 point 5 x |w| " in large[0]
+        assert not removed

@@ -1,10 +1,12 @@
 """`normal_equations` (per-row Jacobian blocks gathered by key) against JᵀJ and Jᵀẽ of a dense
 forward-mode Jacobian of all residuals: two SMAC cameras with GNSS/INS and distances, weighted
 control under a Huber loss, a free network (inner constraints: a group that is not row-local),
-and Zhang's OpenCV-camera calibration."""
+Zhang's OpenCV-camera calibration, and a block whose points are all fixed (its distances
+depend on no free unknown)."""
 
 import pathlib
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,7 +32,7 @@ def _synthetic(directory, datum_line=None, **kwargs):
 
 
 @pytest.fixture(scope="module", params=["two_cameras_gnss", "control_huber", "free_network",
-                                        "zhang_opencv"])
+                                        "zhang_opencv", "fixed_points"])
 def problem(request, tmp_path_factory):
     directory = tmp_path_factory.mktemp(request.param)
     if request.param == "two_cameras_gnss":
@@ -41,6 +43,11 @@ def problem(request, tmp_path_factory):
             _synthetic(directory, seed=5, n_images=6, n_targets=25), [2, 5, 9])
     if request.param == "free_network":
         return _synthetic(directory, 'datum = "free"', seed=4, n_images=6, n_targets=25)
+    if request.param == "fixed_points":
+        problem = _synthetic(directory, seed=6, n_images=6, n_targets=25, n_distances=3)
+        assert any(isinstance(group, jaxba.Distances) for group in problem.groups)
+        return eqx.tree_at(lambda p: p.free.points, problem,
+                           jnp.zeros_like(problem.free.points))
     return jaxba.build_project(jaxba.read_project(CONFIGS / "zhang" / "zhang.toml")).problem
 
 

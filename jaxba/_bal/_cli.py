@@ -6,6 +6,7 @@ times compilation and solve separately, and writes `results.json`.
 """
 
 import json
+import math
 import os
 import pathlib
 import resource
@@ -13,11 +14,12 @@ import time
 from collections.abc import Callable
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._float64 import require_float64
 from .._progress import Iteration, StepRecorder
+from .._report._atomic import replace_files
 from .._schur import SchurLevenbergMarquardt, TwoBlockProblem, TwoBlockY, two_block_residuals
 from .._steps import least_squares_stepwise
 from .._timing import CompileLog
@@ -79,12 +81,10 @@ def run_bal(
     (tracing and compiling, or loading from the persistent cache), "solve_seconds" (the
     rest of the solve's wall time), "compilations" (programs compiled or loaded),
     "peak_rss_mib" (the process's peak resident memory so far, JAX runtime and compiler
-    included).
+    included). Non-finite numbers are written as null. The file is replaced at once
+    (`replace_files`).
     """
-    if not jax.config.jax_enable_x64:
-        raise ValueError(
-            "run_bal needs float64: call jax.config.update('jax_enable_x64', True) first"
-        )
+    require_float64("run_bal")
     out_dir = pathlib.Path(out_dir)
     start = time.perf_counter()
     bal = read_bal(path) if bal is None else bal
@@ -136,5 +136,16 @@ def run_bal(
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    replace_files({out_dir / "results.json": json.dumps(_json_safe(results), indent=2) + "\n"})
     return results
+
+
+def _json_safe(value):
+    """`value` with every non-finite float (a diverged cost) as None: JSON has no NaN."""
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

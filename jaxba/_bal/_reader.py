@@ -62,7 +62,8 @@ def read_bal(path: str | os.PathLike) -> BalProblem:
     """Read a BAL problem file; `.bz2` and `.gz` files are decompressed (by their suffix).
 
     Raises `FileNotFoundError` for a missing file and `BalFormatError` (naming the file,
-    the line and the field) for a truncated or malformed file or out-of-range indices.
+    the line and the field) for a truncated or malformed file, an empty problem (a count of
+    0 in the header) or out-of-range indices.
     """
     path = pathlib.Path(path)
     text = _read_text(path)
@@ -120,6 +121,11 @@ def _header(path: pathlib.Path, text: str, tokens: list[str]) -> tuple[int, int,
         ) from None
     if min(counts) < 0:
         raise BalFormatError(f"{path}:{line}: negative count in the header {counts}")
+    if min(counts) == 0:
+        raise BalFormatError(
+            f"{path}:{line}: the header announces {counts[0]} cameras, {counts[1]} points and"
+            f" {counts[2]} observations: a problem needs at least one of each"
+        )
     return counts
 
 

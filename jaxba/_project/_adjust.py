@@ -3,11 +3,14 @@
 The pipeline: adjust by least squares, then with the robust loss if one is set;
 estimate variance components (`variance_components = true`); Baarda data snooping
 (`data_snooping = true`), with a second variance-component pass when observations were
-removed; reliability at the final solution, always.
+removed; reliability at the final solution, unless its normal matrix is singular (a
+degenerate solution that did not converge: `reliability` is then None).
 """
 
 import dataclasses
 from collections.abc import Callable
+
+import numpy as np
 
 from .._progress import Iteration
 from .._reliability import data_snooping, reliability, restart_from
@@ -21,6 +24,17 @@ def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list
     start = before[-1].iteration + 1 if before else 0
     renumbered = [dataclasses.replace(it, iteration=start + k) for k, it in enumerate(after)]
     return before + renumbered
+
+
+def _final_reliability(result: Adjustment, snooping: dict):
+    """`reliability` at the final solution; None for a result that did not converge and
+    whose normal matrix is singular (`adjust` found its statistics unavailable)."""
+    try:
+        return reliability(result, **snooping)
+    except np.linalg.LinAlgError:
+        if result.converged:
+            raise
+        return None
 
 
 def adjust_project(
@@ -75,7 +89,7 @@ def adjust_project(
                 iterations = _continue_numbering(iterations, result.iterations)
                 if settings.variance_components:
                     result = with_components(result)
-        final_reliability = reliability(result, **snooping)
+        final_reliability = _final_reliability(result, snooping)
     return dataclasses.replace(
         result,
         timings=timings,

@@ -475,6 +475,12 @@ def _load_toml(path: pathlib.Path, name: str) -> dict:
             return tomllib.load(stream)
     except tomllib.TOMLDecodeError as error:
         raise ProjectError(f"{name}: invalid TOML: {error}") from None
+    except UnicodeDecodeError as error:
+        line = error.object[: error.start].count(b"\n") + 1
+        raise ProjectError(
+            f"{name}:{line}: not UTF-8 text (byte 0x{error.object[error.start]:02x}); save"
+            " the file as UTF-8"
+        ) from None
     except OSError as error:
         raise ProjectError(f"{name}: cannot read {path}: {error}") from None
 

@@ -1,16 +1,21 @@
 """Reports of an adjustment: BASC-style text files, results.json and observations.csv.
 
 Plain Python and NumPy around the adjusted result; the jitted core never imports this. The
-output checks (`check_outputs`, `OutputError`) need no jax; the rest is imported when first used.
+output checks (`check_outputs`, `OutputError`), the output folder's lock (`output_lock`) and
+`replace_files` need no jax; the rest is imported when first used.
 """
 
 from .._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "._console": ("iteration_line", "start_line", "summary_lines", "timing_line"),
+    "._atomic": ("replace_files",),
+    "._console": ("iteration_line", "start_line", "summary_lines", "timing_line",
+                  "warning_lines"),
     "._csv": ("observations_csv", "read_observations"),
     "._json": ("results_dict", "results_json"),
-    "._paths": ("OBSERVATIONS_FILE", "OutputError", "check_outputs", "report_paths"),
+    "._lock": ("output_lock",),
+    "._paths": ("OBSERVATIONS_FILE", "OutputError", "check_folder", "check_outputs",
+                "check_targets", "report_paths"),
     "._text": ("out_text", "res_text", "sigma_text"),
     "._write": ("write_reports",),
 })

@@ -1,12 +1,19 @@
-"""Short lines for a terminal: progress per iteration and the summary after an adjustment."""
+"""Short lines for a terminal: progress per iteration, the summary after an adjustment and
+the warnings a user must not miss."""
 
 import math
+
+import numpy as np
+import scipy.stats
 
 from .._progress import Iteration
 from .._project._build import Project
 from .._solve import Adjustment
 from .._timing import Timings
-from ._collect import FIXED, camera_tables, describe, rejections
+from ._collect import FIXED, camera_tables, describe, group_statistics, observation_ids, rejections
+
+VARIANCE_TEST_ALPHA = 0.05  # two-sided χ² test of the variance factor
+LISTED = 5  # observations named in one warning, the largest |w| first
 
 
 def iteration_line(iteration: Iteration) -> str:
@@ -83,3 +90,75 @@ def timing_line(timings: Timings) -> str:
     return (
         f"seconds: {phases}; compile {summary['compile']:.2f} ({timings.compilations}"
         f" programs, {timings.cache_hits} from the cache); total {summary['total']:.2f}")
+
+
+def warning_lines(project: Project, result: Adjustment) -> list[str]:
+    """What the numbers of a converged adjustment say about the data, one line each (none
+    when all is well, or when the adjustment did not converge: its numbers mean nothing):
+
+    - σ̂0 rejected by the two-sided χ² test of the variance factor: r σ̂0² / σ0² against
+      the χ²(r) quantiles at `VARIANCE_TEST_ALPHA` / 2 and 1 - `VARIANCE_TEST_ALPHA` / 2;
+    - observations whose normalised residual |w| exceeds the critical value of the
+      reliability's w-test (the largest first, named by image, point or camera);
+    - observations removed by data snooping.
+    """
+    if not result.converged:
+        return []
+    return [*_variance_factor(project, result), *_large_residuals(project, result),
+            *_removed(project, result)]
+
+
+def _variance_factor(project: Project, result: Adjustment) -> list[str]:
+    precision = result.precision
+    r = precision.redundancy
+    if r <= 0 or not math.isfinite(precision.sigma0_squared):
+        return []
+    sigma0 = project.spec.settings.sigma0
+    ratio = precision.sigma0_squared / sigma0**2
+    low, high = scipy.stats.chi2.ppf([VARIANCE_TEST_ALPHA / 2, 1 - VARIANCE_TEST_ALPHA / 2], r)
+    if low <= r * ratio <= high:
+        return []
+    cause = ("the a priori σ of the observations are too small, or there are blunders"
+             if r * ratio > high else "the a priori σ of the observations are too large")
+    return [
+        f"sigma0 {math.sqrt(precision.sigma0_squared):.4g} differs from its a priori value"
+        f" {sigma0:g}: the chi-square test of the variance factor rejects it (alpha"
+        f" {VARIANCE_TEST_ALPHA:g}, redundancy {r}: {sigma0 * math.sqrt(low / r):.4g} to"
+        f" {sigma0 * math.sqrt(high / r):.4g} expected); {cause}"
+    ]
+
+
+def _large_residuals(project: Project, result: Adjustment) -> list[str]:
+    if result.reliability is None:
+        return []
+    critical = result.reliability.critical_value
+    found = []
+    for stats in group_statistics(project, result):
+        with np.errstate(invalid="ignore"):
+            large = stats.observed & ~stats.removed & (np.abs(stats.w) > critical)
+        for row, coordinate in zip(*np.nonzero(large)):
+            found.append((abs(float(stats.w[row, coordinate])), stats.group, row, coordinate))
+    if not found:
+        return []
+    found.sort(key=lambda entry: -entry[0])
+    named = ", ".join(
+        f"{describe(observation_ids(project, group, row, coordinate))} |w| {w:.1f}"
+        for w, group, row, coordinate in found[:LISTED])
+    more = f" and {len(found) - LISTED} more" if len(found) > LISTED else ""
+    return [
+        f"{len(found)} observation(s) with a normalised residual |w| above the critical"
+        f" value {critical:.2f} (alpha {result.reliability.alpha:.2g} per test): {named}{more};"
+        " see the outlier column of observations.csv"
+    ]
+
+
+def _removed(project: Project, result: Adjustment) -> list[str]:
+    found = rejections(project, result)
+    if not found:
+        return []
+    named = ", ".join(
+        describe({k: v for k, v in entry.items() if k not in ("group", "w")})
+        for entry in found[:LISTED])
+    more = f" and {len(found) - LISTED} more" if len(found) > LISTED else ""
+    return [f"data snooping removed {len(found)} observation(s): {named}{more}; the solution"
+            " does not use them"]

@@ -1,6 +1,9 @@
 """Where the reports of a project go, checked before anything is computed (no jax here)."""
 
+import os
 import pathlib
+import tempfile
+from collections.abc import Iterable
 
 from .._project._spec import ProjectSpec
 
@@ -24,22 +27,51 @@ def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
     }
 
 
-def check_outputs(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """`report_paths`, after checking that none of them is an input file or a folder.
+def check_folder(out_dir) -> None:
+    """Raise `OutputError` unless `out_dir` is a writable folder or can be made one.
 
-    Raises `OutputError` naming the file; call it before adjusting to fail early.
+    Writable is tried, not inferred from permission bits: a temporary file is made (and
+    removed at once) in `out_dir` or, where it does not exist yet, in its nearest existing
+    parent folder.
     """
     out_dir = pathlib.Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: output folder is not a folder")
-    inputs = {pathlib.Path(path).resolve() for path in spec.input_files}
-    paths = report_paths(spec, out_dir)
-    for path in paths.values():
+    existing = out_dir
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"{out_dir}: output folder: {existing} is not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        reason = error.strerror or str(error)
+        raise OutputError(f"{out_dir}: output folder: cannot write into {existing}: {reason}")
+
+
+def check_targets(paths: Iterable[pathlib.Path], inputs: Iterable[os.PathLike], owner: str) -> None:
+    """Raise `OutputError` naming the first of `paths` that is one of `inputs` (compared
+    resolved) or a folder; `owner` (e.g. "project 'lab'") says whose inputs they are."""
+    inputs = {pathlib.Path(path).resolve() for path in inputs}
+    for path in paths:
         if path.resolve() in inputs:
             raise OutputError(
-                f"{path}: report file would overwrite an input file of project"
-                f" {spec.name!r}; choose another output folder (--out) or rename the input"
+                f"{path}: report file would overwrite an input file of {owner}; choose"
+                " another output folder (--out) or rename the input"
             )
         if path.is_dir():
             raise OutputError(f"{path}: report file name is taken by a folder")
+
+
+def check_outputs(
+    spec: ProjectSpec, out_dir, *, inputs: Iterable[os.PathLike] = ()
+) -> dict[str, pathlib.Path]:
+    """`report_paths`, after checking that `out_dir` is writable (`check_folder`) and that
+    no report is an input file of the project (or one of `inputs`, e.g. those of the other
+    projects of a batch) or a folder.
+
+    Raises `OutputError` naming the file; call it before adjusting to fail early.
+    """
+    check_folder(out_dir)
+    paths = report_paths(spec, out_dir)
+    check_targets(paths.values(), [*spec.input_files, *inputs], f"project {spec.name!r}")
     return paths

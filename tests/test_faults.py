@@ -1,0 +1,267 @@
+"""Faults, interrupts and bad input: every case ends with its exit code (0 converged, 1 not
+converged with reports, 2 bad input, 3 internal error, 130 interrupted), no traceback unless
+asked for, no partial report and no input changed.
+
+Most cases stop before jax is loaded; those run `python -m jaxba` in a subprocess, as a
+user would. The cases that adjust are marked slow.
+"""
+
+import contextlib
+import fcntl
+import hashlib
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+import jaxba
+from jaxba._cli import EXIT_INTERNAL, EXIT_INTERRUPTED, main
+from jaxba._report import OutputError, output_lock, replace_files
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+LAB = ROOT / "configs" / "lab"
+REPORTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
+# Reports the command-line run and prints whether jax was loaded.
+RUN_AND_SAY_JAX = ("import sys; from jaxba._cli import main; code = main(sys.argv[1:]);"
+                   " print(code, 'jax' in sys.modules)")
+
+
+def _env() -> dict:
+    """The test's environment, this checkout first on the path."""
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def _jaxba(*argv, timeout=60) -> subprocess.CompletedProcess:
+    """`main(argv)` in a fresh interpreter; stdout is "<exit code> <jax loaded>"."""
+    return subprocess.run([sys.executable, "-c", RUN_AND_SAY_JAX, *map(str, argv)],
+                          capture_output=True, text=True, timeout=timeout, env=_env())
+
+
+def _copy_lab(folder: pathlib.Path) -> pathlib.Path:
+    shutil.copytree(LAB, folder, ignore=shutil.ignore_patterns(*REPORTS))
+    return folder / "lab.toml"
+
+
+def _hashes(folder: pathlib.Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _edit(path: pathlib.Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, f"{old!r} not in {path}"
+    path.write_text(text.replace(old, new, 1))
+
+
+def _run(*argv: str, capsys) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# --- bad input: exit 2, before jax ---------------------------------------------------------
+
+
+def test_project_toml_not_utf8(tmp_path):
+    project = tmp_path / "bad.toml"
+    project.write_bytes(b'[project]\nname = "caf\xe9"\n')
+    done = _jaxba("adjust", project, "--out", tmp_path / "out")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert done.stderr.startswith("jaxba: error: bad.toml:2: not UTF-8")
+    assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("text", ["0 0 0\n", "1 0 1\n0 0 1.0 2.0\n1 2 3 4 5 6 7 8 9\n",
+                                  "1 1 1\n0 0 1.0 2.0\n1 2 3 4 5 6 7 8 9\n1 2 3\n"])
+def test_bal_empty_or_underdetermined(tmp_path, text):
+    problem = tmp_path / "problem.txt"
+    problem.write_text(text)
+    done = _jaxba("bal", problem, "--out", tmp_path / "out")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert done.stderr.startswith("jaxba: error: ") and "problem.txt" in done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_bal_results_would_overwrite_the_problem(tmp_path):
+    problem = tmp_path / "results.json"
+    problem.write_text("1 1 1\n")
+    done = _jaxba("bal", problem, "--out", tmp_path)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert "overwrite an input" in done.stderr and problem.read_text() == "1 1 1\n"
+
+
+@pytest.mark.parametrize("taken", ["summary.csv", "lab/results.json"])
+def test_batch_never_writes_over_an_input(tmp_path, taken):
+    """A table of the project where batch would write summary.csv, or a project's report:
+    exit 2 before jax, every file unchanged."""
+    project = _copy_lab(tmp_path / "in")
+    target = tmp_path / "in" / taken
+    target.parent.mkdir(exist_ok=True)
+    (tmp_path / "in" / "distances.txt").rename(target)
+    _edit(project, '"distances.txt"', f'"{taken}"')
+    before = _hashes(tmp_path / "in")
+    done = _jaxba("batch", project, "--out", tmp_path / "in")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert taken.split("/")[-1] in done.stderr and "overwrite an input" in done.stderr
+    assert _hashes(tmp_path / "in") == before
+
+
+@contextlib.contextmanager
+def _read_only(folder: pathlib.Path):
+    """`folder` made read-only: by its mode, or (as root, whom modes do not stop) by the
+    immutable attribute; skips the test where neither holds."""
+    folder.chmod(0o555)
+    immutable = False
+    try:
+        if os.access(folder, os.W_OK):  # root
+            immutable = subprocess.run(["chattr", "+i", str(folder)],
+                                       capture_output=True).returncode == 0
+            if not immutable:
+                pytest.skip("cannot make a folder read-only here")
+        yield folder
+    finally:
+        if immutable:
+            subprocess.run(["chattr", "-i", str(folder)], check=True)
+        folder.chmod(0o755)
+
+
+@pytest.mark.parametrize("command", ["adjust", "batch"])
+def test_read_only_output_folder(tmp_path, command):
+    project = _copy_lab(tmp_path / "lab")
+    (tmp_path / "out").mkdir()
+    with _read_only(tmp_path / "out"):
+        done = _jaxba(command, project, "--out", tmp_path / "out" / "reports")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert "cannot write" in done.stderr and str(tmp_path / "out") in done.stderr
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_concurrent_run_into_one_folder(tmp_path):
+    """Another run holds the output folder: exit 2 naming the folder, before jax."""
+    project = _copy_lab(tmp_path / "lab")
+    out = tmp_path / "out"
+    out.mkdir()
+    descriptor = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        for command in ("adjust", "batch"):
+            done = _jaxba(command, project, "--out", out)
+            assert done.stdout.split() == ["2", "False"], done.stderr
+            assert str(out) in done.stderr and "another jaxba run" in done.stderr
+    finally:
+        os.close(descriptor)
+    assert list(out.iterdir()) == []
+
+
+def test_output_lock_is_released(tmp_path):
+    with output_lock(tmp_path / "a"):
+        with pytest.raises(OutputError, match="another jaxba run"):
+            with output_lock(tmp_path / "a"):
+                pass
+    with output_lock(tmp_path / "a"):
+        pass
+    assert list((tmp_path / "a").iterdir()) == []  # no lock file left behind
+
+
+# --- internal errors and interrupts ----------------------------------------------------------
+
+
+def _fail_with(exception):
+    def run(args):
+        raise exception
+
+    return run
+
+
+def test_internal_error_is_one_line_exit_3(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr("jaxba._cli._adjust", _fail_with(TypeError("bad thing\nmore detail")))
+    code, _, err = _run("adjust", tmp_path / "p.toml", capsys=capsys)
+    assert code == EXIT_INTERNAL == 3
+    assert err.startswith("jaxba: internal error: TypeError: bad thing. This is a bug")
+    assert "--debug" in err and "Traceback" not in err and len(err.splitlines()) == 1
+    code, _, err = _run("adjust", tmp_path / "p.toml", "--debug", capsys=capsys)
+    assert code == 3 and err.startswith("Traceback") and "TypeError: bad thing" in err
+
+
+def test_interrupt_is_exit_130_without_traceback(monkeypatch, capsys, tmp_path):
+    monkeypatch.setattr("jaxba._cli._batch", _fail_with(KeyboardInterrupt()))
+    code, _, err = _run("batch", tmp_path / "p.toml", "--out", tmp_path, capsys=capsys)
+    assert code == EXIT_INTERRUPTED == 130
+    assert err == "jaxba: interrupted\n"
+
+
+def test_replace_files_keeps_the_old_files_when_writing_fails(tmp_path, monkeypatch):
+    old = {tmp_path / "a.txt": "old a", tmp_path / "b.txt": "old b"}
+    for path, text in old.items():
+        path.write_text(text)
+    real_fdopen = os.fdopen
+    calls = []
+
+    def full_disk_on_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+        return real_fdopen(*args, **kwargs)
+
+    monkeypatch.setattr(os, "fdopen", full_disk_on_second)
+    with pytest.raises(OSError, match="No space"):
+        replace_files({path: "new" for path in old})
+    assert {path: path.read_text() for path in old} == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]  # no temporary
+
+
+@pytest.mark.slow  # starts jax and compiles
+def test_sigint_during_a_run(tmp_path):
+    """Ctrl-C while the adjustment starts: exit 130, "interrupted", no traceback, no report
+    (nor a temporary file) in the output folder."""
+    project = _copy_lab(tmp_path / "lab")
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxba", "adjust", str(project), "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    try:
+        for line in process.stdout:  # interrupt once the run is under way
+            if line.startswith("adjusting"):
+                break
+        time.sleep(0.2)
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 130, stderr
+    assert stderr.strip().endswith("jaxba: interrupted") and "Traceback" not in stderr
+    assert list(out.iterdir()) == []
+
+
+# --- failed solves still write their reports --------------------------------------------------
+
+
+def test_adjust_refuses_float32():
+    project = jaxba.build_project(jaxba.read_project(LAB / "lab.toml"))
+    with jax.enable_x64(False):
+        with pytest.raises(ValueError, match="float64"):
+            jaxba.adjust(project.problem)
+
+
+@pytest.mark.slow  # a cold compilation of its own shapes
+def test_singular_normal_matrix_writes_reports_exit_1(tmp_path, capsys):
+    """K0 freed with c: the solve collapses (c → 0) and N is singular at its end. Exit 1,
+    reports written with σ unavailable (null in results.json), no traceback."""
+    truth = jaxba.write_synthetic_project(tmp_path / "k0", seed=3, n_images=6, n_targets=20)
+    _edit(truth.project_file.parent / "cameras.toml", 'free = ["xp"', 'free = ["K0", "xp"')
+    code, out, err = _run("adjust", truth.project_file, "--out", tmp_path / "out",
+                          capsys=capsys)
+    assert code == 1, err
+    assert "singular" in err and "Traceback" not in err and "NOT converged" in out
+    data = jaxba.read_observations(tmp_path / "out" / "observations.csv")
+    assert np.all(np.isnan(data["rx"]))  # no reliability
+    results = (tmp_path / "out" / "results.json").read_text()
+    assert '"converged": false' in results and '"std": null' in results
