@@ -221,12 +221,14 @@ def test_replace_files_keeps_the_old_files_when_writing_fails(tmp_path, monkeypa
 @pytest.mark.slow  # starts jax and compiles
 def test_sigint_during_a_run(tmp_path):
     """Ctrl-C while the adjustment starts: exit 130, "interrupted", no traceback, no report
-    (nor a temporary file) in the output folder."""
+    (nor a temporary file) in the output folder. The child gets an empty compilation cache
+    so that the run is still compiling (seconds) when the signal comes."""
     project = _copy_lab(tmp_path / "lab")
     out = tmp_path / "out"
+    env = {**_env(), "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     process = subprocess.Popen(
         [sys.executable, "-m", "jaxba", "adjust", str(project), "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         for line in process.stdout:  # interrupt once the run is under way
             if line.startswith("adjusting"):
