@@ -261,9 +261,9 @@ def _observation_pairs(
     first, second = observed[first], observed[second]
     lower = key[first] >= key[second]
     first, second = first[lower], second[lower]
-    key_pairs, block = np.unique(
-        np.stack([key[first], key[second]], axis=1).reshape(-1, 2), axis=0, return_inverse=True
-    )
+    n_keys = int(key.max()) + 1 if key.size else 1
+    codes, block = np.unique(key[first] * n_keys + key[second], return_inverse=True)
+    key_pairs = np.stack([codes // n_keys, codes % n_keys], axis=1)  # (row-major) sorted
     rows = _block_rows(
         first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
