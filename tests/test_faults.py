@@ -226,9 +226,12 @@ def test_sigint_during_a_run(tmp_path):
     project = _copy_lab(tmp_path / "lab")
     out = tmp_path / "out"
     env = {**_env(), "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
+    # A shell's background job (CI) ignores SIGINT and its children inherit that; Python
+    # installs its KeyboardInterrupt handler only where SIGINT is not ignored.
     process = subprocess.Popen(
         [sys.executable, "-m", "jaxba", "adjust", str(project), "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         for line in process.stdout:  # interrupt once the run is under way
             if line.startswith("adjusting"):
