@@ -99,10 +99,10 @@ def solve(
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns (`NormalLevenbergMarquardt`).
 
     Converged at an accepted iterate from which the Gauss-Newton step would move every
-    unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`;
-    0: off), or where optimistix's Cauchy test passes (step and residual change within
-    `rtol`, `atol`, elementwise, in the scaled unknowns), or when every step from it is
-    rejected down to the trust region's minimum radius.
+    unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`,
+    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test passes
+    (step and residual change within `rtol`, `atol`, elementwise, in the scaled unknowns),
+    or when every step from it is rejected down to the trust region's minimum radius.
     No datum check, no statistics. Without `on_step` the whole solve is one compiled
     `optx.least_squares` (pure: it can be `jax.vmap`ped over problems of one structure, as
     Monte Carlo and batches do, and differentiated); with `on_step` the same solver runs one

@@ -775,8 +775,9 @@ def solve_schur(
 ) -> Solution:
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
-    every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`;
-    0: off), or where optimistix's Cauchy test (`rtol`, `atol`) passes.
+    every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`,
+    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test
+    (`rtol`, `atol`) passes.
 
     Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
     result). `free_index` is accepted for signature compatibility with `solve` and not
