@@ -58,6 +58,7 @@ def run_batch(
     out_dir,
     *,
     progress: Callable[[str], None] | None = None,
+    advance: Callable[[], None] | None = None,
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
@@ -65,11 +66,13 @@ def run_batch(
     Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch" or
     "single"), converged, sigma0, redundancy, and per camera parameter `<camera>.<name>` and
     `<camera>.<name>.std` (the model's units: mm for mm-models, pixels for "opencv").
-    `progress` receives one line per stage and per project.
+    `progress` receives one line per stage and per project; `advance()` is called once per
+    project when it is finished (failed, or adjusted and its reports written), for a bar.
     """
     from ._report import check_outputs, write_reports
 
     say = progress or (lambda line: None)
+    finished = advance or (lambda: None)
     out_dir = pathlib.Path(out_dir)
     entries, taken = [], set()
     started = time.perf_counter()
@@ -85,6 +88,7 @@ def run_batch(
         except (ProjectError, ValueError, OSError) as error:
             entry.status, entry.reason = "failed", str(error)
             say(f"failed  {path}: {error}")
+            finished()
     ready = [e for e in entries if e.status == "pending"]
     say(f"read {len(entries)} projects ({len(ready)} ok) in {time.perf_counter() - started:.1f} s")
 
@@ -115,6 +119,7 @@ def run_batch(
             sigma0 = f"sigma0 {entry.result.sigma0:.4f}" if entry.result is not None else ""
             say(f"[{done:{len(str(len(ready)))}d}/{len(ready)}] {entry.name}: {entry.status}"
                 f" {sigma0} {entry.reason}".rstrip())
+            finished()
     rows = [_summary_row(entry) for entry in entries]
     _write_summary(rows, out_dir)
     say(f"wrote {out_dir / 'summary.csv'} and summary.json"
