@@ -62,8 +62,8 @@ class NormalDampedNewtonDescent(AbstractNormalDescent[Array, _NormalState]):
         n = y.shape[0]
         return _NormalState(jnp.zeros((n, n), y.dtype), jnp.zeros(n, y.dtype))
 
-    def query(self, y: Array, residual, cost: Scalar, state: _NormalState) -> _NormalState:
-        del residual, cost, state
+    def query(self, y: Array, residual, state: _NormalState) -> _NormalState:
+        del residual, state
         params = params_from_scaled(self.problem, y, self.plan.free_index, self.scale)
         normal, gradient = normal_equations(self.problem, params, self.plan)
         normal = self.scale[:, None] * normal * self.scale[None, :]

@@ -112,11 +112,8 @@ class AbstractNormalDescent(eqx.Module, Generic[Y, DescentState]):
         """A state of the right structure (`residual`: zeros of the residuals' shape)."""
 
     @abc.abstractmethod
-    def query(
-        self, y: Y, residual: PyTree[Array], cost: Scalar, state: DescentState
-    ) -> DescentState:
-        """Linearise at the accepted point `y`, where the residuals are `residual` and the
-        cost ½|residual|² is `cost`."""
+    def query(self, y: Y, residual: PyTree[Array], state: DescentState) -> DescentState:
+        """Linearise at the accepted point `y`, where the residuals are `residual`."""
 
     @abc.abstractmethod
     def step(self, radius: Scalar, state: DescentState) -> tuple[Y, optx.RESULTS]:
@@ -237,8 +234,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         shrink = jnp.where(accept, update.low_constant, state.shrink * update.low_constant)
 
         def accepted(descent_state):
-            descent_state = self.descent.query(
-                state.y_eval, residual_eval, cost_eval, descent_state)
+            descent_state = self.descent.query(state.y_eval, residual_eval, descent_state)
             cauchy = self._cauchy_test(
                 state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
             small_change = state.cost - cost_eval <= self.function_tolerance * state.cost

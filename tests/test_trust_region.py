@@ -34,7 +34,7 @@ class DenseDescent(AbstractNormalDescent):
     def init(self, y, residual):
         return jnp.zeros((y.size, y.size)), jnp.zeros(y.size)
 
-    def query(self, y, residual, cost, state):
+    def query(self, y, residual, state):
         jacobian = jax.jacfwd(self.residual_fn)(y)
         return jacobian.T @ jacobian, jacobian.T @ residual
 

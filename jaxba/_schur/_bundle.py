@@ -697,9 +697,9 @@ class BundleSchurDescent(
         shapes = jax.eval_shape(self._normal, y)
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
 
-    def query(self, y: Parameters, residual, cost, state):
+    def query(self, y: Parameters, residual, state):
         """The normal equations at `y` and whether they are finite (checked once here)."""
-        del residual, cost, state
+        del residual, state
         normal = self._normal(y)
         return normal, normal_equations_result(normal)
 
