@@ -48,6 +48,6 @@ def project_progress(
         task = progress.add_task("projects", total=total)
 
         def print_line(line: str) -> None:
-            progress.console.print(line, markup=False, highlight=False)
+            progress.console.print(line, markup=False, highlight=False, soft_wrap=True)
 
         yield ProjectProgress(print_line, lambda: progress.advance(task))
