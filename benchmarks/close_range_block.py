@@ -52,12 +52,12 @@ def _best_seconds(function, *args, repeat: int) -> tuple[float, float]:
 
 def main() -> None:
     from jaxba._schur._bundle import (
-        FUNCTION_TOLERANCE,
         _solve_schur,
         bundle_normal_equations,
         bundle_structure,
         solve_bundle_damped,
     )
+    from jaxba._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
@@ -81,7 +81,7 @@ def main() -> None:
           f" solve {damped_seconds[0]:.3f} s ({damped_seconds[1]:.3f} s CPU)", flush=True)
 
     settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
-                    function_tolerance=FUNCTION_TOLERANCE)
+                    step_tolerance=STEP_TOLERANCE)
     start = time.perf_counter()
     compiled = _solve_schur.lower(problem, structure, **settings).compile()
     compile_seconds = time.perf_counter() - start

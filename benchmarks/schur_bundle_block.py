@@ -115,7 +115,8 @@ def synthetic_block(
 
 
 def main() -> None:
-    from jaxba._schur._bundle import FUNCTION_TOLERANCE, _solve_schur, bundle_structure
+    from jaxba._schur._bundle import _solve_schur, bundle_structure
+    from jaxba._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=200)
@@ -131,7 +132,7 @@ def main() -> None:
     print(f"{n_residuals} residuals, {problem.n_unknowns()} unknowns,"
           f" reduced side {structure.n_reduced}; built in {build_seconds:.1f} s", flush=True)
     settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
-                    function_tolerance=FUNCTION_TOLERANCE)
+                    step_tolerance=STEP_TOLERANCE)
     start, cpu = time.perf_counter(), time.process_time()
     compiled = _solve_schur.lower(problem, structure, **settings).compile()
     compile_seconds, compile_cpu = time.perf_counter() - start, time.process_time() - cpu

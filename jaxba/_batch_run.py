@@ -40,6 +40,7 @@ def run_batch(
     *,
     progress: Callable[[str], None] | None = None,
     entries: list[BatchEntry] | None = None,
+    advance: Callable[[], None] | None = None,
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
@@ -50,11 +51,13 @@ def run_batch(
     Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch" or
     "single"), converged, sigma0, redundancy, and per camera parameter `<camera>.<name>` and
     `<camera>.<name>.std` (the model's units: mm for mm-models, pixels for "opencv").
-    `progress` receives one line per stage and per project.
+    `progress` receives one line per stage and per project; `advance()` is called once per
+    project when it is finished (failed, or adjusted and its reports written), for a bar.
     """
     from ._report import write_reports
 
     say = progress or (lambda line: None)
+    finished = advance or (lambda: None)
     out_dir = pathlib.Path(out_dir)
     started = time.perf_counter()
     entries = read_batch(paths, out_dir) if entries is None else entries
@@ -66,6 +69,7 @@ def run_batch(
                 entry.status, entry.reason = "failed", str(error)
         if entry.status == "failed":
             say(f"failed  {entry.path}: {entry.reason}")
+            finished()
     ready = [e for e in entries if e.status == "pending"]
     say(f"read {len(entries)} projects ({len(ready)} ok) in {time.perf_counter() - started:.1f} s")
 
@@ -96,6 +100,7 @@ def run_batch(
             sigma0 = f"sigma0 {entry.result.sigma0:.4f}" if entry.result is not None else ""
             say(f"[{done:{len(str(len(ready)))}d}/{len(ready)}] {entry.name}: {entry.status}"
                 f" {sigma0} {entry.reason}".rstrip())
+            finished()
     rows = [_summary_row(entry) for entry in entries]
     _write_summary(rows, out_dir)
     say(f"wrote {out_dir / 'summary.csv'} and summary.json"

@@ -299,6 +299,8 @@ def _add_batch(subparsers) -> None:
     parser.add_argument("projects", type=pathlib.Path, nargs="+", metavar="PROJECT.toml")
     parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                         help="folder for the per-project reports and the summary")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="a bar over the projects (default: only on a terminal)")
     parser.set_defaults(run=_batch)
 
 
@@ -310,8 +312,11 @@ def _batch(args: argparse.Namespace) -> int:
     with output_lock(args.out):
         _setup_jax()
         from jaxba._batch_run import run_batch
+        from jaxba._progress_bar import project_progress
 
-        rows = run_batch(args.projects, args.out, progress=_say, entries=entries)
+        with project_progress(len(args.projects), _say, bar=args.progress) as progress:
+            rows = run_batch(args.projects, args.out, progress=progress.say,
+                             advance=progress.advance, entries=entries)
     ok = sum(row["status"] == "ok" for row in rows)
     _say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED

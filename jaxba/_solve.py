@@ -18,11 +18,7 @@ from ._free_network import (
     minimal_constraints,
     to_inner_datum,
 )
-from ._levenberg_marquardt import (
-    DECREMENT_TOLERANCE,
-    UNBATCHED_BLOCK,
-    NormalLevenbergMarquardt,
-)
+from ._levenberg_marquardt import UNBATCHED_BLOCK, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
 from ._parameters import Parameters
 from ._problem import BundleProblem, free_indices, observed_minus_computed, params_from_scaled
@@ -34,6 +30,7 @@ from ._solution import Solution
 from ._statistics import Precision, precision, precision_from_covariance
 from ._steps import StepInfo, least_squares_stepwise
 from ._timing import Timings
+from ._trust_region import STEP_TOLERANCE
 
 
 class NotConvergedError(RuntimeError):
@@ -103,16 +100,16 @@ def solve(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
-    decrement_tolerance: float = DECREMENT_TOLERANCE,
+    step_tolerance: float = STEP_TOLERANCE,
     on_step: Callable[[StepInfo], None] | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on the Jacobi-scaled free unknowns (`NormalLevenbergMarquardt`).
 
-    Converged at an accepted iterate from which the Gauss-Newton step would lower the cost
-    by less than `decrement_tolerance` times the cost (see `NormalDampedNewtonDescent`), or
-    where optimistix's Cauchy test passes (step and residual change within `rtol`, `atol`,
-    elementwise, in the scaled unknowns), or when every step from it is rejected down to the
-    trust region's minimum radius (`jaxba._trust_region`).
+    Converged at an accepted iterate from which the Gauss-Newton step would move every
+    unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`,
+    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test passes
+    (step and residual change within `rtol`, `atol`, elementwise, in the scaled unknowns),
+    or when every step from it is rejected down to the trust region's minimum radius.
     No datum check, no statistics. Without `on_step` the whole solve is one compiled
     `optx.least_squares` (pure: it can be `jax.vmap`ped over problems of one structure, as
     Monte Carlo and batches do, and differentiated); with `on_step` the same solver runs one
@@ -123,24 +120,21 @@ def solve(
     """
     if plan is None:
         plan = linearisation_plan(problem)
-    settings = dict(max_steps=max_steps, rtol=rtol, atol=atol,
-                    decrement_tolerance=decrement_tolerance)
+    settings = dict(max_steps=max_steps, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
     if on_step is None:
         return _solve(problem, plan, **settings)
     solver, args, z0 = _normal_solver(problem, plan, rtol=rtol, atol=atol,
-                                      decrement_tolerance=decrement_tolerance,
-                                      block_size=UNBATCHED_BLOCK)
+                                      step_tolerance=step_tolerance, block_size=UNBATCHED_BLOCK)
     solution = least_squares_stepwise(
         _residual_fn, solver, z0, args, has_aux=True, max_steps=max_steps, on_step=on_step)
     return _normal_solution(args, solution)
 
 
-def _make_normal_solver(problem, plan, *, rtol, atol, decrement_tolerance, block_size=None):
+def _make_normal_solver(problem, plan, *, rtol, atol, step_tolerance, block_size=None):
     """The dense-backend solver, the residual function's args and the start z = 0."""
     scale = column_scale(problem, plan)
     solver = NormalLevenbergMarquardt(
-        problem, plan, scale, rtol, atol, decrement_tolerance=decrement_tolerance,
-        block_size=block_size)
+        problem, plan, scale, rtol, atol, step_tolerance=step_tolerance, block_size=block_size)
     return solver, (problem, plan.free_index, scale), jnp.zeros_like(scale)
 
 
@@ -162,9 +156,9 @@ _normal_solution = eqx.filter_jit(_make_normal_solution)
 
 
 @eqx.filter_jit
-def _solve(problem, plan, *, max_steps, rtol, atol, decrement_tolerance) -> Solution:
+def _solve(problem, plan, *, max_steps, rtol, atol, step_tolerance) -> Solution:
     solver, args, z0 = _make_normal_solver(
-        problem, plan, rtol=rtol, atol=atol, decrement_tolerance=decrement_tolerance)
+        problem, plan, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
     solution = optx.least_squares(
         _residual_fn, solver, z0, args=args, has_aux=True, max_steps=max_steps, throw=False)
     return _make_normal_solution(args, solution)

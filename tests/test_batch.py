@@ -121,8 +121,9 @@ def test_run_batch_reports_and_failures(projects, tmp_path):
     defect = jaxba.write_synthetic_project(root / "free", name="free", seed=3, n_images=6,
                                            n_targets=20, datum="none", n_distances=0)
     out = tmp_path / "out"
-    lines = []
-    rows = run_batch([*paths, broken, defect.project_file], out, progress=lines.append)
+    lines, finished = [], []
+    rows = run_batch([*paths, broken, defect.project_file], out, progress=lines.append,
+                     advance=lambda: finished.append(len(lines)))
     assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed", "failed"]
     assert "datum" in rows[4]["reason"] and "broken.toml" in rows[3]["reason"]
     for k in range(3):
@@ -133,13 +134,17 @@ def test_run_batch_reports_and_failures(projects, tmp_path):
     header = (out / "summary.csv").read_text().splitlines()[0].split(",")
     assert {"name", "status", "converged", "sigma0", "C1.c", "C1.c.std"} <= set(header)
     assert any(line.startswith("[3/4]") or line.startswith("[4/4]") for line in lines)
+    assert len(finished) == 5  # every project once, the one that failed to read included
 
 
 @pytest.mark.slow
 def test_cli_batch_exit_code(projects, tmp_path, capsys):
     _, paths, _ = projects
-    assert main(["batch", *map(str, paths[:2]), "--out", str(tmp_path / "cli")]) == 0
-    assert "2 of 2 projects converged" in capsys.readouterr().out
+    assert main(["batch", *map(str, paths[:2]), "--out", str(tmp_path / "cli"),
+                 "--progress"]) == 0
+    out = capsys.readouterr().out
+    assert "2 of 2 projects converged" in out
+    assert "2/2" in out  # the bar, asked for although stdout is not a terminal
 
 
 @pytest.mark.slow

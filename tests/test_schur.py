@@ -265,7 +265,7 @@ def _descent_step(descent, y, residual, radius):
     """init, query at y, then step(radius) and the step's predicted reduction: what
     SchurLevenbergMarquardt does."""
     state = descent.init(y, jnp.zeros_like(residual))
-    state = descent.query(y, residual, 0.5 * jnp.sum(residual**2), state)
+    state = descent.query(y, residual, state)
     step = descent.step(radius, state)[0]
     return step, descent.predicted_reduction(step, state)
 

@@ -12,7 +12,9 @@ import optimistix as optx
 import pytest
 
 from jaxba._trust_region import (
+    GAUSS_NEWTON_REGION,
     MIN_RADIUS,
+    STEP_TOLERANCE,
     AbstractNormalDescent,
     LevenbergMarquardt,
     finite_step,
@@ -32,7 +34,7 @@ class DenseDescent(AbstractNormalDescent):
     def init(self, y, residual):
         return jnp.zeros((y.size, y.size)), jnp.zeros(y.size)
 
-    def query(self, y, residual, cost, state):
+    def query(self, y, residual, state):
         jacobian = jax.jacfwd(self.residual_fn)(y)
         return jacobian.T @ jacobian, jacobian.T @ residual
 
@@ -44,6 +46,11 @@ class DenseDescent(AbstractNormalDescent):
         normal, gradient = state
         return y_diff @ gradient + 0.5 * y_diff @ (normal @ y_diff)
 
+    def gauss_newton(self, state):
+        normal, gradient = state
+        newton = jnp.linalg.solve(normal, gradient)
+        return -newton, gradient @ newton
+
 
 class UphillDescent(DenseDescent):
     """Steps that go the wrong way, with a model that promises a decrease each time."""
@@ -54,11 +61,6 @@ class UphillDescent(DenseDescent):
 
     def predicted_reduction(self, y_diff, state):
         return -jnp.abs(super().predicted_reduction(y_diff, state)) - 1e-300
-
-
-class DoneAtOnce(DenseDescent):
-    def converged(self, state):
-        return jnp.array(True)
 
 
 def _solve(descent, y0, *, max_steps=200, **options):
@@ -95,11 +97,70 @@ def test_function_tolerance_stops_earlier_near_the_minimum():
     np.testing.assert_allclose(loose.value, [1.0, 1.0], atol=1e-2)
 
 
-def test_descent_convergence_ends_at_the_start():
-    solution = _solve(DoneAtOnce(rosenbrock), Y0)
+def test_gauss_newton_step_within_tau_sigma_ends_the_solve():
+    """Stops at the first accepted iterate whose Gauss-Newton step -N⁻¹g moves every unknown
+    by at most τ of its σ = √(N⁻¹)_ii (whitened, σ0 = 1), checked on the Jacobian of the
+    final iterate; one step less runs out of steps; fewer steps than the tight Cauchy test."""
+
+    def solve(max_steps=200, **options):
+        solver = LevenbergMarquardt(descent=DenseDescent(offset_rosenbrock), **options)
+        return optx.least_squares(offset_rosenbrock, solver, Y0, max_steps=max_steps,
+                                  throw=False)
+
+    statistical = solve(rtol=0.0, atol=0.0, step_tolerance=STEP_TOLERANCE)
+    assert statistical.result == optx.RESULTS.successful
+    jacobian = jax.jacfwd(offset_rosenbrock)(statistical.value)
+    cofactors = jnp.linalg.inv(jacobian.T @ jacobian)
+    gauss_newton = -cofactors @ (jacobian.T @ offset_rosenbrock(statistical.value))
+    assert np.all(np.abs(gauss_newton) <= STEP_TOLERANCE * np.sqrt(np.diag(cofactors)))
+    steps = int(statistical.stats["num_steps"])
+    earlier = solve(steps - 1, rtol=0.0, atol=0.0, step_tolerance=STEP_TOLERANCE)
+    assert earlier.result == optx.RESULTS.nonlinear_max_steps_reached
+    tight = solve(rtol=1e-12, atol=1e-12)
+    assert tight.result == optx.RESULTS.successful
+    assert steps < int(tight.stats["num_steps"])
+
+
+LINEAR_A = jnp.array([[2.0, 1.0], [1.0, 3.0], [0.5, -1.0], [1.0, 1.0], [-1.0, 2.0]])
+LINEAR_B = jnp.array([1.0, 2.0, 0.5, -1.0, 3.0])
+
+
+def linear(y, args=None):
+    return LINEAR_A @ y - LINEAR_B
+
+
+def test_gauss_newton_end_game_solves_a_linear_problem_in_one_step():
+    """Within `GAUSS_NEWTON_REGION` of the optimum the undamped step is proposed: on a linear
+    problem it lands on the least-squares solution, where the step test ends the solve
+    (step 0 evaluates the start, step 1 the Gauss-Newton point). Without the test (τ = 0)
+    the damped steps (λ = 1e-4 at the start) only approach it."""
+    optimum = jnp.linalg.lstsq(LINEAR_A, LINEAR_B)[0]
+    offset = jnp.array([0.3, -0.2])
+    start = optimum + offset
+    assert float(offset @ (LINEAR_A.T @ LINEAR_A) @ offset) <= GAUSS_NEWTON_REGION
+
+    def solve(max_steps, step_tolerance):
+        solver = LevenbergMarquardt(0.0, 0.0, DenseDescent(linear),
+                                    step_tolerance=step_tolerance)
+        return optx.least_squares(linear, solver, start, max_steps=max_steps, throw=False)
+
+    solution = solve(200, STEP_TOLERANCE)
+    assert solution.result == optx.RESULTS.successful
+    assert int(solution.stats["num_steps"]) == 2
+    np.testing.assert_allclose(solution.value, optimum, rtol=0, atol=1e-14)
+    damped = solve(2, 0.0)
+    assert float(jnp.max(jnp.abs(damped.value - optimum))) > 1e-6
+
+
+def test_statistical_test_ends_a_solve_started_at_the_optimum():
+    """g = 0 at the start: the step test passes there (the damped step is 0, so the bound
+    from it is 0 and the decrement is asked), the start is the answer."""
+    optimum = jnp.array([1.0, 1.0])
+    solution = _solve(DenseDescent(rosenbrock), optimum, rtol=0.0, atol=0.0,
+                      step_tolerance=STEP_TOLERANCE)
     assert solution.result == optx.RESULTS.successful
     assert int(solution.stats["num_steps"]) == 1
-    np.testing.assert_array_equal(solution.value, Y0)
+    np.testing.assert_array_equal(solution.value, optimum)
 
 
 def test_non_finite_start_is_reported():

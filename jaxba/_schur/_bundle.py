@@ -50,7 +50,12 @@ from .._rotation import opk_to_matrix
 from .._solution import Solution
 from .._statistics import Precision, SchurCovariance
 from .._steps import StepInfo, least_squares_stepwise
-from .._trust_region import AbstractNormalDescent, LevenbergMarquardt, normal_equations_result
+from .._trust_region import (
+    STEP_TOLERANCE,
+    AbstractNormalDescent,
+    LevenbergMarquardt,
+    normal_equations_result,
+)
 from ._normal import (
     _add_diagonal,
     _matmul,
@@ -728,21 +733,31 @@ class BundleSchurDescent(
         shapes = jax.eval_shape(self._normal, y)
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
 
-    def query(self, y: Parameters, residual, cost, state):
+    def query(self, y: Parameters, residual, state):
         """The normal equations at `y` and whether they are finite (checked once here)."""
-        del residual, cost, state
+        del residual, state
         normal = self._normal(y)
         return normal, normal_equations_result(normal)
 
     def step(self, radius: Scalar, state):
         normal, result = state
         x_r, x_e = solve_bundle_damped(self.structure, normal, 1.0 / radius)
-        step = _to_parameters(self.structure, self.problem.initial, -x_r, -x_e)
-        step = jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
-        return step, result
+        return self._parameters(-x_r, -x_e), result
+
+    def _parameters(self, x_r, x_e) -> Parameters:
+        step = _to_parameters(self.structure, self.problem.initial, x_r, x_e)
+        return jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
 
     def predicted_reduction(self, y_diff: Parameters, state) -> Scalar:
         return bundle_predicted_reduction(self.structure, state[0], y_diff)
+
+    def gauss_newton(self, state) -> tuple[Parameters, Scalar]:
+        """The undamped Schur solve x = N⁻¹g: the step -x and gᵀx (fixed unknowns have zero
+        gradient and step)."""
+        normal = state[0]
+        x_r, x_e = solve_bundle_damped(self.structure, normal, 0.0)
+        decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
+        return self._parameters(-x_r, -x_e), decrement
 
     def _normal(self, y: Parameters) -> BundleNormalEquations:
         return bundle_normal_equations(
@@ -755,17 +770,9 @@ def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]
     return problem.residuals(problem.with_free(y))
 
 
-# Stop once an accepted step lowered the cost by less than this fraction of it: by then the
-# unknowns moved by √(2e-12 cost) σ at most (3e-4 σ for cost 5e4), and Gauss-Newton's
-# quadratic convergence leaves the next step far smaller. The Cauchy test alone never fires
-# at the cost's noise floor (every step is rejected until the radius vanishes).
-FUNCTION_TOLERANCE = 1e-12
-
-
-def _make_schur_solver(problem, structure, *, rtol, atol, function_tolerance):
+def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance):
     return LevenbergMarquardt(
-        rtol, atol, BundleSchurDescent(problem, structure),
-        function_tolerance=function_tolerance)
+        rtol, atol, BundleSchurDescent(problem, structure), step_tolerance=step_tolerance)
 
 
 def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
@@ -782,9 +789,9 @@ _schur_solution = eqx.filter_jit(_make_schur_solution)
 
 
 @eqx.filter_jit
-def _solve_schur(problem, structure, *, max_steps, rtol, atol, function_tolerance):
+def _solve_schur(problem, structure, *, max_steps, rtol, atol, step_tolerance):
     solver = _make_schur_solver(
-        problem, structure, rtol=rtol, atol=atol, function_tolerance=function_tolerance)
+        problem, structure, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
     solution = optx.least_squares(
         bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
     )
@@ -798,13 +805,15 @@ def solve_schur(
     max_steps: int = 50,
     rtol: float = 1e-10,
     atol: float = 1e-10,
-    function_tolerance: float = FUNCTION_TOLERANCE,
+    step_tolerance: float = STEP_TOLERANCE,
     structure: BundleStructure | None = None,
     on_step: Callable[[StepInfo], None] | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
-    Converged: an accepted step lowered the cost by at most `function_tolerance` of it, or
-    optimistix's Cauchy test (`rtol`, `atol`) passed.
+    Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
+    every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`,
+    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test
+    (`rtol`, `atol`) passes.
 
     Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
     result). `free_index` is accepted for signature compatibility with `solve` and not
@@ -818,7 +827,7 @@ def solve_schur(
     del free_index
     if structure is None:
         structure = bundle_structure(problem)
-    settings = dict(rtol=rtol, atol=atol, function_tolerance=function_tolerance)
+    settings = dict(rtol=rtol, atol=atol, step_tolerance=step_tolerance)
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)

@@ -48,10 +48,8 @@ class SchurDampedNewtonDescent(AbstractNormalDescent[TwoBlockY, _CheckedNormal])
         shapes = jax.eval_shape(self._normal_equations, y, residual)
         return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
 
-    def query(
-        self, y: TwoBlockY, residual: Array, cost: Scalar, state: _CheckedNormal
-    ) -> _CheckedNormal:
-        del cost, state
+    def query(self, y: TwoBlockY, residual: Array, state: _CheckedNormal) -> _CheckedNormal:
+        del state
         normal = self._normal_equations(y, residual)
         return normal, normal_equations_result(normal)
 
