@@ -39,6 +39,7 @@ from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices
 from ._schur import bundle_structure, schur_precision, schur_redundancy_numbers, schur_solve
+from ._schur._bundle import BundleStructure
 from ._statistics import Precision, SchurCovariance
 
 STIFFNESS = 100.0
@@ -204,16 +205,21 @@ def to_inner_datum(problem: BundleProblem, params: Parameters) -> Parameters:
 
 
 def free_network_precision(
-    problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
 ) -> Precision:
     """`schur_precision` of a free network at its inner-constraint solution `params`, in
     the inner-constraint datum: the minimal-datum covariance Q_m carried over by the
     S-transformation Q_i = S Q_m Sᵀ (module docstring) for the blocks a `SchurCovariance`
     holds. With P = (C G)⁻¹ C and K = Q_m Pᵀ (d Schur solves), a block is
-    Q_i[a, b] = Q_m[a, b] - G_a K_bᵀ - K_a G_bᵀ + G_a (P K) G_bᵀ."""
+    Q_i[a, b] = Q_m[a, b] - G_a K_bᵀ - K_a G_bᵀ + G_a (P K) G_bᵀ. `structure`: the
+    minimal-datum problem's `bundle_structure`, if already computed."""
     group = inner_constraint_group(problem)
     minimal = minimal_constraints(problem, params)
-    structure = bundle_structure(minimal)
+    structure = structure or bundle_structure(minimal)
     base = schur_precision(minimal, params, sigma0=sigma0, structure=structure)
     variance_factor = base.sigma0_squared / sigma0**2
     null = group.null_space(params, problem.free)  # G (d, n_all)

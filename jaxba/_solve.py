@@ -23,7 +23,7 @@ from ._linearisation import LinearisationPlan, linearisation_plan, normal_equati
 from ._parameters import Parameters
 from ._problem import BundleProblem, free_indices, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder
-from ._schur._bundle import schur_precision, solve_schur
+from ._schur._bundle import bundle_structure, schur_precision, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
 from ._solution import Solution
@@ -209,17 +209,19 @@ def adjust(
     schur = use_schur(problem, solver)
     free_network = schur and inner_constraint_group(problem) is not None
     solved = minimal_constraints(problem, problem.initial) if free_network else problem
+    # The Schur split's structure, computed once for the datum check, solve and covariance.
+    split = {"structure": bundle_structure(solved)} if schur else {}
     if check:
         with timings.phase("datum check"):
             if schur:
-                check_datum_schur(solved, labels=labels)
+                check_datum_schur(solved, labels=labels, **split)
             else:
                 check_datum(problem, labels=labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):
         solution = (solve_schur if schur else solve)(
-            solved, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
+            solved, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder, **split)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     if free_network:
@@ -235,10 +237,11 @@ def adjust(
         residuals = observed_minus_computed(problem, _whitened(problem, params))
         try:
             if free_network:
-                parameter_precision = free_network_precision(problem, params, sigma0=sigma0)
+                parameter_precision = free_network_precision(
+                    problem, params, sigma0=sigma0, **split)
             else:
                 parameter_precision = (schur_precision if schur else precision)(
-                    problem, params, sigma0=sigma0)
+                    problem, params, sigma0=sigma0, **split)
         except np.linalg.LinAlgError as error:
             parameter_precision = _precision_unavailable(
                 problem, params, sigma0, final_cost, redundancy)
