@@ -33,6 +33,12 @@ RUN_AND_SAY_JAX = ("import sys; from jaxba._cli import main; code = main(sys.arg
                    " print(code, 'jax' in sys.modules)")
 
 
+INTERRUPTIBLE_JAXBA = (
+    "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "runpy.run_module('jaxba', run_name='__main__', alter_sys=True)"
+)
+
+
 def _env() -> dict:
     """The test's environment, this checkout first on the path."""
     path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
@@ -227,11 +233,11 @@ def test_sigint_during_a_run(tmp_path):
     out = tmp_path / "out"
     env = {**_env(), "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     # A shell's background job (CI) ignores SIGINT and its children inherit that; Python
-    # installs its KeyboardInterrupt handler only where SIGINT is not ignored.
+    # then installs no KeyboardInterrupt handler, so the child installs it first (as
+    # `python -m jaxba` would have from an interactive shell).
     process = subprocess.Popen(
-        [sys.executable, "-m", "jaxba", "adjust", str(project), "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        [sys.executable, "-c", INTERRUPTIBLE_JAXBA, "adjust", str(project), "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         for line in process.stdout:  # interrupt once the run is under way
             if line.startswith("adjusting"):
