@@ -42,11 +42,11 @@ from .._observations import (
     Distances,
     ImagePoints,
     ParameterObservations,
-    _rotated_collinearity_residual,
+    _frame_collinearity_residual,
 )
 from .._parameters import Parameters, flatten, unflatten
+from .._pose import POSE_MODELS
 from .._problem import BundleProblem, free_indices
-from .._rotation import opk_to_matrix
 from .._solution import Solution
 from .._statistics import Precision, SchurCovariance
 from .._steps import StepInfo, least_squares_stepwise
@@ -59,9 +59,10 @@ from ._normal import (
     marquardt_diagonal,
     pair_block_sums,
 )
-from ._problem import _block_rows, _same_point_pairs
+from ._pairs import block_rows, same_point_pairs
 
-# Observation pairs per row of the S assembly (as `TwoBlockProblem.pair_row_size`).
+# Observation pairs per row of the S assembly: a row's product is a sum of 24 broadcast
+# products, which on the CPU ran ~7 % faster than rows of 16 and ~25 % faster than 32 (BAL).
 PAIR_ROW_SIZE = 8
 
 
@@ -78,11 +79,11 @@ class BundleStructure(eqx.Module):
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
       per-key blocks (n_keys, m) before one dense scatter; `key_rows` (n_key_chunks, rows,
       PAIR_ROW_SIZE), `key_row_block` (n_key_chunks, rows): the image observations in rows
-      of one key each (`_problem._block_rows`, padding as for the pairs below);
+      of one key each (`_pairs.block_rows`, padding as for the pairs below);
     - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
       (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
       eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
-      (`_problem._block_rows`; padding: observation n_image_obs, block n_key_pairs);
+      (`_pairs.block_rows`; padding: observation n_image_obs, block n_key_pairs);
       `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
     - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
       (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
@@ -196,7 +197,7 @@ def bundle_structure(
     *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
                                            pair_batch)
     observations = np.arange(n_obs)
-    key_rows, _, key_row_block = _block_rows(
+    key_rows, _, key_row_block = block_rows(
         observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
@@ -252,19 +253,19 @@ def _observation_pairs(
     """The pairs of image observations of one eliminated point that S needs (NumPy).
 
     `point_rows`, `key`: (n_image_obs,) eliminated-point row (n_eliminated: none) and key
-    of every observation. Returns first, second, block as `_problem._block_rows` lays them
+    of every observation. Returns first, second, block as `_pairs.block_rows` lays them
     out (pairs with key_i >= key_j, rows of `PAIR_ROW_SIZE` pairs of one key pair, padded
     with observation n_image_obs) and the key pairs (n_key_pairs, 2).
     """
     observed = np.flatnonzero(point_rows < n_eliminated)
-    first, second = _same_point_pairs(point_rows[observed], n_eliminated)
+    first, second = same_point_pairs(point_rows[observed], n_eliminated)
     first, second = observed[first], observed[second]
     lower = key[first] >= key[second]
     first, second = first[lower], second[lower]
     n_keys = int(key.max()) + 1 if key.size else 1
     codes, block = np.unique(key[first] * n_keys + key[second], return_inverse=True)
     key_pairs = np.stack([codes // n_keys, codes % n_keys], axis=1)  # (row-major) sorted
-    rows = _block_rows(
+    rows = block_rows(
         first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
@@ -511,39 +512,36 @@ def _image_jacobian_blocks(
     columns (a reduced point's columns included), je over its eliminated point (0 for a
     reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
     the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
-    Only the IOPs in `structure.iop_columns` are differentiated. The rotation M(ω, φ, κ)
-    and ∂M/∂(ω, φ, κ) are computed once per image, and the rotation of a row is
-    M + ∂M/∂(ω, φ, κ) δ at δ = 0, whose derivative in δ is the one in (ω, φ, κ)."""
+    Only the IOPs in `structure.iop_columns` are differentiated. The image's pose enters
+    through its pose model's `row_frame` (from `row_inputs`, made once per image),
+    differentiated by the parameter offset δ at δ = 0."""
     camera, image, point, measured, sigma, mask, columns, point_row = observations
     iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
     m, n_iop = structure.m, iop_columns.size
+    all_iops = n_iop == params.cameras[group.model].shape[1]
     dtype = params.images.dtype
-    angles = params.images[:, 3:]
-    rotations = jax.vmap(opk_to_matrix)(angles)  # (n_images, 3, 3)
-    rotation_derivatives = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)  # (n_images, 3, 3, 3)
+    pose = POSE_MODELS[group.pose]
 
-    def residual(free_iop, station, delta, point, iop, rotation, derivative, data):
-        iop = iop.at[iop_columns].set(free_iop)
-        e = _rotated_collinearity_residual(
-            group.model, iop, station, rotation + derivative @ delta, point, *data[:2],
+    def residual(free_iop, delta, point, iop, pose_inputs, data):
+        iop = free_iop if all_iops else iop.at[iop_columns].set(free_iop)
+        e = _frame_collinearity_residual(
+            group.model, iop, pose.row_frame(pose_inputs, delta), point, *data[:2],
             problem.refraction,
         )
         e = jnp.where(data[2], e, 0.0)
-        return e if problem.robust is None else problem.robust(e)
+        e = e if problem.robust is None else problem.robust(e)
+        return e, e
 
-    def one(iop, station, rotation, derivative, point, *data):
-        arguments = (iop[iop_columns], station, jnp.zeros(3, dtype), point, iop, rotation,
-                     derivative, data)
-        j_iop, j_station, j_angles, j_point = jax.jacrev(residual, argnums=(0, 1, 2, 3))(
+    def one(iop, pose_inputs, point, *data):
+        arguments = (iop[iop_columns], jnp.zeros(6, dtype), point, iop, pose_inputs, data)
+        (j_iop, j_pose, j_point), e = jax.jacrev(residual, argnums=(0, 1, 2), has_aux=True)(
             *arguments)
-        jc = jnp.concatenate([j_iop, j_station, j_angles], axis=1)
-        return jc, j_point, residual(*arguments)
+        return jnp.concatenate([j_iop, j_pose], axis=1), j_point, e
 
+    pose_inputs = pose.row_inputs(params.images)
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
-        params.images[:, :3].at[image].get(mode="clip"),
-        rotations.at[image].get(mode="clip"),
-        rotation_derivatives.at[image].get(mode="clip"),
+        jax.tree.map(lambda x: x.at[image].get(mode="clip"), pose_inputs),
         params.points.at[point].get(mode="clip"),
         measured,
         sigma,
