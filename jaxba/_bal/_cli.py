@@ -2,9 +2,8 @@
 report it.
 
 Plain Python around the jitted core: reads the file, builds the bundle and its Schur split,
-solves with `solve_schur` one compiled step at a time (`least_squares_stepwise`: no host
-callback, so jax's persistent compilation cache serves a second run), times compilation and
-solve separately, and writes `results.json`.
+solves with `solve_schur` (with progress one compiled step at a time, without it as one
+compiled program), times compilation and solve separately, and writes `results.json`.
 """
 
 import json
@@ -58,9 +57,11 @@ def run_bal(
     `function_tolerance` (relative, as Ceres), on optimistix's rtol/atol test, or after
     `max_steps` steps (trial steps, rejected ones included, as Ceres counts iterations).
     `on_iteration` is called for every accepted iterate (None: silent). `bal`: the problem
-    of `path` if already read (`read_bal`). The solver runs one compiled step at a time
-    (`least_squares_stepwise`, no host callback, so jax's persistent compilation cache serves
-    a second run on the same shapes).
+    of `path` if already read (`read_bal`). With `on_iteration` the solver runs one compiled
+    step at a time (`least_squares_stepwise`); without it the solve is one compiled program
+    (~15 % faster on BAL: the loop reuses its buffers) and "cost_history" holds only the
+    initial and final costs. Neither holds a host callback, so jax's persistent compilation
+    cache serves a second run on the same shapes.
 
     Needs float64 (`jax.config.update("jax_enable_x64", True)`; the jaxba CLI sets it).
     Returns the dict written to results.json: "problem", "n_cameras", "n_points",
@@ -90,13 +91,17 @@ def run_bal(
         initial_cost = float(_cost(problem))
         solution = solve_schur(
             problem, max_steps=max_steps, rtol=rtol, atol=atol,
-            function_tolerance=function_tolerance, structure=structure, on_step=recorder)
+            function_tolerance=function_tolerance, structure=structure,
+            on_step=None if on_iteration is None else recorder)
         final_cost = float(solution.cost)  # ½|e|² at the final (accepted) iterate
         wall = time.perf_counter() - start
     result = solution.result
     steps = int(solution.steps)
-    accepted = len(recorder.iterations) - 1  # less iteration 0, the start
-    cost_history = [iteration.cost for iteration in recorder.iterations]
+    accepted = int(solution.accepted_steps) - 1  # less step 0, the start
+    if on_iteration is not None:
+        cost_history = [iteration.cost for iteration in recorder.iterations]
+    else:
+        cost_history = [initial_cost, final_cost]
     converged = bool(result == optx.RESULTS.successful)
     results = {
         "problem": str(path),

@@ -73,7 +73,8 @@ class BundleStructure(eqx.Module):
     then the reduced points); column n_reduced is a dummy that absorbs padding.
     - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
       (all ImagePoints groups concatenated; the last row is a padding observation): the
-      model's IOPs in `iop_columns`, the 6 EOPs, padding, the 3 columns of a reduced point;
+      model's IOPs in `iop_columns`, the 6 EOPs, padding, and the 3 columns of a reduced
+      point (`point_width` 3 where some points are reduced, else 0: no such columns);
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
       point or the padding row;
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
@@ -119,6 +120,7 @@ class BundleStructure(eqx.Module):
     image_offset: int = eqx.field(static=True)
     n_reduced: int = eqx.field(static=True)
     m: int = eqx.field(static=True)
+    point_width: int = eqx.field(static=True)
     points_per_chunk: int = eqx.field(static=True)
     jacobian_batch: int = eqx.field(static=True)
 
@@ -127,7 +129,7 @@ def bundle_structure(
     problem: BundleProblem,
     *,
     chunk_mib: float = 64.0,
-    jacobian_batch: int = 16384,
+    jacobian_batch: int = 4096,
     pair_batch: int = 4096,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
@@ -172,7 +174,9 @@ def bundle_structure(
         for model in models
     )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
-    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 9
+    point_width = 3 if reduced_points.size else 0
+    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 6
+    m += point_width
     columns, point_rows = [], []
     for group in images:
         model_index = models.index(group.model)
@@ -242,6 +246,7 @@ def bundle_structure(
         image_offset=image_offset,
         n_reduced=int(n_reduced),
         m=int(m),
+        point_width=point_width,
         points_per_chunk=points_per_chunk,
         jacobian_batch=int(jacobian_batch),
     )
@@ -276,13 +281,14 @@ class BundleNormalEquations(eqx.Module):
     """Jacobian-dependent blocks (once per accepted iterate); see the module docstring.
 
     `reduced_hessian` U (n_r, n_r) with unit diagonal on fixed unknowns; `point_hessian` V
-    (n_e, 3, 3) likewise; `coupling` W_i (n_image_obs + 1, m, 3) (last row zero);
+    (n_e, 3, 3) likewise; `coupling` W_iᵀ (n_image_obs + 1, 3, m) (last row zero; stored
+    transposed, the layout the products of S read without copies);
     gradients g_r (n_r,), g_e (n_e, 3); Marquardt damping D_r (n_r,), D_e (n_e, 3).
     """
 
     reduced_hessian: Float[Array, "n_r n_r"]
     point_hessian: Float[Array, "n_e 3 3"]
-    coupling: Float[Array, "n_obs1 m 3"]
+    coupling: Float[Array, "n_obs1 3 m"]
     reduced_gradient: Float[Array, " n_r"]
     point_gradient: Float[Array, "n_e 3"]
     reduced_damping: Float[Array, " n_r"]
@@ -342,12 +348,12 @@ def bundle_normal_equations(
     )
     key_columns = structure.key_columns
     hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
-    gradient = jnp.zeros(n_r + 1, dtype).at[structure.image_columns].add(_transposed_product(jr, e))
+    gradient = _add_at_columns(structure, _transposed_product(jr, e))
     point_hessian = jnp.zeros((n_e + 1, 3, 3), dtype).at[structure.image_point].add(_gram(je, je))
     point_gradient = jnp.zeros((n_e + 1, 3), dtype).at[structure.image_point].add(
         _transposed_product(je, e)
     )
-    coupling = _gram(jr, je)
+    coupling = _gram(je, jr)
 
     residuals = problem.residuals(problem.with_free(params))
     for group, residual in zip(problem.groups, residuals):
@@ -425,6 +431,25 @@ def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np
     """(n_r,) `flatten` positions of the reduced columns."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
     return np.asarray(_reduced_vector(structure, positions)).astype(int)
+
+
+def _add_at_columns(
+    structure: BundleStructure, per_observation: Float[Array, "n_obs1 w"]
+) -> Float[Array, " n_r1"]:
+    """Σ_i per_observation_i added at observation i's first w reduced columns, (n_r + 1,)
+    (last: padding): summed per key first (observations of one key share their columns),
+    then n_keys rows scattered, not n_obs (a scatter-add of every observation's entries
+    into a short vector runs serially on the CPU)."""
+    width = per_observation.shape[1]
+    per_key = jax.ops.segment_sum(per_observation, structure.key, structure.key_columns.shape[0])
+    zero = jnp.zeros(structure.n_reduced + 1, per_observation.dtype)
+    return zero.at[structure.key_columns[:, :width]].add(per_key)
+
+
+def _at_columns(structure: BundleStructure, x_padded: Float[Array, " n_r1"]) -> Array:
+    """(n_obs1, m) the entries of `x_padded` (n_r + 1,) at every image observation's
+    reduced columns, gathered per key, then a row per observation."""
+    return x_padded[structure.key_columns][structure.key]
 
 
 def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
@@ -550,8 +575,9 @@ def _image_jacobian_blocks(
     mask = mask.astype(dtype)[:, :, None]
     jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
     reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
-    padding = jnp.zeros((*jc.shape[:2], m - n_iop - 9), dtype)
-    jr = jnp.concatenate([jc, padding, jnp.where(reduced_point, jp, 0.0)], axis=-1)
+    padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - 6), dtype)
+    point_part = [jnp.where(reduced_point, jp, 0.0)] if structure.point_width else []
+    jr = jnp.concatenate([jc, padding, *point_part], axis=-1)
     jr = jr * free_r[columns][:, None, :]
     je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
     return jr, je, e
@@ -588,7 +614,7 @@ def solve_bundle_damped(
     x_r = cholesky_solve(reduced, normal.reduced_gradient - rhs)
     x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
     n_e = normal.point_gradient.shape[0]
-    coupled = jnp.sum(normal.coupling * x_r_padded[structure.image_columns][:, :, None], axis=1)
+    coupled = jnp.sum(normal.coupling * _at_columns(structure, x_r_padded)[:, None, :], axis=2)
     coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
     x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
     return x_r, x_e
@@ -636,7 +662,7 @@ def _chunk_coupling(structure, normal, inverse, obs, local, points):
     n_r, n_points = structure.n_reduced, structure.points_per_chunk
     flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
     y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
-        normal.coupling[obs], mode="drop"
+        normal.coupling[obs].transpose(0, 2, 1), mode="drop"
     )
     y = y.reshape(n_points, n_r + 1, 3)
     t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
@@ -661,12 +687,12 @@ def _schur_complement(
     Pair-wise: Y_pᵀ V⁻¹ Y_p = Σ_{i,j ∈ p} W_i V⁻¹ W_jᵀ, and the blocks of the pairs of one
     key pair (equal reduced columns; for one camera, one image pair) are summed first
     (`pair_block_sums`, lower key triangle), then mirrored and scattered once. Only the
-    first m - 3 columns of W_i are nonzero for an eliminated point (no reduced point).
+    first m - point_width columns of W_i are nonzero for an eliminated point.
     """
-    n_r, k = structure.n_reduced, structure.m - 3
+    n_r, k = structure.n_reduced, structure.m - structure.point_width
     dtype = normal.reduced_gradient.dtype
     inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])[structure.image_point]
-    coupling_t = normal.coupling[:, :k, :].transpose(0, 2, 1)  # W_iᵀ (n_obs1, 3, k)
+    coupling_t = normal.coupling[:, :, :k]  # W_iᵀ (n_obs1, 3, k)
     blocks = pair_block_sums(
         _matmul(inverse, coupling_t), coupling_t, structure.pair_first, structure.pair_second,
         structure.pair_block, structure.key_pairs.shape[0],
@@ -684,8 +710,9 @@ def _schur_complement(
     eliminated_gradient = jnp.concatenate(
         [_matvec(point_inverse, normal.point_gradient), jnp.zeros((1, 3), dtype)]
     )
-    per_observation = _matvec(normal.coupling[:, :k, :], eliminated_gradient[structure.image_point])
-    rhs = jnp.zeros(n_r + 1, dtype).at[structure.image_columns[:, :k]].add(per_observation)
+    per_observation = jnp.sum(coupling_t * eliminated_gradient[structure.image_point][:, :, None],
+                              axis=1)
+    rhs = _add_at_columns(structure, per_observation)
     return -product[:n_r, :n_r], rhs[:n_r]
 
 
@@ -699,7 +726,7 @@ def bundle_predicted_reduction(
     x_r_padded = jnp.append(x_r, jnp.zeros((), x_r.dtype))
     x_e_padded = jnp.concatenate([x_e, jnp.zeros((1, 3), x_e.dtype)])
     # One einsum (as in `_normal.predicted_reduction`: gathered products summed run slowly).
-    coupled = jnp.einsum("nmc,nm,nc->", normal.coupling, x_r_padded[structure.image_columns],
+    coupled = jnp.einsum("ncm,nm,nc->", normal.coupling, _at_columns(structure, x_r_padded),
                          x_e_padded[structure.image_point])
     quadratic = (
         x_r @ (normal.reduced_hessian @ x_r)
@@ -771,6 +798,7 @@ def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
         parameters=problem.with_free(solution.value),
         converged=solution.result == optx.RESULTS.successful,
         steps=solution.stats["num_steps"],
+        accepted_steps=solution.state.num_accepted_steps,
         cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
         result=solution.result,
     )
