@@ -35,11 +35,14 @@ def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk"
     def move(xyz):
         return centre + (1 + s) * (xyz - centre) @ rotation.T + t
 
-    def turn(values):
-        image = model.from_parameters(values)
-        return model.from_rotation(image.rotation() @ rotation.T, move(image.station()))
+    poses = jax.vmap(model.from_parameters)(params.images)
+    stations = move(jax.vmap(model.station)(poses))
+    turned = jax.vmap(model.rotation)(poses) @ rotation.T
 
-    images = jax.vmap(lambda values: turn(values).parameters())(params.images)
+    def pose(m, station):
+        return model.from_rotation(m, station).parameters()
+
+    images = jax.vmap(pose)(turned, stations)
     return Parameters(params.cameras, images, move(params.points))
 
 
