@@ -28,10 +28,18 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxba._bal._model import bal_residual  # noqa: E402
 from jaxba._bal._reader import read_bal  # noqa: E402
+from jaxba._camera import NoRefraction  # noqa: E402
+from jaxba._observations import collinearity_residual  # noqa: E402
 
 FUNCTION_TOLERANCE = 1e-6
+
+
+def bal_residual(camera, point, observed):
+    """One observation's residual (observed - x, pixels) from a BAL camera row (r, t, f, k1,
+    k2): jaxba's "bal" camera and "rodrigues" pose, as `jaxba bal` solves it."""
+    return collinearity_residual("bal", camera[6:], camera[:6], point, observed, jnp.ones(2),
+                                 NoRefraction(), pose="rodrigues")
 
 
 def _split(x, n_cameras):

@@ -6,8 +6,9 @@ import numpy as np
 
 from ._linearisation import dense_jacobian
 from ._parameters import Parameters, parameter_labels
+from ._pose import POSE_MODELS
 from ._problem import BundleProblem, free_indices
-from ._rotation import matrix_to_opk, opk_to_matrix, rodrigues_to_matrix
+from ._rotation import rodrigues_to_matrix
 
 SIMILARITY_NAMES = (
     "translation in X", "translation in Y", "translation in Z",
@@ -19,31 +20,39 @@ class DatumError(ValueError):
     """The observations and constraints do not determine all unknowns."""
 
 
-def similarity_transform(params: Parameters, theta, centre) -> Parameters:
+def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk") -> Parameters:
     """Apply X -> centre + (1 + s) R(a) (X - centre) + t to all points and stations.
 
     theta = (t, a, s) (7,): translation (object units), Rodrigues rotation vector (rad),
-    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay.
+    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay. `pose`:
+    the pose model of the images rows (`BundleProblem.pose`), which converts them to and
+    from M and X0.
     """
     t, a, s = theta[:3], theta[3:6], theta[6]
     rotation = rodrigues_to_matrix(a)
+    model = POSE_MODELS[pose]
 
     def move(xyz):
         return centre + (1 + s) * (xyz - centre) @ rotation.T + t
 
-    def turn(opk):
-        return matrix_to_opk(opk_to_matrix(opk) @ rotation.T)
+    poses = jax.vmap(model.from_parameters)(params.images)
+    stations = move(jax.vmap(model.station)(poses))
+    turned = jax.vmap(model.rotation)(poses) @ rotation.T
 
-    images = jnp.concatenate([move(params.images[:, :3]), jax.vmap(turn)(params.images[:, 3:])], 1)
+    def pose(m, station):
+        return model.from_rotation(m, station).parameters()
+
+    images = jax.vmap(pose)(turned, stations)
     return Parameters(params.cameras, images, move(params.points))
 
 
-def similarity_directions(params: Parameters, centre) -> np.ndarray:
+def similarity_directions(params: Parameters, centre, *, pose: str = "opk") -> np.ndarray:
     """(7, n_all): how every unknown (`flatten` order) changes under each similarity
-    direction of `similarity_transform` about `centre` (3,), at `params`."""
+    direction of `similarity_transform` about `centre` (3,), at `params` (images rows of
+    the pose model `pose`)."""
 
     def flat(theta):
-        moved = similarity_transform(params, theta, centre)
+        moved = similarity_transform(params, theta, centre, pose=pose)
         return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(moved)])
 
     return np.asarray(jax.jacfwd(flat)(jnp.zeros(7))).T
@@ -102,7 +111,7 @@ def describe_defect(problem, null_basis, index, labels, *, column_norms=None) ->
     the dense Jacobian).
     """
     rank_defect = null_basis.shape[0]
-    directions = similarity_directions(problem.initial, network_centre(problem))
+    directions = similarity_directions(problem.initial, network_centre(problem), pose=problem.pose)
     similarity = _describe_similarity(null_basis, directions, index)
     if similarity is not None:
         hint = (

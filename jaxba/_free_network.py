@@ -55,7 +55,8 @@ class InnerConstraints(AbstractObservationGroup):
 
     `directions` (d, n_all) holds the rows of Bᵀ, `reference` (n_all,) x₀; `similarity`
     (7, d) the unobservable similarity motions (their coefficients in
-    `similarity_transform`'s (t, a, s)), `centre` (3,) the similarity's fixed point.
+    `similarity_transform`'s (t, a, s)), `centre` (3,) the similarity's fixed point, `pose`
+    the images' pose model (how the similarity turns them).
     """
 
     directions: Float[Array, "d n_all"]
@@ -64,6 +65,7 @@ class InnerConstraints(AbstractObservationGroup):
     similarity: Float[Array, "7 d"]
     centre: Float[Array, " 3"]
     name: str = eqx.field(static=True, default="inner_constraints")
+    pose: str = eqx.field(static=True, default="opk")
     constraint: ClassVar[bool] = True
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
@@ -74,7 +76,7 @@ class InnerConstraints(AbstractObservationGroup):
     def null_space(self, params: Parameters, free: Parameters) -> Float[np.ndarray, "d n_all"]:
         """The unobservable directions at `params` (rows, `flatten` positions), 0 on the
         fixed unknowns of `free`."""
-        motions = similarity_directions(params, self.centre)
+        motions = similarity_directions(params, self.centre, pose=self.pose)
         return np.asarray(self.similarity).T @ motions * flatten(free)
 
 
@@ -123,7 +125,7 @@ def inner_constraints(
     """
     norms = np.asarray(column_norms(problem, problem.initial))
     centre = network_centre(problem)
-    motions = similarity_directions(problem.initial, centre)
+    motions = similarity_directions(problem.initial, centre, pose=problem.pose)
     similarity = _unobservable_similarity(problem, motions, norms)
     if similarity.shape[1] == 0:
         raise DatumError("the network has no datum defect: it needs no inner constraints")
@@ -151,6 +153,7 @@ def inner_constraints(
         stddev=jnp.ones((null.shape[0], 1)),
         similarity=jnp.asarray(similarity),
         centre=jnp.asarray(centre),
+        pose=problem.pose,
     )
     return eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, group))
 
@@ -185,7 +188,8 @@ def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundlePro
 @eqx.filter_jit
 def _inner_datum(group: InnerConstraints, refraction, params: Parameters) -> Parameters:
     def moved(phi):
-        return similarity_transform(params, group.similarity @ phi, group.centre)
+        return similarity_transform(params, group.similarity @ phi, group.centre,
+                                    pose=group.pose)
 
     def violation(phi):
         return group.residuals(moved(phi), refraction)[:, 0]

@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._camera import CAMERA_MODELS, AbstractRefraction
 from ._custom_types import Vector2, Vector3
 from ._parameters import Parameters
-from ._rotation import opk_to_matrix
+from ._pose import POSE_MODELS, image_frames
 
 
 class AbstractObservationGroup(eqx.Module):
@@ -29,7 +29,7 @@ class AbstractObservationGroup(eqx.Module):
     each row depends on (`local_values`) and computes one row from them
     (`row_residual`); `residuals` vmaps that row function and `row_jacobians`
     differentiates it (reverse mode: k outputs, few inputs). `ImagePoints` overrides
-    both, to compute each image's rotation once rather than once per row. A group that
+    both, to make each image's pose frame once rather than once per row. A group that
     is not row-local overrides `residuals` and leaves `local_values` None.
     """
 
@@ -88,34 +88,43 @@ def collinearity_residual(
     measured: Vector2,
     sigma: Vector2,
     refraction: AbstractRefraction,
+    pose: str = "opk",
 ) -> Vector2:
-    """Whitened image residual (x_obs - x, y_obs - y) / σ of one measured image point."""
-    return _rotated_collinearity_residual(
-        model, iop, eop[:3], opk_to_matrix(eop[3:]), point, measured, sigma, refraction)
+    """Whitened image residual (x_obs - x, y_obs - y) / σ of one measured image point; `eop`
+    is the image's row of the pose model `pose` (`POSE_MODELS`)."""
+    return _frame_collinearity_residual(
+        model, iop, POSE_MODELS[pose].from_parameters(eop), point, measured, sigma, refraction)
 
 
-def _rotated_collinearity_residual(
+def _frame_collinearity_residual(
     model: str,
     iop: Float[Array, " n_iop"],
-    station: Vector3,
-    rotation: Float[Array, "3 3"],
+    frame,
     point: Vector3,
     measured: Vector2,
     sigma: Vector2,
     refraction: AbstractRefraction,
 ) -> Vector2:
-    """`collinearity_residual` with the image's rotation matrix M(ω, φ, κ) given."""
+    """`collinearity_residual` with the image's pose given as a frame (a pose's `frame()`:
+    `to_camera`, `station`)."""
     camera = CAMERA_MODELS[model].from_parameters(iop)
-    p_camera = rotation @ (point - station)
-    k = refraction.coefficient(station, point)
-    return (measured - camera.image_point(p_camera, measured, k)) / sigma
+    k = refraction.coefficient(frame.station(), point)
+    return (measured - camera.image_point(frame.to_camera(point), measured, k)) / sigma
 
 
 class ImagePoints(AbstractObservationGroup):
-    """Image coordinates of points, all taken with cameras of one model.
+    """Image coordinates of points, all taken with cameras of one model and images of one
+    pose model.
 
     `camera`, `image`, `point` index the rows of `cameras[model]`, `images`, `points`;
-    `measured` and `stddev` are (n, 2) in the camera model's image units.
+    `measured` and `stddev` are (n, 2) in the camera model's image units. `pose` names the
+    pose model (`POSE_MODELS`) that reads the `images` rows: "opk" (X0, omega, phi, kappa,
+    jaxba's project files) or "rodrigues" (BAL's r, t). It lives here, beside `model`,
+    because the group is what evaluates rows: every residual and Jacobian (the dense
+    rows, the Schur backend's blocks) reads both models from the group, and a row never
+    needs more than its group; consumers that hold only Parameters (the datum's similarity
+    transform) ask the problem (`BundleProblem.pose`), which holds one pose model for all
+    its image groups.
     """
 
     name: str = eqx.field(static=True)
@@ -125,9 +134,10 @@ class ImagePoints(AbstractObservationGroup):
     point: Int[Array, " n"]
     measured: Float[Array, "n 2"]
     stddev: Float[Array, "n 2"]
+    pose: str = eqx.field(static=True, default="opk")
 
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
-        """IOPs of the camera, EOPs of the image, XYZ of the point, per row."""
+        """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
         return jnp.concatenate([
             jnp.asarray(params.cameras[self.model])[self.camera],
             jnp.asarray(params.images)[self.image],
@@ -135,42 +145,39 @@ class ImagePoints(AbstractObservationGroup):
         ], axis=1)
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
-        """Whitened residuals (n, 2), each image's rotation matrix computed once."""
-        rotation = jax.vmap(opk_to_matrix)(jnp.asarray(params.images)[:, 3:])
-        return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, 0, None))(
-            *self._row_inputs(params, rotation), refraction)
+        """Whitened residuals (n, 2), each image's frame (`AbstractPose.frame`) made once."""
+        frames = image_frames(POSE_MODELS[self.pose], jnp.asarray(params.images))
+        return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, None))(
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jax.tree.map(lambda x: x[self.image], frames),
+            jnp.asarray(params.points)[self.point], self.measured, self.stddev, refraction)
 
     def row_jacobians(
         self, params: Parameters, refraction: AbstractRefraction
     ) -> tuple[Float[Array, "n 2"], Float[Array, "n 2 width"]]:
         """The residuals and d residual row / d `local_values` row, in reverse mode as the
-        base class does, but by the rotation matrix M of the row's image (computed once
-        per image, with dM/d(ω, φ, κ)), chained: de/d(ω, φ, κ) = Σ de/dM · dM/d(ω, φ, κ)."""
-        angles = jnp.asarray(params.images)[:, 3:]
-        rotation = jax.vmap(opk_to_matrix)(angles)
-        rotation_derivative = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)[self.image]
+        base class does, the image's pose through its model's `row_frame` (from
+        `row_inputs`, made once per image)."""
+        pose = POSE_MODELS[self.pose]
+        inputs = pose.row_inputs(jnp.asarray(params.images))
 
-        def row(*inputs):
-            e = self._row_residual(*inputs, refraction)
+        def row(iop, delta, point, pose_inputs, measured, sigma):
+            e = self._row_residual(iop, pose.row_frame(pose_inputs, delta), point, measured,
+                                   sigma, refraction)
             return e, e
 
-        jacobian = jax.jacrev(row, argnums=(0, 1, 2, 3), has_aux=True)
-        (d_iop, d_station, d_rotation, d_point), residuals = jax.vmap(jacobian)(
-            *self._row_inputs(params, rotation))
-        d_angles = sum(d_rotation[:, :, a, b, None] * rotation_derivative[:, None, a, b, :]
-                       for a in range(3) for b in range(3))
-        return residuals, jnp.concatenate([d_iop, d_station, d_angles, d_point], axis=2)
+        jacobian = jax.jacrev(row, argnums=(0, 1, 2), has_aux=True)
+        n = self.image.shape[0]
+        (d_iop, d_pose, d_point), residuals = jax.vmap(jacobian)(
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jnp.zeros((n, 6), jnp.asarray(params.images).dtype),
+            jnp.asarray(params.points)[self.point],
+            jax.tree.map(lambda x: x[self.image], inputs), self.measured, self.stddev)
+        return residuals, jnp.concatenate([d_iop, d_pose, d_point], axis=2)
 
-    def _row_inputs(self, params: Parameters, rotation: Float[Array, "n_images 3 3"]) -> tuple:
-        """Per row: IOPs, station, rotation matrix, point, measured, σ."""
-        images = jnp.asarray(params.images)
-        return (jnp.asarray(params.cameras[self.model])[self.camera], images[self.image, :3],
-                rotation[self.image], jnp.asarray(params.points)[self.point], self.measured,
-                self.stddev)
-
-    def _row_residual(self, iop, station, rotation, point, measured, sigma, refraction):
-        return _rotated_collinearity_residual(
-            self.model, iop, station, rotation, point, measured, sigma, refraction)
+    def _row_residual(self, iop, frame, point, measured, sigma, refraction):
+        return _frame_collinearity_residual(
+            self.model, iop, frame, point, measured, sigma, refraction)
 
 
 class ParameterObservations(AbstractObservationGroup):

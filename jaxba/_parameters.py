@@ -7,8 +7,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._camera import CAMERA_MODELS
+from ._pose import OpkPose
 
-IMAGE_PARAMETER_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+IMAGE_PARAMETER_NAMES = OpkPose.parameter_names  # the images columns of project files
 POINT_PARAMETER_NAMES = ("X", "Y", "Z")
 ANGLE_NAMES = ("omega", "phi", "kappa")
 
@@ -18,7 +19,8 @@ class Parameters(eqx.Module):
 
     - `cameras`: camera model name -> (n_cameras_of_model, n_model_parameters), the
       model's `parameter_names` order, mm-based units.
-    - `images`: (n_images, 6): X0, Y0, Z0 (object units), omega, phi, kappa (radians).
+    - `images`: (n_images, 6): the pose model's parameters (`BundleProblem.pose`): X0, Y0,
+      Z0 (object units), omega, phi, kappa (radians) for "opk", r, t for "rodrigues".
     - `points`: (n_points, 3): X, Y, Z (object units).
     """
 

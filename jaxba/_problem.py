@@ -21,6 +21,9 @@ class BundleProblem(eqx.Module):
     - `groups`: the observation groups (image points per camera, control, distances...);
     - `refraction`: the atmospheric refraction model (NoRefraction for close range);
     - `robust`: an optional robust loss applied to the image-point groups.
+
+    `pose` (a property) is the pose model that reads `images` rows; every image group of a
+    problem names the same one (checked at construction).
     """
 
     initial: Parameters
@@ -28,6 +31,19 @@ class BundleProblem(eqx.Module):
     groups: tuple[AbstractObservationGroup, ...]
     refraction: AbstractRefraction = NoRefraction()
     robust: RobustLoss | None = None
+
+    def __check_init__(self):
+        poses = {group.pose for group in self.groups if isinstance(group, ImagePoints)}
+        if len(poses) > 1:
+            raise ValueError(f"the image groups name different pose models {sorted(poses)}:"
+                             " one problem reads its images rows one way")
+
+    @property
+    def pose(self) -> str:
+        """The pose model (`POSE_MODELS`) of the images rows: its image groups' ("opk"
+        without image groups)."""
+        poses = [group.pose for group in self.groups if isinstance(group, ImagePoints)]
+        return poses[0] if poses else "opk"
 
     def whitened(self, params: Parameters) -> tuple[Array, ...]:
         """Whitened residuals e = v/σ of every group, masked entries exactly 0."""

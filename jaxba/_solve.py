@@ -145,6 +145,7 @@ def _make_normal_solution(args, solution: optx.Solution) -> Solution:
         parameters=params,
         converged=solution.result == optx.RESULTS.successful,
         steps=solution.stats["num_steps"],
+        accepted_steps=solution.state.num_accepted_steps,
         cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
         result=solution.result,
     )

@@ -13,17 +13,10 @@ from helpers import FD_RTOL, assert_jacobian_matches_fd
 from scipy.spatial.transform import Rotation
 
 import jaxba
-from jaxba._bal import (
-    BalFormatError,
-    bal_initial,
-    bal_project,
-    bal_residual,
-    bal_two_block,
-    read_bal,
-    rotate_point,
-    run_bal,
-)
-from jaxba._schur import two_block_residuals
+from jaxba._bal import BalFormatError, bal_bundle, read_bal, run_bal
+from jaxba._camera import NoRefraction
+from jaxba._datum import similarity_transform
+from jaxba._pose import rotate_point
 
 DATA = pathlib.Path(__file__).parent / "data" / "bal"
 TOY = DATA / "dubrovnik-3-7-pre.txt"
@@ -38,6 +31,7 @@ TOY_COST = 2764.22  # published rounded to 0.01
 CERES_LADYBUG_FINAL = 13344.318  # Ceres (see benchmarks/README.md); ours must not be worse
 SOLVE_RTOL = 1e-6
 ROTATION_TOL = 1e-14  # rotate_point against jaxba.rodrigues_to_matrix, unit-sized vectors
+SIMILARITY_RTOL = 1e-9  # residuals after a similarity, relative to the predicted image point
 FD_ATOL_PIXELS = 1e-6  # central differences of pixel-sized outputs: rounding ~ 1e-16 * 500 / 1e-6
 
 
@@ -54,9 +48,19 @@ def numpy_residuals(bal, cameras=None, points=None) -> np.ndarray:
     return camera[:, 6:7] * distortion * p - bal.observed
 
 
+@jax.jit
+def _residuals(problem, params):
+    return problem.residuals(params)[0]
+
+
+def jax_residuals(bal, params=None) -> np.ndarray:
+    """The BundleProblem's whitened residuals e = observed - x (σ = 1 px), (n_obs, 2)."""
+    problem = bal_bundle(bal)
+    return np.asarray(_residuals(problem, problem.initial if params is None else params))
+
+
 def jax_cost(bal) -> float:
-    residuals = jax.jit(two_block_residuals)(bal_initial(bal), bal_two_block(bal))
-    return float(0.5 * jnp.sum(residuals**2))
+    return 0.5 * float(np.sum(jax_residuals(bal) ** 2))
 
 
 # --- reader -------------------------------------------------------------------------------
@@ -191,23 +195,73 @@ def test_dubrovnik_initial_cost():
     assert numpy_cost == pytest.approx(DUBROVNIK_COST, rel=COST_RTOL)
 
 
+def test_bal_problem_is_a_bundle_of_bal_cameras_and_rodrigues_poses():
+    bal = read_bal(TOY)
+    problem = bal_bundle(bal)
+    (group,) = problem.groups
+    assert (group.model, group.pose, problem.pose) == ("bal", "rodrigues", "rodrigues")
+    np.testing.assert_array_equal(problem.initial.images, bal.cameras[:, :6])
+    np.testing.assert_array_equal(problem.initial.cameras["bal"], bal.cameras[:, 6:])
+    np.testing.assert_array_equal(group.camera, group.image)
+    assert np.all(np.asarray(group.stddev) == 1.0)
+    assert problem.n_unknowns() == 9 * bal.n_cameras + 3 * bal.n_points
+
+
 def test_residuals_match_numpy_model_per_observation():
+    """e = observed - x: Ceres' residual x - observed with the opposite sign."""
     bal = read_bal(LADYBUG)
-    residuals = np.asarray(jax.jit(two_block_residuals)(bal_initial(bal), bal_two_block(bal)))
+    residuals = -jax_residuals(bal)
     expected = numpy_residuals(bal)
     scale = np.maximum(np.abs(bal.observed + expected), 1.0)  # the predicted image point
     assert np.max(np.abs(residuals - expected) / scale) < MODEL_RTOL
 
 
-def test_projection_jacobian_matches_finite_differences():
+def test_residual_jacobian_matches_finite_differences():
+    """`collinearity_residual` with the "bal" camera and the "rodrigues" pose."""
     bal = read_bal(TOY)
-    camera, point = bal.cameras[1], bal.points[4]
+    camera, point, observed = bal.cameras[1], bal.points[4], bal.observed[4]
     joint = np.concatenate([camera, point])
 
-    def project(x):
-        return bal_project(jnp.asarray(x[:9]), jnp.asarray(x[9:]))
+    def residual(x):
+        return jaxba.collinearity_residual(
+            "bal", x[6:9], x[:6], x[9:], jnp.asarray(observed), jnp.ones(2), NoRefraction(),
+            pose="rodrigues")
 
-    assert_jacobian_matches_fd(project, joint, rtol=FD_RTOL, atol=FD_ATOL_PIXELS)
+    assert_jacobian_matches_fd(residual, joint, rtol=FD_RTOL, atol=FD_ATOL_PIXELS)
+
+
+def test_row_jacobians_of_the_rodrigues_pose_match_forward_mode():
+    """The dense path's row Jacobians (`ImagePoints.row_jacobians`) of the Rodrigues pose
+    against forward mode through the residual function."""
+    bal = read_bal(TOY)
+    problem = bal_bundle(bal)
+    (group,) = problem.groups
+    residuals, blocks = group.row_jacobians(problem.initial, problem.refraction)
+    values = group.local_values(problem.initial)
+
+    def row(v, i):
+        return jaxba.collinearity_residual(
+            "bal", v[:3], v[3:9], v[9:], group.measured[i], group.stddev[i], NoRefraction(),
+            pose="rodrigues")
+
+    rows = jnp.arange(values.shape[0])
+    np.testing.assert_allclose(residuals, jax.vmap(row)(values, rows), rtol=1e-14)
+    expected = jax.vmap(jax.jacfwd(row))(values, rows)
+    np.testing.assert_allclose(blocks, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+
+
+def test_similarity_of_the_network_leaves_the_residuals():
+    """`similarity_transform` moves Rodrigues poses with the points (rotation, translation,
+    scale): a perspective camera sees the same image."""
+    bal = read_bal(TOY)
+    problem = bal_bundle(bal)
+    theta = jnp.array([0.3, -0.2, 0.5, 0.1, -0.05, 0.2, 0.02])
+    centre = jnp.asarray(np.mean(bal.points, axis=0))
+    moved = similarity_transform(problem.initial, theta, centre, pose=problem.pose)
+    assert not np.allclose(moved.images, problem.initial.images)
+    before, after = jax_residuals(bal), jax_residuals(bal, moved)
+    scale = np.maximum(np.abs(bal.observed - before), 1.0)  # the predicted image point
+    assert np.max(np.abs(after - before) / scale) < SIMILARITY_RTOL
 
 
 @pytest.mark.parametrize("scale", [1.0, 1e-9, 1e-14, 0.0])
@@ -223,15 +277,6 @@ def test_rotate_point_derivative_at_zero_is_minus_skew():
     skew = np.array([[0.0, -0.9, -0.5], [0.9, 0.0, -0.2], [0.5, 0.2, 0.0]])  # [x]_x
     jacobian = jax.jacfwd(rotate_point)(jnp.zeros(3), x)
     np.testing.assert_allclose(jacobian, -skew, rtol=0, atol=ROTATION_TOL)
-
-
-def test_residual_is_prediction_minus_observation():
-    camera = jnp.array([0.1, -0.2, 0.05, 0.3, -0.1, -5.0, 500.0, 0.01, -0.001])
-    point = jnp.array([0.2, 0.4, 1.0])
-    observed = jnp.array([10.0, -20.0])
-    np.testing.assert_allclose(
-        bal_residual(camera, point, observed), bal_project(camera, point) - observed, rtol=0, atol=0
-    )
 
 
 # --- run_bal ------------------------------------------------------------------------------

@@ -1,78 +1,40 @@
-"""The BAL camera model and a BAL problem as a two-block least-squares problem.
+"""A BAL problem as a `BundleProblem`: BAL cameras, Rodrigues poses, one image group.
 
-Camera (9 values): Rodrigues rotation r, translation t, focal length f, radial k1, k2.
-Point (3 values): X. Projection (Snavely's Bundler convention, camera looks down -z):
-
-    P = R(r) X + t,   p = -P[:2] / P[2],   x = f (1 + k1 |p|² + k2 |p|⁴) p.
-
-The residual of one observation is x - observed (pixels), as in Ceres'
-`SnavelyReprojectionError`; the cost is ½ Σ |residual|².
+BAL's camera row (r1, r2, r3, t1, t2, t3, f, k1, k2) splits into the image's pose (the
+"rodrigues" pose model, P = R(r) X + t) and its camera (the "bal" camera model, one camera
+row per image: x = f (1 + k1 |p|² + k2 |p|⁴) p, p = -P[:2] / P[2]). Every observation has
+σ = 1 pixel, so that ½ Σ e² is BAL's (and Ceres') cost ½ Σ |x - observed|²; the whitened
+residual observed - x has the opposite sign of Ceres' `SnavelyReprojectionError`.
 """
 
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
 
-from .._custom_types import Vector2, Vector3
-from .._schur import TwoBlockProblem
+from .._observations import ImagePoints
+from .._parameters import Parameters
+from .._problem import BundleProblem
 from ._reader import BalProblem
 
 
-def rotate_point(r: Vector3, x: Vector3) -> Vector3:
-    """R(r) x for the Rodrigues (axis-angle) vector r, written out with cross products.
-
-    R x = x + (sin θ / θ) r × x + ((1 - cos θ) / θ²) r × (r × x), θ = |r|, with the
-    Taylor expansions 1 - θ²/6 and 1/2 - θ²/24 near θ = 0 (values and derivatives stay
-    exact). Same rotation as `jaxba.rodrigues_to_matrix(r) @ x` and Ceres'
-    `AngleAxisRotatePoint`; written elementwise because vmapped 3x3 matrix products
-    are slow on CPU (this makes the solver's linearisation ~3x faster on BAL).
-    """
-    theta2 = r[0] ** 2 + r[1] ** 2 + r[2] ** 2
-    small = theta2 < 1e-24
-    safe_theta2 = jnp.where(small, 1.0, theta2)
-    theta = jnp.sqrt(safe_theta2)
-    sin_term = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
-    cos_term = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / safe_theta2)
-    cross = _cross(r, x)
-    double_cross = _cross(r, cross)
-    return jnp.stack([x[i] + sin_term * cross[i] + cos_term * double_cross[i] for i in range(3)])
-
-
-def _cross(a, b) -> tuple:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def bal_project(camera: Float[Array, "9"], point: Vector3) -> Vector2:
-    """Image point x = f (1 + k1 |p|² + k2 |p|⁴) p, p = -P[:2]/P[2], P = R(r) X + t (pixels)."""
-    in_camera = rotate_point(camera[:3], point) + camera[3:6]
-    p = -in_camera[:2] / in_camera[2]
-    r2 = p[0] ** 2 + p[1] ** 2
-    focal, k1, k2 = camera[6], camera[7], camera[8]
-    return focal * (1.0 + k1 * r2 + k2 * r2**2) * p
-
-
-def bal_residual(camera: Float[Array, "9"], point: Vector3, observed: Vector2) -> Vector2:
-    """Reprojection residual `bal_project(camera, point) - observed` of one observation."""
-    return bal_project(camera, point) - observed
-
-
-def bal_two_block(problem: BalProblem) -> TwoBlockProblem:
-    """The BAL problem as min ½ Σ_i |bal_residual(cameras[c_i], points[p_i], observed_i)|².
-
-    The unknowns y = (cameras (n_cameras, 9), points (n_points, 3)); the initial values
-    are `bal_initial(problem)`.
-    """
-    return TwoBlockProblem(
-        bal_residual,
-        problem.camera_index,
-        problem.point_index,
-        jnp.asarray(problem.observed),
-        n_cameras=problem.n_cameras,
-        n_points=problem.n_points,
+def bal_bundle(bal: BalProblem) -> BundleProblem:
+    """The BAL problem `bal` as a BundleProblem: cameras {"bal": (n_cameras, 3)} (f, k1,
+    k2), images (n_cameras, 6) (r, t; pose "rodrigues"), points (n_points, 3), all free,
+    one ImagePoints group "bal" with σ = 1 (pixels)."""
+    initial = Parameters(
+        cameras={"bal": jnp.asarray(bal.cameras[:, 6:])},
+        images=jnp.asarray(bal.cameras[:, :6]),
+        points=jnp.asarray(bal.points),
     )
-
-
-def bal_initial(
-    problem: BalProblem,
-) -> tuple[Float[Array, "n_cameras 9"], Float[Array, "n_points 3"]]:
-    """The initial unknowns (cameras, points) as jax arrays."""
-    return jnp.asarray(problem.cameras), jnp.asarray(problem.points)
+    free = jax.tree.map(lambda x: np.ones(np.shape(x), dtype=bool), initial)
+    group = ImagePoints(
+        name="bal",
+        model="bal",
+        camera=jnp.asarray(bal.camera_index),
+        image=jnp.asarray(bal.camera_index),
+        point=jnp.asarray(bal.point_index),
+        measured=jnp.asarray(bal.observed),
+        stddev=jnp.ones_like(jnp.asarray(bal.observed)),
+        pose="rodrigues",
+    )
+    return BundleProblem(initial, free, (group,))

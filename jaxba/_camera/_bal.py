@@ -22,7 +22,7 @@ class BalCamera(AbstractCamera):
     f in pixels, k1 and k2 dimensionless. Distortion acts forward on the ideal point, so
     `measured` and `refraction_k` are ignored. Source: N. Snavely, Bundler user's manual;
     Agarwal et al., "Bundle adjustment in the large", ECCV 2010 (grail.cs.washington.edu/
-    projects/bal); the same formula as `jaxba._bal._model.bal_project`.
+    projects/bal). With the "rodrigues" pose this is the model `jaxba bal` solves.
     """
 
     f: Scalar

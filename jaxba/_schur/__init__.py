@@ -1,4 +1,5 @@
-"""Schur-complement Levenberg-Marquardt for two-block (bundle-adjustment) least squares."""
+"""The Schur backend: Levenberg-Marquardt and statistics of a `BundleProblem` with the object
+points eliminated (reduced camera matrix assembled pair-wise)."""
 
 from ._bundle import (
     BundleCofactors as BundleCofactors,
@@ -10,20 +11,5 @@ from ._bundle import (
 )
 from ._choice import SCHUR_MIN_UNKNOWNS as SCHUR_MIN_UNKNOWNS, use_schur as use_schur
 from ._datum import check_datum_schur as check_datum_schur
-from ._normal import (
-    NormalEquations as NormalEquations,
-    marquardt_diagonal as marquardt_diagonal,
-    normal_equations as normal_equations,
-    solve_damped as solve_damped,
-)
-from ._problem import (
-    TwoBlockProblem as TwoBlockProblem,
-    TwoBlockY as TwoBlockY,
-    two_block_residuals as two_block_residuals,
-)
+from ._normal import marquardt_diagonal as marquardt_diagonal
 from ._reliability import schur_redundancy_numbers as schur_redundancy_numbers
-from ._solver import (
-    SchurDampedNewtonDescent as SchurDampedNewtonDescent,
-    SchurLevenbergMarquardt as SchurLevenbergMarquardt,
-    solve_two_block as solve_two_block,
-)

@@ -42,11 +42,11 @@ from .._observations import (
     Distances,
     ImagePoints,
     ParameterObservations,
-    _rotated_collinearity_residual,
+    _frame_collinearity_residual,
 )
 from .._parameters import Parameters, flatten, unflatten
+from .._pose import POSE_MODELS
 from .._problem import BundleProblem, free_indices
-from .._rotation import opk_to_matrix
 from .._solution import Solution
 from .._statistics import Precision, SchurCovariance
 from .._steps import StepInfo, least_squares_stepwise
@@ -64,9 +64,10 @@ from ._normal import (
     marquardt_diagonal,
     pair_block_sums,
 )
-from ._problem import _block_rows, _same_point_pairs
+from ._pairs import block_rows, same_point_pairs
 
-# Observation pairs per row of the S assembly (as `TwoBlockProblem.pair_row_size`).
+# Observation pairs per row of the S assembly: a row's product is a sum of 24 broadcast
+# products, which on the CPU ran ~7 % faster than rows of 16 and ~25 % faster than 32 (BAL).
 PAIR_ROW_SIZE = 8
 
 
@@ -77,17 +78,18 @@ class BundleStructure(eqx.Module):
     then the reduced points); column n_reduced is a dummy that absorbs padding.
     - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
       (all ImagePoints groups concatenated; the last row is a padding observation): the
-      model's IOPs in `iop_columns`, the 6 EOPs, padding, the 3 columns of a reduced point;
+      model's IOPs in `iop_columns`, the 6 EOPs, padding, and the 3 columns of a reduced
+      point (`point_width` 3 where some points are reduced, else 0: no such columns);
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
       point or the padding row;
     - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
       per-key blocks (n_keys, m) before one dense scatter; `key_rows` (n_key_chunks, rows,
       PAIR_ROW_SIZE), `key_row_block` (n_key_chunks, rows): the image observations in rows
-      of one key each (`_problem._block_rows`, padding as for the pairs below);
+      of one key each (`_pairs.block_rows`, padding as for the pairs below);
     - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
       (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
       eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
-      (`_problem._block_rows`; padding: observation n_image_obs, block n_key_pairs);
+      (`_pairs.block_rows`; padding: observation n_image_obs, block n_key_pairs);
       `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
     - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
       (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
@@ -123,6 +125,7 @@ class BundleStructure(eqx.Module):
     image_offset: int = eqx.field(static=True)
     n_reduced: int = eqx.field(static=True)
     m: int = eqx.field(static=True)
+    point_width: int = eqx.field(static=True)
     points_per_chunk: int = eqx.field(static=True)
     jacobian_batch: int = eqx.field(static=True)
 
@@ -131,7 +134,7 @@ def bundle_structure(
     problem: BundleProblem,
     *,
     chunk_mib: float = 64.0,
-    jacobian_batch: int = 16384,
+    jacobian_batch: int = 4096,
     pair_batch: int = 4096,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
@@ -176,7 +179,9 @@ def bundle_structure(
         for model in models
     )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
-    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 9
+    point_width = 3 if reduced_points.size else 0
+    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 6
+    m += point_width
     columns, point_rows = [], []
     for group in images:
         model_index = models.index(group.model)
@@ -201,7 +206,7 @@ def bundle_structure(
     *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
                                            pair_batch)
     observations = np.arange(n_obs)
-    key_rows, _, key_row_block = _block_rows(
+    key_rows, _, key_row_block = block_rows(
         observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
@@ -246,6 +251,7 @@ def bundle_structure(
         image_offset=image_offset,
         n_reduced=int(n_reduced),
         m=int(m),
+        point_width=point_width,
         points_per_chunk=points_per_chunk,
         jacobian_batch=int(jacobian_batch),
     )
@@ -257,19 +263,19 @@ def _observation_pairs(
     """The pairs of image observations of one eliminated point that S needs (NumPy).
 
     `point_rows`, `key`: (n_image_obs,) eliminated-point row (n_eliminated: none) and key
-    of every observation. Returns first, second, block as `_problem._block_rows` lays them
+    of every observation. Returns first, second, block as `_pairs.block_rows` lays them
     out (pairs with key_i >= key_j, rows of `PAIR_ROW_SIZE` pairs of one key pair, padded
     with observation n_image_obs) and the key pairs (n_key_pairs, 2).
     """
     observed = np.flatnonzero(point_rows < n_eliminated)
-    first, second = _same_point_pairs(point_rows[observed], n_eliminated)
+    first, second = same_point_pairs(point_rows[observed], n_eliminated)
     first, second = observed[first], observed[second]
     lower = key[first] >= key[second]
     first, second = first[lower], second[lower]
     n_keys = int(key.max()) + 1 if key.size else 1
     codes, block = np.unique(key[first] * n_keys + key[second], return_inverse=True)
     key_pairs = np.stack([codes // n_keys, codes % n_keys], axis=1)  # (row-major) sorted
-    rows = _block_rows(
+    rows = block_rows(
         first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
@@ -280,13 +286,14 @@ class BundleNormalEquations(eqx.Module):
     """Jacobian-dependent blocks (once per accepted iterate); see the module docstring.
 
     `reduced_hessian` U (n_r, n_r) with unit diagonal on fixed unknowns; `point_hessian` V
-    (n_e, 3, 3) likewise; `coupling` W_i (n_image_obs + 1, m, 3) (last row zero);
+    (n_e, 3, 3) likewise; `coupling` W_iᵀ (n_image_obs + 1, 3, m) (last row zero; stored
+    transposed, the layout the products of S read without copies);
     gradients g_r (n_r,), g_e (n_e, 3); Marquardt damping D_r (n_r,), D_e (n_e, 3).
     """
 
     reduced_hessian: Float[Array, "n_r n_r"]
     point_hessian: Float[Array, "n_e 3 3"]
-    coupling: Float[Array, "n_obs1 m 3"]
+    coupling: Float[Array, "n_obs1 3 m"]
     reduced_gradient: Float[Array, " n_r"]
     point_gradient: Float[Array, "n_e 3"]
     reduced_damping: Float[Array, " n_r"]
@@ -346,12 +353,12 @@ def bundle_normal_equations(
     )
     key_columns = structure.key_columns
     hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
-    gradient = jnp.zeros(n_r + 1, dtype).at[structure.image_columns].add(_transposed_product(jr, e))
+    gradient = _add_at_columns(structure, _transposed_product(jr, e))
     point_hessian = jnp.zeros((n_e + 1, 3, 3), dtype).at[structure.image_point].add(_gram(je, je))
     point_gradient = jnp.zeros((n_e + 1, 3), dtype).at[structure.image_point].add(
         _transposed_product(je, e)
     )
-    coupling = _gram(jr, je)
+    coupling = _gram(je, jr)
 
     residuals = problem.residuals(problem.with_free(params))
     for group, residual in zip(problem.groups, residuals):
@@ -429,6 +436,25 @@ def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np
     """(n_r,) `flatten` positions of the reduced columns."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
     return np.asarray(_reduced_vector(structure, positions)).astype(int)
+
+
+def _add_at_columns(
+    structure: BundleStructure, per_observation: Float[Array, "n_obs1 w"]
+) -> Float[Array, " n_r1"]:
+    """Σ_i per_observation_i added at observation i's first w reduced columns, (n_r + 1,)
+    (last: padding): summed per key first (observations of one key share their columns),
+    then n_keys rows scattered, not n_obs (a scatter-add of every observation's entries
+    into a short vector runs serially on the CPU)."""
+    width = per_observation.shape[1]
+    per_key = jax.ops.segment_sum(per_observation, structure.key, structure.key_columns.shape[0])
+    zero = jnp.zeros(structure.n_reduced + 1, per_observation.dtype)
+    return zero.at[structure.key_columns[:, :width]].add(per_key)
+
+
+def _at_columns(structure: BundleStructure, x_padded: Float[Array, " n_r1"]) -> Array:
+    """(n_obs1, m) the entries of `x_padded` (n_r + 1,) at every image observation's
+    reduced columns, gathered per key, then a row per observation."""
+    return x_padded[structure.key_columns][structure.key]
 
 
 def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
@@ -516,39 +542,36 @@ def _image_jacobian_blocks(
     columns (a reduced point's columns included), je over its eliminated point (0 for a
     reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
     the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
-    Only the IOPs in `structure.iop_columns` are differentiated. The rotation M(ω, φ, κ)
-    and ∂M/∂(ω, φ, κ) are computed once per image, and the rotation of a row is
-    M + ∂M/∂(ω, φ, κ) δ at δ = 0, whose derivative in δ is the one in (ω, φ, κ)."""
+    Only the IOPs in `structure.iop_columns` are differentiated. The image's pose enters
+    through its pose model's `row_frame` (from `row_inputs`, made once per image),
+    differentiated by the parameter offset δ at δ = 0."""
     camera, image, point, measured, sigma, mask, columns, point_row = observations
     iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
     m, n_iop = structure.m, iop_columns.size
+    all_iops = n_iop == params.cameras[group.model].shape[1]
     dtype = params.images.dtype
-    angles = params.images[:, 3:]
-    rotations = jax.vmap(opk_to_matrix)(angles)  # (n_images, 3, 3)
-    rotation_derivatives = jax.vmap(jax.jacfwd(opk_to_matrix))(angles)  # (n_images, 3, 3, 3)
+    pose = POSE_MODELS[group.pose]
 
-    def residual(free_iop, station, delta, point, iop, rotation, derivative, data):
-        iop = iop.at[iop_columns].set(free_iop)
-        e = _rotated_collinearity_residual(
-            group.model, iop, station, rotation + derivative @ delta, point, *data[:2],
+    def residual(free_iop, delta, point, iop, pose_inputs, data):
+        iop = free_iop if all_iops else iop.at[iop_columns].set(free_iop)
+        e = _frame_collinearity_residual(
+            group.model, iop, pose.row_frame(pose_inputs, delta), point, *data[:2],
             problem.refraction,
         )
         e = jnp.where(data[2], e, 0.0)
-        return e if problem.robust is None else problem.robust(e)
+        e = e if problem.robust is None else problem.robust(e)
+        return e, e
 
-    def one(iop, station, rotation, derivative, point, *data):
-        arguments = (iop[iop_columns], station, jnp.zeros(3, dtype), point, iop, rotation,
-                     derivative, data)
-        j_iop, j_station, j_angles, j_point = jax.jacrev(residual, argnums=(0, 1, 2, 3))(
+    def one(iop, pose_inputs, point, *data):
+        arguments = (iop[iop_columns], jnp.zeros(6, dtype), point, iop, pose_inputs, data)
+        (j_iop, j_pose, j_point), e = jax.jacrev(residual, argnums=(0, 1, 2), has_aux=True)(
             *arguments)
-        jc = jnp.concatenate([j_iop, j_station, j_angles], axis=1)
-        return jc, j_point, residual(*arguments)
+        return jnp.concatenate([j_iop, j_pose], axis=1), j_point, e
 
+    pose_inputs = pose.row_inputs(params.images)
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
-        params.images[:, :3].at[image].get(mode="clip"),
-        rotations.at[image].get(mode="clip"),
-        rotation_derivatives.at[image].get(mode="clip"),
+        jax.tree.map(lambda x: x.at[image].get(mode="clip"), pose_inputs),
         params.points.at[point].get(mode="clip"),
         measured,
         sigma,
@@ -557,8 +580,9 @@ def _image_jacobian_blocks(
     mask = mask.astype(dtype)[:, :, None]
     jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
     reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
-    padding = jnp.zeros((*jc.shape[:2], m - n_iop - 9), dtype)
-    jr = jnp.concatenate([jc, padding, jnp.where(reduced_point, jp, 0.0)], axis=-1)
+    padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - 6), dtype)
+    point_part = [jnp.where(reduced_point, jp, 0.0)] if structure.point_width else []
+    jr = jnp.concatenate([jc, padding, *point_part], axis=-1)
     jr = jr * free_r[columns][:, None, :]
     je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
     return jr, je, e
@@ -595,7 +619,7 @@ def solve_bundle_damped(
     x_r = cholesky_solve(reduced, normal.reduced_gradient - rhs)
     x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
     n_e = normal.point_gradient.shape[0]
-    coupled = jnp.sum(normal.coupling * x_r_padded[structure.image_columns][:, :, None], axis=1)
+    coupled = jnp.sum(normal.coupling * _at_columns(structure, x_r_padded)[:, None, :], axis=2)
     coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
     x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
     return x_r, x_e
@@ -643,7 +667,7 @@ def _chunk_coupling(structure, normal, inverse, obs, local, points):
     n_r, n_points = structure.n_reduced, structure.points_per_chunk
     flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
     y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
-        normal.coupling[obs], mode="drop"
+        normal.coupling[obs].transpose(0, 2, 1), mode="drop"
     )
     y = y.reshape(n_points, n_r + 1, 3)
     t = jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
@@ -668,12 +692,12 @@ def _schur_complement(
     Pair-wise: Y_pᵀ V⁻¹ Y_p = Σ_{i,j ∈ p} W_i V⁻¹ W_jᵀ, and the blocks of the pairs of one
     key pair (equal reduced columns; for one camera, one image pair) are summed first
     (`pair_block_sums`, lower key triangle), then mirrored and scattered once. Only the
-    first m - 3 columns of W_i are nonzero for an eliminated point (no reduced point).
+    first m - point_width columns of W_i are nonzero for an eliminated point.
     """
-    n_r, k = structure.n_reduced, structure.m - 3
+    n_r, k = structure.n_reduced, structure.m - structure.point_width
     dtype = normal.reduced_gradient.dtype
     inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])[structure.image_point]
-    coupling_t = normal.coupling[:, :k, :].transpose(0, 2, 1)  # W_iᵀ (n_obs1, 3, k)
+    coupling_t = normal.coupling[:, :, :k]  # W_iᵀ (n_obs1, 3, k)
     blocks = pair_block_sums(
         _matmul(inverse, coupling_t), coupling_t, structure.pair_first, structure.pair_second,
         structure.pair_block, structure.key_pairs.shape[0],
@@ -691,8 +715,9 @@ def _schur_complement(
     eliminated_gradient = jnp.concatenate(
         [_matvec(point_inverse, normal.point_gradient), jnp.zeros((1, 3), dtype)]
     )
-    per_observation = _matvec(normal.coupling[:, :k, :], eliminated_gradient[structure.image_point])
-    rhs = jnp.zeros(n_r + 1, dtype).at[structure.image_columns[:, :k]].add(per_observation)
+    per_observation = jnp.sum(coupling_t * eliminated_gradient[structure.image_point][:, :, None],
+                              axis=1)
+    rhs = _add_at_columns(structure, per_observation)
     return -product[:n_r, :n_r], rhs[:n_r]
 
 
@@ -706,7 +731,7 @@ def bundle_predicted_reduction(
     x_r_padded = jnp.append(x_r, jnp.zeros((), x_r.dtype))
     x_e_padded = jnp.concatenate([x_e, jnp.zeros((1, 3), x_e.dtype)])
     # One einsum (as in `_normal.predicted_reduction`: gathered products summed run slowly).
-    coupled = jnp.einsum("nmc,nm,nc->", normal.coupling, x_r_padded[structure.image_columns],
+    coupled = jnp.einsum("ncm,nm,nc->", normal.coupling, _at_columns(structure, x_r_padded),
                          x_e_padded[structure.image_point])
     quadratic = (
         x_r @ (normal.reduced_hessian @ x_r)
@@ -770,9 +795,10 @@ def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]
     return problem.residuals(problem.with_free(y))
 
 
-def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance):
+def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance, function_tolerance):
     return LevenbergMarquardt(
-        rtol, atol, BundleSchurDescent(problem, structure), step_tolerance=step_tolerance)
+        rtol, atol, BundleSchurDescent(problem, structure), step_tolerance=step_tolerance,
+        function_tolerance=function_tolerance)
 
 
 def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
@@ -780,6 +806,7 @@ def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
         parameters=problem.with_free(solution.value),
         converged=solution.result == optx.RESULTS.successful,
         steps=solution.stats["num_steps"],
+        accepted_steps=solution.state.num_accepted_steps,
         cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
         result=solution.result,
     )
@@ -789,9 +816,8 @@ _schur_solution = eqx.filter_jit(_make_schur_solution)
 
 
 @eqx.filter_jit
-def _solve_schur(problem, structure, *, max_steps, rtol, atol, step_tolerance):
-    solver = _make_schur_solver(
-        problem, structure, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
+def _solve_schur(problem, structure, *, max_steps, **settings):
+    solver = _make_schur_solver(problem, structure, **settings)
     solution = optx.least_squares(
         bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
     )
@@ -806,14 +832,17 @@ def solve_schur(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     step_tolerance: float = STEP_TOLERANCE,
+    function_tolerance: float = 0.0,
     structure: BundleStructure | None = None,
     on_step: Callable[[StepInfo], None] | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
     every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._trust_region`,
-    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test
-    (`rtol`, `atol`) passes.
+    with its Gauss-Newton end game; 0: both off), where an accepted step lowered the cost by
+    at most `function_tolerance` of it (0: off; BAL's gauge-free problems, whose N is
+    singular, stop this way as Ceres does), or where optimistix's Cauchy test (`rtol`,
+    `atol`) passes.
 
     Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
     result). `free_index` is accepted for signature compatibility with `solve` and not
@@ -827,7 +856,8 @@ def solve_schur(
     del free_index
     if structure is None:
         structure = bundle_structure(problem)
-    settings = dict(rtol=rtol, atol=atol, step_tolerance=step_tolerance)
+    settings = dict(rtol=rtol, atol=atol, step_tolerance=step_tolerance,
+                    function_tolerance=function_tolerance)
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)

@@ -107,10 +107,10 @@ def _reduced_null_space(structure, normal, reduced_rows, point_rows, n_free) -> 
         return None
     x_r = np.zeros((reduced.shape[0] + 1, null.shape[1]))  # + the padding column
     x_r[np.flatnonzero(free)] = null
-    coupling = np.asarray(normal.coupling)  # (n_obs + 1, m, 3)
+    coupling = np.asarray(normal.coupling)  # W_iᵀ (n_obs + 1, 3, m)
     columns = np.asarray(structure.image_columns)
     n_e = point_rows.shape[0]
-    coupled = np.einsum("omc,omd->odc", coupling, x_r[columns])  # (n_obs + 1, d, 3)
+    coupled = np.einsum("ocm,omd->odc", coupling, x_r[columns])  # (n_obs + 1, d, 3)
     per_point = np.zeros((n_e + 1, null.shape[1], 3))
     np.add.at(per_point, np.asarray(structure.image_point), coupled)
     x_e = -np.einsum("pij,pdj->pdi", np.asarray(point_inverse), per_point[:n_e])
