@@ -85,6 +85,48 @@ def test_project_toml_not_utf8(tmp_path):
     assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
 
 
+OPENCV_CAMERA = ('[C1]\nmodel = "opencv"\npixel_size = [0.00369, 0.00369]\n'
+                 'sensor = [6000, 4000]\nfx = -2300.0\nfy = 2300.0\ncx = 3000.0\ncy = 2000.0\n')
+
+
+@pytest.mark.parametrize("file, old, new, expected", [
+    ("cameras.toml", "c = 8.5", "c = 0", "cameras.toml: [C1] c: the principal distance"
+     " (focal length) of model 'smac' must be > 0, got 0"),
+    ("cameras.toml", "c = 8.5", "c = -8.5", "cameras.toml: [C1] c: the principal distance"),
+    ("cameras.toml", "c = 8.5\n", "", "cameras.toml: [C1] c: the principal distance (focal"
+     " length) of model 'smac' must be > 0, got 0.0 (not given: it defaults to 0)"),
+    ("cameras.toml", None, OPENCV_CAMERA, "cameras.toml: [C1] fx: the principal distance"
+     " (focal length) of model 'opencv' must be > 0, got -2300.0"),
+    ("ground_points.txt", "0.416145635", "1e308",
+     "ground_points.txt:3: column X: 1e308 is out of range: numbers must be at most 1e12"),
+    ("ground_points.txt", "0.004278617 0 0 0", "-2e12 0 0 0",  # a control point
+     "ground_points.txt:2: column Z: -2e12 is out of range"),
+    ("ground_points.txt", "0.416145635", "nan", "ground_points.txt:3: column X: expected a"
+     " number, got 'nan'"),
+    ("orientation.txt", "0.230505449", "1e300", "orientation.txt:2: column X0: 1e300 is out"),
+    ("orientation.txt", "26.45930797", "inf", "orientation.txt:2: column omega: expected a"
+     " number, got 'inf'"),
+    ("image_coordinates.txt", "-8.32120136", "-1E13", "image_coordinates.txt:2: column x:"
+     " -1E13 is out of range"),
+    ("distances.txt", "4.304697603", "1e20", "distances.txt:2: column distance: 1e20 is out"),
+])
+def test_bad_values_named_at_reading(tmp_path, file, old, new, expected):
+    """A principal distance ≤ 0 (it divides the model or mirrors it) and non-finite or
+    absurd numbers (|value| > 1e12, a typo or unit mistake that overflows the model) are
+    refused as the project is read, naming the file, line and column or the camera and
+    parameter: exit 2 before jax (they were blamed on "camera C1 K1, K2, ..." by the
+    datum check)."""
+    project = _copy_lab(tmp_path / "lab")
+    if old is None:
+        (project.parent / file).write_text(new)
+    else:
+        _edit(project.parent / file, old, new)
+    done = _jaxba("adjust", project, "--out", tmp_path / "out")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert done.stderr.startswith("jaxba: error: " + expected), done.stderr
+    assert len(done.stderr.splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("text", ["0 0 0\n", "1 0 1\n0 0 1.0 2.0\n1 2 3 4 5 6 7 8 9\n",
                                   "1 1 1\n0 0 1.0 2.0\n1 2 3 4 5 6 7 8 9\n1 2 3\n"])
 def test_bal_empty_or_underdetermined(tmp_path, text):
