@@ -17,7 +17,9 @@ import subprocess
 import sys
 import time
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -318,3 +320,125 @@ def test_singular_normal_matrix_writes_reports_exit_1(tmp_path, capsys):
     assert np.all(np.isnan(data["rx"]))  # no reliability
     results = (tmp_path / "out" / "results.json").read_text()
     assert '"converged": false' in results and '"std": null' in results
+
+
+# --- messages that name the cause ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """A small self-calibration block (6 images, 20 targets), written once per module."""
+    folder = tmp_path_factory.mktemp("synthetic")
+    return jaxba.write_synthetic_project(folder, seed=3, n_images=6, n_targets=20).project_file
+
+
+def _tables(source: pathlib.Path, folder: pathlib.Path) -> pathlib.Path:
+    shutil.copytree(source.parent, folder)
+    return folder / source.name
+
+
+def _rows(path: pathlib.Path) -> list[list[str]]:
+    return [line.split() for line in path.read_text().splitlines()]
+
+
+def _write_rows(path: pathlib.Path, rows: list[list[str]]) -> None:
+    path.write_text("\n".join(" ".join(row) for row in rows) + "\n")
+
+
+def _move_stations(project: pathlib.Path, moves: dict[str, tuple[float, float, float]]):
+    """Give images new approximate projection centres (orientation.txt)."""
+    rows = _rows(project.parent / "orientation.txt")
+    for row in rows:
+        if row and row[0] in moves:
+            row[2:5] = (repr(v) for v in moves[row[0]])
+    _write_rows(project.parent / "orientation.txt", rows)
+
+
+def _station(project: pathlib.Path, image: str) -> tuple[float, float, float]:
+    row = next(r for r in _rows(project.parent / "orientation.txt") if r and r[0] == image)
+    return tuple(float(v) for v in row[2:5])
+
+
+def _only_in(project: pathlib.Path, point: str, images: set[str]) -> None:
+    """Keep the measurements of `point` in `images` only (image_coordinates.txt)."""
+    path = project.parent / "image_coordinates.txt"
+    rows = [r for r in _rows(path) if not (len(r) > 1 and r[1] == point and r[0] not in images)]
+    _write_rows(path, rows)
+    assert {r[0] for r in rows if len(r) > 1 and r[1] == point} == images
+
+
+def _datum_error(project: pathlib.Path, solver: str) -> str:
+    built = jaxba.build_project(jaxba.read_project(project))
+    with pytest.raises(jaxba.DatumError) as error:
+        jaxba.adjust(built.problem, labels=built.labels, solver=solver)
+    return str(error.value)
+
+
+@pytest.mark.slow  # a 16-dimensional null space, and the first compilations of the module
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_all_stations_on_one_point(synthetic, tmp_path, solver):
+    """Every image at one projection centre: no point is intersected. Named as such, not as
+    "rank deficiency 76 ... point 63 Z, ..."."""
+    project = _tables(synthetic, tmp_path / "p")
+    centre = _station(project, "img01")
+    _move_stations(project, {f"img0{k}": centre for k in range(2, 7)})
+    message = _datum_error(project, solver)
+    assert message.startswith("rank deficiency ")
+    assert ": all 6 images have the same projection centre (" in message
+    assert "are seen from that station only and cannot be intersected" in message
+
+
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_two_images_at_one_station(synthetic, tmp_path, solver):
+    """Point 3 measured only in img01 and img02, which have the same approximate projection
+    centre: the images and the point are named."""
+    project = _tables(synthetic, tmp_path / "p")
+    _only_in(project, "3", {"img01", "img02"})
+    _move_stations(project, {"img02": _station(project, "img01")})
+    message = _datum_error(project, solver)
+    assert message.startswith("rank deficiency 1: images img01 and img02 have the same"
+                              " projection centre ("), message
+    assert message.endswith(": point 3 is seen from that station only and cannot be"
+                            " intersected"), message
+
+
+def test_nearly_parallel_rays(synthetic, tmp_path):
+    """Point 3 measured only in img01 and img02, whose stations are 1e-7 m apart (2 m
+    from the point): the rays meet at ~3e-6°, a defect for the Schur check's threshold."""
+    project = _tables(synthetic, tmp_path / "p")
+    _only_in(project, "3", {"img01", "img02"})
+    x, y, z = _station(project, "img01")
+    _move_stations(project, {"img02": (x + 1e-7, y, z)})
+    message = _datum_error(project, "schur")
+    assert message.startswith("rank deficiency 1: the rays to point 3 (< "), message
+    assert message.endswith("°) are nearly parallel at the approximations, intersecting at"
+                            " less than 0.001°"), message
+
+
+def test_point_in_one_image_through_the_library(synthetic):
+    """The reader refuses a free point measured once; a problem built otherwise (here: its
+    other measurements masked) names the point and the image, not a datum defect."""
+    built = jaxba.build_project(jaxba.read_project(synthetic))
+    group = built.problem.groups[0]
+    point = built.point_ids.index("3")
+    rows = np.flatnonzero(np.asarray(group.point) == point)
+    stddev = np.asarray(group.stddev).copy()
+    stddev[rows[1:]] = np.inf
+    masked = eqx.tree_at(lambda p: p.groups[0].stddev, built.problem, jnp.asarray(stddev))
+    image = built.image_ids[int(np.asarray(group.image)[rows[0]])]
+    for solver in ("dense", "schur"):
+        with pytest.raises(jaxba.DatumError) as error:
+            jaxba.adjust(masked, labels=built.labels, solver=solver)
+        assert str(error.value) == (
+            f"rank deficiency 1: point 3 ({image}) is observed in only one image")
+
+
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_parameter_without_effect_is_not_a_datum_defect(synthetic, tmp_path, solver):
+    """P3 free while P1 = P2 = 0 (fixed): no observation depends on it; named as such."""
+    project = _tables(synthetic, tmp_path / "p")
+    _edit(project.parent / "cameras.toml", '"P1", "P2"]', '"P3"]')
+    message = _datum_error(project, solver)
+    assert message.startswith("no observation depends on camera C1 P3 at the approximations"
+                              " (not a datum matter"), message
+    assert "datum defect" not in message
