@@ -165,23 +165,27 @@ def divergence_cause(
     moved = np.abs(flatten(params)[index] - start)
     sigma = np.asarray(flatten(std), dtype=float)[index]
     if np.all(np.isfinite(sigma) & (sigma > 0)):
-        size, unit = sigma, " σ"
-    else:
-        positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+        size, unit = sigma, np.full(index.size, "σ", dtype=object)
+    else:  # no σ (a singular normal matrix): relative to the unknown's size
+        n_all = flatten(problem.initial).size
+        positions = unflatten(problem.initial, np.arange(n_all))
         stations = np.asarray(problem.initial.images)[:, :3]
         extent = np.max(np.ptp(np.concatenate([stations, np.asarray(problem.initial.points)]),
                                axis=0))
-        kind = np.zeros(flatten(problem.initial).size)
-        kind[np.asarray(positions.images)[:, :3].ravel()] = extent
-        kind[np.asarray(positions.points).ravel()] = extent
-        kind[np.asarray(positions.images)[:, 3:].ravel()] = np.pi
+        kind, unit = np.zeros(n_all), np.full(n_all, "its approximation", dtype=object)
+        for rows, value, name in (
+            (np.asarray(positions.images)[:, :3], extent, "the network's extent"),
+            (np.asarray(positions.points), extent, "the network's extent"),
+            (np.asarray(positions.images)[:, 3:], np.pi, "π"),
+        ):
+            kind[rows.ravel()], unit[rows.ravel()] = value, name
         size = np.where(kind[index] > 0, kind[index], np.maximum(np.abs(start), 1.0))
-        unit = " of its size"
+        unit = unit[index]
     relative = np.where(np.isfinite(moved), moved / size, np.inf)
     order = np.argsort(-relative)[:3]
     unknowns = ", ".join(
-        f"{labels[index[k]]} ({relative[k]:.2g}{unit})" if unit == " σ"
-        else f"{labels[index[k]]} ({100 * relative[k]:.3g} %{unit})" for k in order)
+        f"{labels[index[k]]} (moved {relative[k]:.2g}{' ' if unit[k] == 'σ' else ' × '}"
+        f"{unit[k]})" for k in order)
     image_ids, _ = entity_ids(problem, labels)
     squares, counts = np.zeros(len(image_ids)), np.zeros(len(image_ids))
     for group, e in zip(problem.groups, whitened):

@@ -157,6 +157,17 @@ def check_datum(
     check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
 
 
+def nonfinite_start_error(problem: BundleProblem, labels: list[str]) -> DatumError | None:
+    """A `DatumError` naming the observations whose residuals are not finite at the
+    approximations (None if all are finite)."""
+    observations = nonfinite_observations(problem, problem.whitened(problem.initial), labels)
+    if observations is None:
+        return None
+    return DatumError(
+        f"the residuals are not finite at the approximations of {observations} (a point at"
+        " or beside an image's projection centre?): check these approximations")
+
+
 def check_columns(
     problem: BundleProblem, finite: np.ndarray, column_norms: np.ndarray, labels: list[str]
 ) -> None:
@@ -171,13 +182,9 @@ def check_columns(
         )
     index = free_indices(problem)
     if not np.all(finite):
-        observations = nonfinite_observations(
-            problem, problem.whitened(problem.initial), labels)
-        if observations is not None:
-            raise DatumError(
-                f"the residuals are not finite at the approximations of {observations}"
-                " (a point at or beside an image's projection centre?): check these"
-                " approximations")
+        error = nonfinite_start_error(problem, labels)
+        if error is not None:
+            raise error
         bad = sorted({labels[index[k]] for k in np.flatnonzero(~finite)})
         raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
     unobserved = np.flatnonzero(column_norms == 0)

@@ -442,3 +442,58 @@ def test_parameter_without_effect_is_not_a_datum_defect(synthetic, tmp_path, sol
     assert message.startswith("no observation depends on camera C1 P3 at the approximations"
                               " (not a datum matter"), message
     assert "datum defect" not in message
+
+
+def _point_at_station(project: pathlib.Path, point: str, image: str) -> None:
+    """Put the approximation of `point` at the projection centre of `image`."""
+    path = project.parent / "ground_points.txt"
+    rows = _rows(path)
+    for row in rows:
+        if row and row[0] == point:
+            row[1:4] = (repr(v) for v in _station(project, image))
+    _write_rows(path, rows)
+
+
+@pytest.mark.slow  # compiles a solve of its own
+def test_nonfinite_residuals_at_the_start_are_named(synthetic, tmp_path):
+    """A point at an image's projection centre: its residuals there are NaN. The datum check
+    names the observation; without the check the solve (whose first iterate, the
+    approximations, is the only one a non-finite cost can come from: later trial points with
+    one are rejected) ends in the same DatumError, exit 2, instead of an exit 1 without
+    reports."""
+    project = _tables(synthetic, tmp_path / "p")
+    _point_at_station(project, "3", "img02")
+    built = jaxba.build_project(jaxba.read_project(project))
+    expected = ("the residuals are not finite at the approximations of image img02 point 3"
+                " (a point at or beside an image's projection centre?): check these"
+                " approximations")
+    for check in (True, False):
+        with pytest.raises(jaxba.DatumError) as error:
+            jaxba.adjust(built.problem, labels=built.labels, check=check)
+        assert str(error.value) == expected
+
+
+@pytest.mark.slow  # 50 steps and a cold compilation of their shapes
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_divergence_names_the_approximations(synthetic, tmp_path, capsys, solver):
+    """Tie points 5 m off (the network is 4 m across): the solve stalls at σ̂0 ≈ 700. Exit 1
+    with reports marked not converged, and one warning naming what it diverged from and the
+    images with the largest residuals, instead of optimistix's bare message."""
+    project = _tables(synthetic, tmp_path / "p")
+    path = project.parent / "ground_points.txt"
+    rows = _rows(path)
+    for row in rows:
+        if len(row) > 4 and row[4] == "-":
+            row[3] = repr(float(row[3]) + 5.0)
+    _write_rows(path, rows)
+    code, out, err = _run("adjust", project, "--out", tmp_path / "out", "--solver", solver,
+                          capsys=capsys)
+    assert code == 1, err
+    warning = next(line for line in err.splitlines() if "diverged" in line)
+    assert warning.startswith("jaxba: warning: the adjustment diverged from the"
+                              " approximations of "), warning
+    assert "; the largest residuals are in images img" in warning
+    assert "(the maximum number of steps (50) was reached; σ̂0/σ0 = " in warning
+    assert "Traceback" not in err and "NOT converged" in out
+    results = (tmp_path / "out" / "results.json").read_text()
+    assert '"converged": false' in results and "diverged from the approximations" in results
