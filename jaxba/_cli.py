@@ -209,7 +209,9 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
     for line in _report.warning_lines(project, result):
         _error(line, "warning")
     if not result.converged:
-        _error(f"the adjustment did not converge: {result.message}", "warning")
+        said = result.message.startswith("the adjustment")
+        _error(result.message if said else f"the adjustment did not converge: {result.message}",
+               "warning")
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 

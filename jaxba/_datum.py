@@ -4,8 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._causes import intersection_cause, nonfinite_observations
 from ._linearisation import dense_jacobian
-from ._parameters import Parameters, parameter_labels
+from ._parameters import Parameters, flatten, parameter_labels, unflatten
 from ._pose import POSE_MODELS
 from ._problem import BundleProblem, free_indices
 from ._rotation import rodrigues_to_matrix
@@ -131,12 +132,25 @@ def describe_defect(problem, null_basis, index, labels, *, column_norms=None) ->
             np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
     scaled = null_basis * column_norms
     magnitude = np.max(np.abs(scaled / np.linalg.norm(scaled, axis=1, keepdims=True)), axis=0)
-    involved = np.argsort(-magnitude)[: min(10, int(np.sum(magnitude > 0.1 * magnitude.max())))]
+    significant = magnitude > 0.1 * magnitude.max()
+    # Not a datum matter where the geometry says why: points that no two rays intersect.
+    cause = intersection_cause(problem, labels, _involved_points(problem, index, significant))
+    if cause is not None:
+        raise DatumError(f"rank deficiency {rank_defect}: {cause}")
+    involved = np.argsort(-magnitude)[: min(10, int(np.sum(significant)))]
     names = ", ".join(labels[index[k]] for k in involved)
     raise DatumError(
         f"rank deficiency {rank_defect}: these unknowns can change together without "
         f"changing any observation: {names}"
     )
+
+
+def _involved_points(problem: BundleProblem, index, significant) -> np.ndarray:
+    """(n_points,) True for the points with a coordinate among the `significant` free
+    unknowns (positions `index`) of a null space."""
+    marked = np.zeros(flatten(problem.initial).size, bool)
+    marked[index[significant]] = True
+    return unflatten(problem.initial, marked).points.any(axis=1)
 
 
 def check_datum(
@@ -150,6 +164,17 @@ def check_datum(
     """
     jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
     check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
+
+
+def nonfinite_start_error(problem: BundleProblem, labels: list[str]) -> DatumError | None:
+    """A `DatumError` naming the observations whose residuals are not finite at the
+    approximations (None if all are finite)."""
+    observations = nonfinite_observations(problem, problem.whitened(problem.initial), labels)
+    if observations is None:
+        return None
+    return DatumError(
+        f"the residuals are not finite at the approximations of {observations} (a point at"
+        " or beside an image's projection centre?): check these approximations")
 
 
 def check_columns(
@@ -166,12 +191,19 @@ def check_columns(
         )
     index = free_indices(problem)
     if not np.all(finite):
+        error = nonfinite_start_error(problem, labels)
+        if error is not None:
+            raise error
         bad = sorted({labels[index[k]] for k in np.flatnonzero(~finite)})
         raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
     unobserved = np.flatnonzero(column_norms == 0)
     if unobserved.size:
         names = ", ".join(labels[index[k]] for k in unobserved[:8])
-        raise DatumError(f"datum defect: no observation depends on {names}")
+        it, acts = ("it", "it acts") if unobserved.size == 1 else ("them", "they act")
+        raise DatumError(
+            f"no observation depends on {names} at the approximations (not a datum matter:"
+            " an unknown with no effect there, such as P3 while P1 = P2 = 0): fix"
+            f" {it}, or start from approximations where {acts}")
 
 
 def check_datum_with_jacobian(

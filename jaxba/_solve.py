@@ -10,7 +10,8 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
-from ._datum import check_datum
+from ._causes import DIVERGED_SIGMA0, divergence_cause
+from ._datum import check_datum, nonfinite_start_error
 from ._float64 import require_float64
 from ._free_network import (
     free_network_precision,
@@ -20,7 +21,7 @@ from ._free_network import (
 )
 from ._levenberg_marquardt import UNBATCHED_BLOCK, NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan, normal_equations
-from ._parameters import Parameters
+from ._parameters import Parameters, parameter_labels
 from ._problem import BundleProblem, free_indices, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder
 from ._schur._bundle import bundle_structure, schur_precision, solve_schur
@@ -165,6 +166,20 @@ def _solve(problem, plan, *, max_steps, rtol, atol, step_tolerance) -> Solution:
     return _make_normal_solution(args, solution)
 
 
+def _stop_reason(result: optx.RESULTS, max_steps: int) -> str:
+    """Why an unconverged solve stopped, in words."""
+    if result == optx.RESULTS.nonlinear_max_steps_reached:
+        return f"the maximum number of steps ({max_steps}) was reached"
+    return optx.RESULTS[result]
+
+
+def _stalled(iterations: list[Iteration]) -> bool:
+    """Whether the cost fell by less than half over the last two accepted iterations (a
+    solve stuck far from the solution, not one merely cut short by `max_steps`)."""
+    costs = [it.cost for it in iterations]
+    return len(costs) < 3 or not costs[-1] < 0.5 * costs[-3]
+
+
 def _precision_unavailable(problem, params, sigma0, final_cost, redundancy) -> Precision:
     """σ̂0² from the final cost; covariance and σ NaN (the normal matrix was singular)."""
     n_free = free_indices(problem).size
@@ -229,13 +244,19 @@ def adjust(
         params = to_inner_datum(problem, params)
     final_cost = float(solution.cost)
     if not np.isfinite(final_cost):
+        # A trial point with a non-finite cost is rejected and the first, the approximations,
+        # always accepted: only approximations where the model is not finite get here.
+        error = nonfinite_start_error(problem, labels or parameter_labels(problem.initial))
+        if error is not None:
+            raise error
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
     converged = result == optx.RESULTS.successful
-    message = "converged" if converged else optx.RESULTS[result]
+    message = "converged" if converged else _stop_reason(result, max_steps)
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
-        residuals = observed_minus_computed(problem, _whitened(problem, params))
+        whitened = _whitened(problem, params)
+        residuals = observed_minus_computed(problem, whitened)
         try:
             if free_network:
                 parameter_precision = free_network_precision(
@@ -249,6 +270,13 @@ def adjust(
             converged, message = False, (
                 f"the normal matrix at the solution is singular ({error}): no σ, no"
                 " correlations; check the approximations and which parameters are free")
+    sigma_ratio = np.sqrt(parameter_precision.sigma0_squared) / sigma0
+    if not converged and not sigma_ratio <= DIVERGED_SIGMA0 and _stalled(recorder.iterations):
+        # Stuck far from a consistent solution: name the approximations it left behind.
+        cause = divergence_cause(problem, params, parameter_precision.std, whitened,
+                                 labels or parameter_labels(problem.initial))
+        after = "" if "maximum number of steps" in message else f", after {int(steps)} steps"
+        message = f"{cause} ({message}{after}; σ̂0/σ0 = {sigma_ratio:.3g})"
     return Adjustment(
         problem=problem,
         parameters=params,

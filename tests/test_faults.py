@@ -17,7 +17,9 @@ import subprocess
 import sys
 import time
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -83,6 +85,48 @@ def test_project_toml_not_utf8(tmp_path):
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert done.stderr.startswith("jaxba: error: bad.toml:2: not UTF-8")
     assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
+
+
+OPENCV_CAMERA = ('[C1]\nmodel = "opencv"\npixel_size = [0.00369, 0.00369]\n'
+                 'sensor = [6000, 4000]\nfx = -2300.0\nfy = 2300.0\ncx = 3000.0\ncy = 2000.0\n')
+
+
+@pytest.mark.parametrize("file, old, new, expected", [
+    ("cameras.toml", "c = 8.5", "c = 0", "cameras.toml: [C1] c: the principal distance"
+     " (focal length) of model 'smac' must be > 0, got 0"),
+    ("cameras.toml", "c = 8.5", "c = -8.5", "cameras.toml: [C1] c: the principal distance"),
+    ("cameras.toml", "c = 8.5\n", "", "cameras.toml: [C1] c: the principal distance (focal"
+     " length) of model 'smac' must be > 0, got 0.0 (not given: it defaults to 0)"),
+    ("cameras.toml", None, OPENCV_CAMERA, "cameras.toml: [C1] fx: the principal distance"
+     " (focal length) of model 'opencv' must be > 0, got -2300.0"),
+    ("ground_points.txt", "0.416145635", "1e308",
+     "ground_points.txt:3: column X: 1e308 is out of range: numbers must be at most 1e12"),
+    ("ground_points.txt", "0.004278617 0 0 0", "-2e12 0 0 0",  # a control point
+     "ground_points.txt:2: column Z: -2e12 is out of range"),
+    ("ground_points.txt", "0.416145635", "nan", "ground_points.txt:3: column X: expected a"
+     " number, got 'nan'"),
+    ("orientation.txt", "0.230505449", "1e300", "orientation.txt:2: column X0: 1e300 is out"),
+    ("orientation.txt", "26.45930797", "inf", "orientation.txt:2: column omega: expected a"
+     " number, got 'inf'"),
+    ("image_coordinates.txt", "-8.32120136", "-1E13", "image_coordinates.txt:2: column x:"
+     " -1E13 is out of range"),
+    ("distances.txt", "4.304697603", "1e20", "distances.txt:2: column distance: 1e20 is out"),
+])
+def test_bad_values_named_at_reading(tmp_path, file, old, new, expected):
+    """A principal distance ≤ 0 (it divides the model or mirrors it) and non-finite or
+    absurd numbers (|value| > 1e12, a typo or unit mistake that overflows the model) are
+    refused as the project is read, naming the file, line and column or the camera and
+    parameter: exit 2 before jax (they were blamed on "camera C1 K1, K2, ..." by the
+    datum check)."""
+    project = _copy_lab(tmp_path / "lab")
+    if old is None:
+        (project.parent / file).write_text(new)
+    else:
+        _edit(project.parent / file, old, new)
+    done = _jaxba("adjust", project, "--out", tmp_path / "out")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert done.stderr.startswith("jaxba: error: " + expected), done.stderr
+    assert len(done.stderr.splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("text", ["0 0 0\n", "1 0 1\n0 0 1.0 2.0\n1 2 3 4 5 6 7 8 9\n",
@@ -276,3 +320,180 @@ def test_singular_normal_matrix_writes_reports_exit_1(tmp_path, capsys):
     assert np.all(np.isnan(data["rx"]))  # no reliability
     results = (tmp_path / "out" / "results.json").read_text()
     assert '"converged": false' in results and '"std": null' in results
+
+
+# --- messages that name the cause ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """A small self-calibration block (6 images, 20 targets), written once per module."""
+    folder = tmp_path_factory.mktemp("synthetic")
+    return jaxba.write_synthetic_project(folder, seed=3, n_images=6, n_targets=20).project_file
+
+
+def _tables(source: pathlib.Path, folder: pathlib.Path) -> pathlib.Path:
+    shutil.copytree(source.parent, folder)
+    return folder / source.name
+
+
+def _rows(path: pathlib.Path) -> list[list[str]]:
+    return [line.split() for line in path.read_text().splitlines()]
+
+
+def _write_rows(path: pathlib.Path, rows: list[list[str]]) -> None:
+    path.write_text("\n".join(" ".join(row) for row in rows) + "\n")
+
+
+def _move_stations(project: pathlib.Path, moves: dict[str, tuple[float, float, float]]):
+    """Give images new approximate projection centres (orientation.txt)."""
+    rows = _rows(project.parent / "orientation.txt")
+    for row in rows:
+        if row and row[0] in moves:
+            row[2:5] = (repr(v) for v in moves[row[0]])
+    _write_rows(project.parent / "orientation.txt", rows)
+
+
+def _station(project: pathlib.Path, image: str) -> tuple[float, float, float]:
+    row = next(r for r in _rows(project.parent / "orientation.txt") if r and r[0] == image)
+    return tuple(float(v) for v in row[2:5])
+
+
+def _only_in(project: pathlib.Path, point: str, images: set[str]) -> None:
+    """Keep the measurements of `point` in `images` only (image_coordinates.txt)."""
+    path = project.parent / "image_coordinates.txt"
+    rows = [r for r in _rows(path) if not (len(r) > 1 and r[1] == point and r[0] not in images)]
+    _write_rows(path, rows)
+    assert {r[0] for r in rows if len(r) > 1 and r[1] == point} == images
+
+
+def _datum_error(project: pathlib.Path, solver: str) -> str:
+    built = jaxba.build_project(jaxba.read_project(project))
+    with pytest.raises(jaxba.DatumError) as error:
+        jaxba.adjust(built.problem, labels=built.labels, solver=solver)
+    return str(error.value)
+
+
+@pytest.mark.slow  # a 16-dimensional null space, and the first compilations of the module
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_all_stations_on_one_point(synthetic, tmp_path, solver):
+    """Every image at one projection centre: no point is intersected. Named as such, not as
+    "rank deficiency 76 ... point 63 Z, ..."."""
+    project = _tables(synthetic, tmp_path / "p")
+    centre = _station(project, "img01")
+    _move_stations(project, {f"img0{k}": centre for k in range(2, 7)})
+    message = _datum_error(project, solver)
+    assert message.startswith("rank deficiency ")
+    assert ": all 6 images have the same projection centre (" in message
+    assert "are seen from that station only and cannot be intersected" in message
+
+
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_two_images_at_one_station(synthetic, tmp_path, solver):
+    """Point 3 measured only in img01 and img02, which have the same approximate projection
+    centre: the images and the point are named."""
+    project = _tables(synthetic, tmp_path / "p")
+    _only_in(project, "3", {"img01", "img02"})
+    _move_stations(project, {"img02": _station(project, "img01")})
+    message = _datum_error(project, solver)
+    assert message.startswith("rank deficiency 1: images img01 and img02 have the same"
+                              " projection centre ("), message
+    assert message.endswith(": point 3 is seen from that station only and cannot be"
+                            " intersected"), message
+
+
+def test_nearly_parallel_rays(synthetic, tmp_path):
+    """Point 3 measured only in img01 and img02, whose stations are 1e-7 m apart (2 m
+    from the point): the rays meet at ~3e-6°, a defect for the Schur check's threshold."""
+    project = _tables(synthetic, tmp_path / "p")
+    _only_in(project, "3", {"img01", "img02"})
+    x, y, z = _station(project, "img01")
+    _move_stations(project, {"img02": (x + 1e-7, y, z)})
+    message = _datum_error(project, "schur")
+    assert message.startswith("rank deficiency 1: the rays to point 3 (< "), message
+    assert message.endswith("°) are nearly parallel at the approximations, intersecting at"
+                            " less than 0.001°"), message
+
+
+def test_point_in_one_image_through_the_library(synthetic):
+    """The reader refuses a free point measured once; a problem built otherwise (here: its
+    other measurements masked) names the point and the image, not a datum defect."""
+    built = jaxba.build_project(jaxba.read_project(synthetic))
+    group = built.problem.groups[0]
+    point = built.point_ids.index("3")
+    rows = np.flatnonzero(np.asarray(group.point) == point)
+    stddev = np.asarray(group.stddev).copy()
+    stddev[rows[1:]] = np.inf
+    masked = eqx.tree_at(lambda p: p.groups[0].stddev, built.problem, jnp.asarray(stddev))
+    image = built.image_ids[int(np.asarray(group.image)[rows[0]])]
+    for solver in ("dense", "schur"):
+        with pytest.raises(jaxba.DatumError) as error:
+            jaxba.adjust(masked, labels=built.labels, solver=solver)
+        assert str(error.value) == (
+            f"rank deficiency 1: point 3 ({image}) is observed in only one image")
+
+
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_parameter_without_effect_is_not_a_datum_defect(synthetic, tmp_path, solver):
+    """P3 free while P1 = P2 = 0 (fixed): no observation depends on it; named as such."""
+    project = _tables(synthetic, tmp_path / "p")
+    _edit(project.parent / "cameras.toml", '"P1", "P2"]', '"P3"]')
+    message = _datum_error(project, solver)
+    assert message.startswith("no observation depends on camera C1 P3 at the approximations"
+                              " (not a datum matter"), message
+    assert "datum defect" not in message
+
+
+def _point_at_station(project: pathlib.Path, point: str, image: str) -> None:
+    """Put the approximation of `point` at the projection centre of `image`."""
+    path = project.parent / "ground_points.txt"
+    rows = _rows(path)
+    for row in rows:
+        if row and row[0] == point:
+            row[1:4] = (repr(v) for v in _station(project, image))
+    _write_rows(path, rows)
+
+
+@pytest.mark.slow  # compiles a solve of its own
+def test_nonfinite_residuals_at_the_start_are_named(synthetic, tmp_path):
+    """A point at an image's projection centre: its residuals there are NaN. The datum check
+    names the observation; without the check the solve (whose first iterate, the
+    approximations, is the only one a non-finite cost can come from: later trial points with
+    one are rejected) ends in the same DatumError, exit 2, instead of an exit 1 without
+    reports."""
+    project = _tables(synthetic, tmp_path / "p")
+    _point_at_station(project, "3", "img02")
+    built = jaxba.build_project(jaxba.read_project(project))
+    expected = ("the residuals are not finite at the approximations of image img02 point 3"
+                " (a point at or beside an image's projection centre?): check these"
+                " approximations")
+    for check in (True, False):
+        with pytest.raises(jaxba.DatumError) as error:
+            jaxba.adjust(built.problem, labels=built.labels, check=check)
+        assert str(error.value) == expected
+
+
+@pytest.mark.slow  # 50 steps and a cold compilation of their shapes
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_divergence_names_the_approximations(synthetic, tmp_path, capsys, solver):
+    """Tie points 5 m off (the network is 4 m across): the solve stalls at σ̂0 ≈ 700. Exit 1
+    with reports marked not converged, and one warning naming what it diverged from and the
+    images with the largest residuals, instead of optimistix's bare message."""
+    project = _tables(synthetic, tmp_path / "p")
+    path = project.parent / "ground_points.txt"
+    rows = _rows(path)
+    for row in rows:
+        if len(row) > 4 and row[4] == "-":
+            row[3] = repr(float(row[3]) + 5.0)
+    _write_rows(path, rows)
+    code, out, err = _run("adjust", project, "--out", tmp_path / "out", "--solver", solver,
+                          capsys=capsys)
+    assert code == 1, err
+    warning = next(line for line in err.splitlines() if "diverged" in line)
+    assert warning.startswith("jaxba: warning: the adjustment diverged from the"
+                              " approximations of "), warning
+    assert "; the largest residuals are in images img" in warning
+    assert "(the maximum number of steps (50) was reached; σ̂0/σ0 = " in warning
+    assert "Traceback" not in err and "NOT converged" in out
+    results = (tmp_path / "out" / "results.json").read_text()
+    assert '"converged": false' in results and "diverged from the approximations" in results

@@ -13,3 +13,10 @@ CAMERA_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
     "bal": ("f", "k1", "k2"),
     "fisheye": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
 }
+
+PRINCIPAL_DISTANCES: dict[str, tuple[str, ...]] = {
+    "smac": ("c",), "opencv": ("fx", "fy"), "photomodeler": ("c",), "bal": ("f",),
+    "fisheye": ("fx", "fy"),
+}
+"""Per model, the parameters that are a principal distance (focal length): > 0, or the
+model divides by 0 or mirrors the image (`read_project` refuses others)."""

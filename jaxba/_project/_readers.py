@@ -16,7 +16,7 @@ import tomllib
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-from .._camera._names import CAMERA_PARAMETER_NAMES
+from .._camera._names import CAMERA_PARAMETER_NAMES, PRINCIPAL_DISTANCES
 from ._errors import ProjectError
 from ._spec import (
     AdjustmentSettings,
@@ -45,6 +45,10 @@ _SETTING_CHOICES = {
     "solver": ("auto", "dense", "schur"),
 }
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
+# The largest magnitude of a number in a text table (coordinates, angles, image points,
+# distances): anything larger is a typo or a unit mistake, and would overflow the model
+# (a squared 1e200 is inf) instead of being reported where it was written.
+MAX_MAGNITUDE = 1e12
 
 _IMAGE_COLUMNS = (
     *("image_id", "camera_id", "X0", "Y0", "Z0", "omega", "phi", "kappa"),
@@ -221,6 +225,13 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
     names = models[model]
     _check_keys(table, _CAMERA_KEYS + names, where)
     values = {name: _toml_float(table.get(name, 0.0), f"{where} {name}") for name in names}
+    for name in PRINCIPAL_DISTANCES.get(model, ()):
+        if values[name] <= 0:
+            raise ProjectError(
+                f"{where} {name}: the principal distance (focal length) of model {model!r}"
+                f" must be > 0, got {table.get(name, 0.0)!r}"
+                + ("" if name in table else " (not given: it defaults to 0)")
+            )
 
     free = table.get("free", [])
     if not isinstance(free, list) or not all(isinstance(name, str) for name in free):
@@ -277,12 +288,16 @@ class _Row:
         return ProjectError(f"{self.file}:{self.line}: {field}{message}")
 
     def number(self, column: int, *, positive: bool = False) -> float:
-        """A finite number (> 0 with `positive`)."""
+        """A finite number of magnitude at most `MAX_MAGNITUDE` (> 0 with `positive`)."""
         token = self.tokens[column]
         value = _parse_float(token)
         if value is None or (positive and value <= 0):
             expected = "a number > 0" if positive else "a number"
             raise self.error(f"expected {expected}, got {token!r}", column)
+        if abs(value) > MAX_MAGNITUDE:
+            raise self.error(
+                f"{token} is out of range: numbers must be at most 1e12 in"
+                " magnitude (a typo or a unit mistake?)", column)
         return value
 
     def sigma(self, column: int, *, fixed: bool = True) -> float | None:
