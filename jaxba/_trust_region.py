@@ -84,12 +84,14 @@ MIN_RADIUS = 1e-32
 # every unknown by at most 1e-5 of its (a priori) σ, far below anything a report prints.
 STEP_TOLERANCE = 1e-5
 # Below this fraction of the cost, the Gauss-Newton step's predicted reduction ½gᵀN⁻¹g is
-# rounding: on the 115-image free network of benchmarks/blocks.py, solved with a minimal
-# datum, the cost (9748.29, 19,502 residuals) stopped changing in its 15th digit while
-# gᵀN⁻¹g > τ², and 17 rejected steps followed until the radius floor. Statistically it is
-# gᵀN⁻¹g ≤ 2e-12 cost ≈ 1e-12 r σ̂0²: every unknown within 1e-6 √r of its σ (1.4e-4 σ for
-# r = 18,000; 3e-4 σ for the 60-image block's r = 101,576).
-COST_RESOLUTION = 1e-12
+# rounding: the cost sums n squares, so it carries a relative error of ~√n ε (3e-14 for
+# n = 2e4). On the 115-image free network of benchmarks/blocks.py, solved with a minimal
+# datum, the cost (9748.29, 19,502 residuals) stopped changing at gᵀN⁻¹g = 1.12e-10 > τ²
+# (½gᵀN⁻¹g = 5.8e-15 of the cost), and 17 rejected steps followed until the radius floor.
+# It binds only where cost > τ²/(2e-14) = 5000, i.e. r > ~1e4 observations, and then at
+# gᵀN⁻¹g ≈ 1e-14 r σ̂0²: every unknown within 1e-7 √r of its σ (3e-5 σ for the 60-image
+# block's r = 101,576).
+COST_RESOLUTION = 1e-14
 # Where the Gauss-Newton step is at most this long (gᵀN⁻¹g, whitened: 1 σ0 in every
 # unknown), propose it undamped (module docstring: the end game).
 GAUSS_NEWTON_REGION = 1.0
