@@ -131,8 +131,9 @@ def _header(path: pathlib.Path, text: str, tokens: list[str]) -> tuple[int, int,
 
 def _indices(path: pathlib.Path, column: np.ndarray, size: int, what: str) -> np.ndarray:
     """Integer indices from a float column, each in [0, size), else an error naming its line."""
-    index = column.astype(np.int64)
-    bad = np.flatnonzero((index != column) | (index < 0) | (index >= size))
+    in_range = np.isfinite(column) & (column >= 0) & (column < size)  # before the cast
+    index = np.where(in_range, column, 0).astype(np.int64)
+    bad = np.flatnonzero(~in_range | (index != column))
     if bad.size:
         k = int(bad[0])
         raise BalFormatError(
