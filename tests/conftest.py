@@ -3,7 +3,8 @@ OpenBLAS thread (OpenBLAS and XLA threads oversubscribe the cores: 3x slower sui
 compiled programs shared across the session through jax's persistent compilation cache.
 
 The cache lives in a temporary folder made for this run (or in $JAX_COMPILATION_CACHE_DIR
-where that is set), so every run starts as a fresh clone does. Programs are cached whatever
+where that is set), so every run starts as a fresh clone does; each pytest-xdist worker has
+its own folder in it. Programs are cached whatever
 their compile time; the environment variables carry the cache to subprocesses (the notebook
 kernels). Programs that contain a host callback are never cached (jax's rule).
 
@@ -24,6 +25,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy is loaded
 _CACHE_OWNED = "JAX_COMPILATION_CACHE_DIR" not in os.environ
 if _CACHE_OWNED:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxba-tests-jit-")
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # One cache per pytest-xdist worker, inside the run's: jax writes cache entries in place,
+    # and a worker reading an entry another is writing got a truncated one.
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = os.path.join(
+        os.environ["JAX_COMPILATION_CACHE_DIR"], os.environ["PYTEST_XDIST_WORKER"])
+    os.makedirs(os.environ["JAX_COMPILATION_CACHE_DIR"], exist_ok=True)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
