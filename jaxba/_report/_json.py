@@ -58,14 +58,15 @@ def _points(project: Project, result: Adjustment) -> dict[str, dict]:
     semi-axes descending (object units) and "directions", the unit vector of each axis."""
     points = point_table(project, result)
     axes, directions, has = point_ellipsoids(project, result)
+    # Whole arrays to Python lists at once (26,200 points: ~1 s less than per point).
+    finite = np.all(np.isfinite(axes), axis=1) & np.all(np.isfinite(directions), axis=(1, 2))
+    axes_lists, direction_lists = axes.tolist(), np.swapaxes(directions, 1, 2).tolist()
     entries = {}
     for k, pid in enumerate(points.ids):
         entries[pid] = _entries(points, k)
         if has[k]:
-            entries[pid]["ellipsoid"] = _nulls({
-                "axes": [float(a) for a in axes[k]],
-                "directions": [[float(x) for x in column] for column in directions[k].T],
-            })
+            ellipsoid = {"axes": axes_lists[k], "directions": direction_lists[k]}
+            entries[pid]["ellipsoid"] = ellipsoid if finite[k] else _nulls(ellipsoid)
     return entries
 
 
