@@ -189,8 +189,9 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
 
 
 def is_measurement(group: AbstractObservationGroup) -> bool:
-    """A group of real measurements (not, e.g., the inner constraints of a free network)."""
-    return isinstance(group, ImagePoints | ParameterObservations | Distances)
+    """A group of real measurements (not constraints, such as a free network's inner
+    constraints: the group says which it is)."""
+    return not group.constraint
 
 
 def group_kind(group: AbstractObservationGroup) -> str:
