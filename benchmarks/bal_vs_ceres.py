@@ -30,7 +30,7 @@ JAXBA_RUN = """
 import json, sys
 import jax
 jax.config.update("jax_enable_x64", True)
-from jaxba._bal import run_bal
+from jaxba._bal._cli import run_bal
 results = run_bal(sys.argv[1], sys.argv[2], on_iteration=None)
 print(json.dumps(results))
 """

@@ -9,7 +9,8 @@ from ._lazy import lazy_exports
 __version__ = "0.1.0"
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "._bal": ("BalFormatError", "BalProblem", "read_bal", "run_bal"),
+    "._bal": ("BalFormatError", "BalProblem", "read_bal"),
+    "._bal._cli": ("run_bal",),
     "._batch": (
         "PaddedBatch", "adjust_batch", "broadcast_plan", "check_datum_batch", "pad_problems",
         "solve_batch",
@@ -49,10 +50,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._project": ("AdjustmentSettings", "ProjectError", "ProjectSpec", "read_project"),
     "._project._adjust": ("adjust_project",),
     "._project._build": ("Project", "build_project"),
-    "._reliability": (
-        "Rejection", "Reliability", "data_snooping", "reliability", "remove_observation",
-        "restart_from",
-    ),
+    "._reliability": ("Reliability", "reliability"),
     "._report": ("OutputError", "read_observations", "write_reports"),
     "._robust": ("RobustLoss",),
     "._rotation": (
@@ -65,6 +63,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "schur_redundancy_numbers", "solve_schur",
     ),
     "._solve": ("Adjustment", "NotConvergedError", "Solution", "adjust", "solve"),
+    "._snooping": ("Rejection", "data_snooping", "remove_observation", "restart_from"),
     "._statistics": ("Precision", "precision"),
     "._synthetic": ("SyntheticTruth", "write_synthetic_project"),
     "._variance_components": ("VarianceComponent", "estimate_variance_components"),

@@ -266,7 +266,7 @@ def _bal(args: argparse.Namespace) -> int:
 
 def _bal_locked(args: argparse.Namespace, bal) -> int:
     _setup_jax()
-    from jaxba._bal import run_bal
+    from jaxba._bal._cli import run_bal
 
     quiet = {"on_iteration": None} if args.no_progress else {}
     try:

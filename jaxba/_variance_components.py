@@ -12,7 +12,8 @@ import equinox as eqx
 import numpy as np
 
 from ._problem import BundleProblem, observation_mask
-from ._reliability import redundancy_numbers, restart_from
+from ._reliability import redundancy_numbers
+from ._snooping import restart_from
 from ._solve import Adjustment, adjust
 
 

@@ -13,7 +13,8 @@ from helpers import FD_RTOL, assert_jacobian_matches_fd
 from scipy.spatial.transform import Rotation
 
 import jaxba
-from jaxba._bal import BalFormatError, bal_bundle, read_bal, run_bal
+from jaxba._bal import BalFormatError, bal_bundle, read_bal
+from jaxba._bal._cli import run_bal
 from jaxba._camera import NoRefraction
 from jaxba._datum import similarity_transform
 from jaxba._pose import rotate_point

@@ -203,7 +203,7 @@ def test_synthetic_nadir_block_reaches_sigma0_one():
 def test_run_bal_with_and_without_progress_agree(tmp_path):
     """With progress the BAL solve runs step by step, without it as one program: same
     iterations and cost."""
-    from jaxba._bal import run_bal
+    from jaxba._bal._cli import run_bal
 
     toy = pathlib.Path(__file__).parent / "data" / "bal" / "dubrovnik-3-7-pre.txt"
     quiet = run_bal(toy, tmp_path / "quiet", on_iteration=None)

@@ -13,7 +13,8 @@ from collections.abc import Callable
 import numpy as np
 
 from .._progress import Iteration
-from .._reliability import data_snooping, reliability, restart_from
+from .._reliability import reliability
+from .._snooping import data_snooping, restart_from
 from .._solve import Adjustment, adjust
 from .._timing import Timings
 from .._variance_components import estimate_variance_components
