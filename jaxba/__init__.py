@@ -9,6 +9,7 @@ from ._lazy import lazy_exports
 __version__ = "0.1.0"
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._adjustment": ("Adjustment",),
     "._bal": ("BalFormatError", "BalProblem", "read_bal"),
     "._bal._cli": ("run_bal",),
     "._batch": (
@@ -22,6 +23,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "OpenCVCamera", "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera",
     ),
     "._datum": ("DatumError", "check_datum"),
+    "._dense": ("solve",),
     "._differentiable": ("adjusted", "covariance", "iop_trace_gradient", "sensitivity"),
     "._free_network": ("InnerConstraints", "inner_constraints"),
     "._io": (
@@ -62,7 +64,8 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "BundleCofactors", "check_datum_schur", "schur_cofactors", "schur_precision",
         "schur_redundancy_numbers", "solve_schur",
     ),
-    "._solve": ("Adjustment", "NotConvergedError", "Solution", "adjust", "solve"),
+    "._solve": ("NotConvergedError", "adjust"),
+    "._solution": ("Solution",),
     "._snooping": ("Rejection", "data_snooping", "remove_observation", "restart_from"),
     "._statistics": ("Precision", "precision"),
     "._synthetic": ("SyntheticTruth", "write_synthetic_project"),

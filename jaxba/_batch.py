@@ -29,7 +29,9 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
+from ._adjustment import Adjustment
 from ._datum import DatumError, check_datum_with_jacobian
+from ._dense import solve
 from ._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
 from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten
@@ -42,7 +44,7 @@ from ._problem import (
 )
 from ._progress import Iteration
 from ._reliability import reliability_from_redundancy
-from ._solve import Adjustment, Solution, solve
+from ._solution import Solution
 from ._statistics import precision_from_covariance
 
 

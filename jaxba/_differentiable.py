@@ -27,11 +27,11 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from ._camera import CAMERA_MODELS
+from ._dense import _residual_fn, column_scale
 from ._levenberg_marquardt import NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, params_from_free, params_from_scaled
-from ._solve import _residual_fn, column_scale
 
 
 def adjusted(

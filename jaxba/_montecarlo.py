@@ -29,7 +29,8 @@ from ._linearisation import linearisation_plan
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem
-from ._solve import Solution, adjust
+from ._solution import Solution
+from ._solve import adjust
 
 
 @dataclasses.dataclass(frozen=True)

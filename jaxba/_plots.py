@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
+from ._adjustment import Adjustment
 from ._project._build import Project
 from ._report._collect import PIXEL, camera_correlations, camera_units, image_residuals
-from ._solve import Adjustment
 
 _CELL = (3.2, 2.4)  # inches per image in the grid of all images
 _VECTOR_FRACTION = 0.06  # auto scale: the RMS residual is drawn this fraction of the format width

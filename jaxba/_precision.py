@@ -12,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._adjustment import Adjustment
 from ._camera import CAMERA_MODELS
 from ._parameters import Parameters, flatten, unflatten
-from ._solve import Adjustment
 
 
 def full_covariance(result: Adjustment) -> np.ndarray:

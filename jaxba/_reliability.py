@@ -14,11 +14,11 @@ import numpy as np
 import scipy.linalg
 import scipy.stats
 
+from ._adjustment import Adjustment
 from ._free_network import free_network_redundancy_numbers, inner_constraint_group
 from ._linearisation import dense_jacobian
 from ._problem import BundleProblem, observation_mask
 from ._schur._reliability import schur_redundancy_numbers
-from ._solve import Adjustment
 
 
 @dataclasses.dataclass(frozen=True)

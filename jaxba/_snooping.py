@@ -6,10 +6,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ._adjustment import Adjustment
 from ._observations import ImagePoints
 from ._problem import BundleProblem
 from ._reliability import Reliability, reliability
-from ._solve import Adjustment, adjust
+from ._solve import adjust
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,10 +11,11 @@ import dataclasses
 import equinox as eqx
 import numpy as np
 
+from ._adjustment import Adjustment
 from ._problem import BundleProblem, observation_mask
 from ._reliability import redundancy_numbers
 from ._snooping import restart_from
-from ._solve import Adjustment, adjust
+from ._solve import adjust
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,10 +12,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .._adjustment import Adjustment
 from .._progress import Iteration
 from .._reliability import reliability
 from .._snooping import data_snooping, restart_from
-from .._solve import Adjustment, adjust
+from .._solve import adjust
 from .._timing import Timings
 from .._variance_components import estimate_variance_components
 from ._build import Project

@@ -16,12 +16,12 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._adjustment import Adjustment
 from .._camera import CAMERA_MODELS
 from .._observations import AbstractObservationGroup, Distances, ImagePoints, ParameterObservations
 from .._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._precision import camera_correlation, error_ellipsoids, point_covariances
 from .._project._build import Project
-from .._solve import Adjustment
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 MM, PIXEL = "mm", "pixel"  # image units of a camera model (CAMERA_MODELS[model].image_units)

@@ -2,8 +2,8 @@
 
 import pathlib
 
+from .._adjustment import Adjustment
 from .._project._build import Project
-from .._solve import Adjustment
 from ._atomic import replace_files
 from ._csv import observations_csv
 from ._json import results_json
