@@ -8,9 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize
+from helpers import central_difference
 from scipy.spatial.transform import Rotation
 
 import jaxba
+from jaxba._approximations._relative_orientation import _coplanarity
+from jaxba._approximations._resection import collinearity
 from jaxba._camera import SmacCamera
 from jaxba._pose import OpkPose
 
@@ -18,6 +21,7 @@ EXACT_TOL = 1e-9  # relative: noise-free recovery (float64 closed forms + a few 
 IMAGE_TOL = 1e-10  # mm: noise-free image residuals / reprojection by jaxba's model
 OPENCV_STATION_TOL = 1e-6  # relative to the camera distance: the same minimum, OpenCV's LM stop
 OPENCV_ANGLE_TOL = 1e-7  # rad
+JACOBIAN_RTOL = 1e-6  # analytic Jacobians against central differences (step 1e-6)
 MC_STD_RTOL = 0.15  # Monte Carlo std against the predicted σ (300 replicates: ~4 sampling σ)
 MC_MEAN_SIGMAS = 4.0  # |mean error| / (σ / sqrt(replicates)): no bias beyond sampling
 NOISE_MM = 0.002  # image noise σ, mm (about half a 3.69 µm pixel)
@@ -566,6 +570,34 @@ def test_parallax_relations_on_a_vertical_pair_by_jaxba_projection():
         rtol=0, atol=EXACT_TOL * height)
     with pytest.raises(ValueError, match="zero parallax"):
         jaxba.elevation_from_parallax(0.0, base, 152.4, height)
+
+
+def test_refinement_jacobians_match_central_differences():
+    """The hand-written Jacobians of the refinements: collinearity by the six EOPs, and the
+    Sampson distance of coplanarity by the five parameters of both parameterisations."""
+    rng = np.random.default_rng(23)
+    points = field(rng, 5)
+    eop = EOP + rng.normal(0, 0.01, 6)
+    _, jacobian = collinearity(eop, points, C)
+    numeric = central_difference(lambda e: collinearity(e, points, C)[0], eop, 1e-6)
+    np.testing.assert_allclose(jacobian, numeric, rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL)
+    r1, r2 = (np.c_[rng.normal(0, 3, (6, 2)), np.full(6, -C)] for _ in range(2))
+    for parameterisation in ("dependent", "independent"):
+        parameters = rng.normal(0, 0.1, 5)
+        _, jacobian = _coplanarity(parameters, r1, r2, parameterisation, 2.0)
+        numeric = central_difference(
+            lambda p: _coplanarity(p, r1, r2, parameterisation, 2.0)[0], parameters, 1e-6)
+        np.testing.assert_allclose(jacobian, numeric, rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL)
+
+
+def test_refuses_float32_jax_but_parallax_needs_no_jax():
+    rng = np.random.default_rng(24)
+    points = field(rng, 6)
+    xy = project(smac_camera(), EOP, points)
+    with jax.enable_x64(False):
+        with pytest.raises(ValueError, match="float64"):
+            jaxba.space_resection(xy, points, C)
+        assert jaxba.elevation_from_parallax(91.7, 390.0, 152.4, 1233.0).dtype == np.float64
 
 
 def test_public_names():
