@@ -10,6 +10,14 @@ __version__ = "0.1.0"
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._adjustment": ("Adjustment",),
+    "._approximations": (
+        "RELATIVE_ORIENTATION_PARAMETERS", "SIMILARITY_PARAMETERS", "Dlt", "DltOrientation",
+        "EssentialMatrix", "Intersection", "RelativeOrientation", "Resection", "Similarity",
+        "absolute_orientation", "air_base_from_parallax", "decompose_dlt", "dlt",
+        "elevation_from_parallax", "elevation_from_parallax_difference", "essential_matrix",
+        "flying_height_from_parallax", "forward_intersection", "ground_from_parallax",
+        "relative_orientation", "space_resection", "stereo_parallax",
+    ),
     "._bal": ("BalFormatError", "BalProblem", "read_bal"),
     "._bal._cli": ("run_bal",),
     "._batch": (
