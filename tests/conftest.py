@@ -8,10 +8,11 @@ its own folder in it. Programs are cached whatever
 their compile time; the environment variables carry the cache to subprocesses (the notebook
 kernels). Programs that contain a host callback are never cached (jax's rule).
 
-After each test module jax's in-memory caches are cleared and the freed memory is handed
-back to the system: compiled executables otherwise pile up over the session (7 GB peak on
-the whole suite); a later module that needs one of them again loads it from the persistent
-cache instead of compiling it.
+After each test module, and after any test that leaves the process above 1 GiB, jax's
+in-memory caches are cleared and the freed memory is handed back to the system: compiled
+executables otherwise pile up (7 GB peak on the whole suite once; 2.2 GB per worker within
+test_batch); a later test that needs one of them again loads it from the persistent cache
+instead of compiling it.
 """
 
 import ctypes
@@ -54,13 +55,39 @@ except (OSError, AttributeError):
     _malloc_trim = None
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _clear_jax_caches_after_module():
-    yield
+# Above this resident size a test's compiled programs are dropped when it ends, not only at
+# the end of its module: a module of large vmapped programs (test_batch) otherwise climbed
+# to 2.2 GB, and two pytest-xdist workers together past 3.8 GB.
+CLEAR_ABOVE_BYTES = 1 << 30
+
+
+def _release_memory():
     jax.clear_caches()
     gc.collect()
     if _malloc_trim is not None:
         _malloc_trim(0)
+
+
+def _resident_bytes() -> int:
+    """This process's resident memory (Linux; 0 elsewhere, where only modules clear)."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return 0
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _clear_jax_caches_after_module():
+    yield
+    _release_memory()
+
+
+@pytest.fixture(autouse=True)
+def _clear_jax_caches_when_large():
+    yield
+    if _resident_bytes() > CLEAR_ABOVE_BYTES:
+        _release_memory()
 
 
 @pytest.fixture(scope="session")
