@@ -4,9 +4,11 @@ Public names are imported from their modules when first used (`jaxba._lazy`), so
 `import jaxba` does not load jax.
 """
 
+from importlib.metadata import version as _distribution_version
+
 from ._lazy import lazy_exports
 
-__version__ = "0.1.0"
+__version__ = _distribution_version(__name__)  # one source: pyproject.toml
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._adjustment": ("Adjustment",),

@@ -337,11 +337,18 @@ def _common_options() -> argparse.ArgumentParser:
     return common
 
 
+def _version() -> str:
+    from jaxba import __version__  # the package's metadata: no jax
+
+    return __version__
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxba", description="Self-calibrating photogrammetric bundle adjustment in JAX.",
         epilog=EXIT_CODES, parents=[_common_options()],
     )
+    parser.add_argument("--version", action="version", version=f"jaxba {_version()}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_adjust(subparsers)
     _add_bal(subparsers)

@@ -271,6 +271,20 @@ def test_usage(capsys):
     assert "usage" in capsys.readouterr().err
 
 
+def test_version_is_the_distribution_version(capsys):
+    """`jaxba --version` and `python -m jaxba --version` print the installed package's
+    version, which `jaxba.__version__` also is (one source: pyproject.toml)."""
+    import importlib.metadata
+
+    installed = importlib.metadata.version("jaxba")
+    assert jaxba.__version__ == installed
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"jaxba {installed}"
+    module = subprocess.run([sys.executable, "-m", "jaxba", "--version"],
+                            capture_output=True, text=True, check=True)
+    assert module.stdout.strip() == f"jaxba {installed}"
+
+
 def test_not_converged_still_writes_reports(tmp_path):
     project_file = _copy_lab(tmp_path / "lab")
     _edit(project_file, "max_iterations = 50", "max_iterations = 3")
