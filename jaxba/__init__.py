@@ -70,10 +70,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "quaternion_to_matrix", "quaternion_to_rodrigues", "rodrigues_to_matrix",
         "rodrigues_to_quaternion",
     ),
-    "._schur": (
-        "BundleCofactors", "check_datum_schur", "schur_cofactors", "schur_precision",
-        "schur_redundancy_numbers", "solve_schur",
-    ),
+    "._schur._bundle": ("BundleCofactors", "schur_cofactors", "schur_precision", "solve_schur"),
+    "._schur._datum": ("check_datum_schur",),
+    "._schur._reliability": ("schur_redundancy_numbers",),
     "._solve": ("NotConvergedError", "adjust"),
     "._solution": ("Solution",),
     "._snooping": ("Rejection", "data_snooping", "remove_observation", "restart_from"),

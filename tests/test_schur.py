@@ -23,13 +23,15 @@ from jaxba._cholesky import cholesky_solve
 from jaxba._parameters import flatten
 from jaxba._pose import RodriguesPose
 from jaxba._problem import free_indices, params_from_free
-from jaxba._schur import bundle_structure, marquardt_diagonal, solve_schur
 from jaxba._schur._bundle import (
     _to_parameters,
     bundle_normal_equations,
     bundle_predicted_reduction,
+    bundle_structure,
     solve_bundle_damped,
+    solve_schur,
 )
+from jaxba._schur._normal import marquardt_diagonal
 from jaxba._schur._pairs import same_point_pairs
 
 N_CAMERAS, N_POINTS = 5, 60

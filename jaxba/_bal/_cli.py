@@ -22,7 +22,7 @@ from .._float64 import require_float64
 from .._problem import BundleProblem
 from .._progress import Iteration, StepRecorder
 from .._report._atomic import replace_files
-from .._schur import bundle_structure, solve_schur
+from .._schur._bundle import bundle_structure, solve_schur
 from .._timing import CompileLog
 from ._model import bal_bundle
 from ._reader import BalProblem, read_bal
