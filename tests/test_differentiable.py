@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._differentiable import adjusted, iop_trace_gradient, sensitivity
+import jaxba._schur._choice
+from jaxba._differentiable import adjusted, choose_backend, iop_trace_gradient, sensitivity
 from jaxba._observations import ParameterObservations
 from jaxba._schur._bundle import bundle_structure
 
@@ -140,6 +141,16 @@ def test_schur_gradient_matches_dense(small_block, schur_gradient):
         assert error < BACKEND_RTOL, (name, error)
 
 
+@pytest.mark.slow  # ~40 s: compiles both backends' jacrev (the Schur CG vmapped over 5 IOPs)
+def test_schur_sensitivity_matches_dense(small_block):
+    schur, names = sensitivity(small_block, backend="schur")
+    dense, dense_names = sensitivity(small_block, backend="dense")
+    assert names == dense_names == ["xp", "yp", "c", "K1", "K2"]
+    scale = np.abs(np.asarray(dense)).max(axis=(1, 2), keepdims=True)
+    error = np.abs(np.asarray(schur) - np.asarray(dense)) / scale
+    assert np.all(error < BACKEND_RTOL), dict(zip(names, error.max(axis=(1, 2))))
+
+
 def test_schur_gradient_matches_central_differences(small_block, schur_gradient):
     problem = small_block
     data = _data(problem)
@@ -189,3 +200,22 @@ def test_schur_adjoint_forms_no_dense_matrix(small_block):
     schur = _largest_matrix_dimension(lowered("schur").as_text())
     assert schur <= n_reduced + 1, (schur, n_reduced)
     assert _largest_matrix_dimension(lowered("dense").as_text()) >= n_free
+
+
+def test_backend_choice(small_block, monkeypatch):
+    """"auto" chooses as `adjust` does where the problem's values are concrete, the dense path
+    (which batches) where they are traced."""
+    assert choose_backend(small_block) == "dense"  # 299 unknowns
+    monkeypatch.setattr(jaxba._schur._choice, "SCHUR_MIN_UNKNOWNS", 100)
+    assert choose_backend(small_block) == "schur"
+    assert choose_backend(small_block, "dense") == "dense"
+    chosen = []
+
+    def choose(problem):
+        chosen.append(choose_backend(problem))
+        return problem.initial.images
+
+    jax.eval_shape(choose, small_block)
+    assert chosen == ["dense"]
+    with pytest.raises(ValueError, match="backend must be one of"):
+        choose_backend(small_block, "cg")
