@@ -128,8 +128,10 @@ class SchurPreconditionedCG(lx.AbstractLinearSolver):
     (the Hessian of the implicit adjoint), preconditioned by `preconditioner`'s N⁻¹.
 
     Stops where ‖r‖_N⁻¹ ≤ `rtol` ‖b‖_N⁻¹ (r = b - H x, ‖r‖²_N⁻¹ = rᵀN⁻¹r: the preconditioned
-    CG's own γ), or fails (`max_steps_reached`) after `max_steps` iterations; a zero right-hand
-    side gives 0 at once. Symmetric: its transpose (reverse mode) is itself.
+    CG's own γ), or fails (`max_steps_reached`, and `lx.linear_solve` raises) after
+    `max_steps` iterations, as it may where the operator is not positive definite (x̂ not a
+    minimum); a zero right-hand side gives 0 at once. Symmetric: its transpose (reverse
+    mode) is itself.
     """
 
     preconditioner: GaussNewtonFactor
