@@ -4,17 +4,23 @@
 function of every array in the problem θ: image measurements, control coordinates, prior
 values, σ. Derivatives come from the implicit function theorem at the optimum,
 g(x̂, θ) = ∇ₓ ½‖e(x, θ)‖² = 0  ⇒  dx̂/dθ = -H⁻¹ ∂g/∂θ,  H = ∂g/∂x (the full Hessian, not
-only JᵀJ), which `optx.least_squares` does with `adjoint=optx.ImplicitAdjoint()`: no
-differentiation through the iterations. The linear solver of the adjoint is dense QR on the
-(n_free, n_free) Hessian of the Jacobi-scaled unknowns: fine at calibration sizes (a few
-hundred unknowns); a block needs a Schur or CG solver there instead (lineax `CG` on a
-positive-definite tagged operator), which this module does not yet provide.
+only JᵀJ): no differentiation through the iterations. Two backends, chosen as `adjust`
+chooses (`use_schur`; `backend=`):
 
-The Jacobi column scale of the solver is held constant (`stop_gradient`): the optimum does
-not depend on it, so its derivative would only cancel.
+- dense (calibrations, batches; vmappable): `optx.least_squares` with
+  `adjoint=optx.ImplicitAdjoint()`, the linear solver dense QR on the (n_free, n_free)
+  Hessian of the Jacobi-scaled unknowns. The Jacobi column scale of the solver is held
+  constant (`stop_gradient`): the optimum does not depend on it, so its derivative would
+  only cancel.
+- Schur (blocks): the Schur backend's Levenberg-Marquardt forward, and H v = w solved by
+  conjugate gradients on the matrix-free Hessian (Hessian-vector products), preconditioned
+  by the Gauss-Newton matrix JᵀJ at x̂ through the Schur split (`jaxba._schur._adjoint`):
+  no n x n matrix and no Jacobian, the largest arrays those of the Schur solve (the reduced
+  camera matrix). Not vmappable (its split is NumPy).
 
 Only gauge-invariant outputs are meaningful: with a datum defect the solution is not a
-function of θ. With a fixed datum (control, fixed coordinates) all unknowns are.
+function of θ. With a fixed datum (control, fixed coordinates) all unknowns are. The
+network-design functions (`covariance`, `iop_trace_gradient`) stay dense.
 """
 
 import equinox as eqx
@@ -32,6 +38,9 @@ from ._levenberg_marquardt import NormalLevenbergMarquardt
 from ._linearisation import LinearisationPlan, linearisation_plan
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices, params_from_free, params_from_scaled
+from ._schur._adjoint import _stop_gradient, schur_adjusted
+from ._schur._bundle import BundleStructure, bundle_structure
+from ._schur._choice import SOLVERS, use_schur
 
 
 def adjusted(
@@ -41,18 +50,42 @@ def adjusted(
     max_steps: int = 100,
     rtol: float = 1e-12,
     atol: float = 1e-12,
+    backend: str = "auto",
+    structure: BundleStructure | None = None,
 ) -> Parameters:
     """The adjusted Parameters x̂(θ), differentiable w.r.t. every array of `problem`.
 
-    Levenberg-Marquardt as in `solve`, with an implicit adjoint (dense QR on the Hessian
-    of the scaled unknowns). Tolerances default tighter than `solve`'s, since a
-    derivative is only as good as the optimality of x̂. `plan` =
-    `linearisation_plan(problem)` (static structure as arrays, so it can vmap), computed
-    here when not given.
+    Levenberg-Marquardt as in `solve` (or `solve_schur`), with an implicit adjoint.
+    Tolerances default tighter than `solve`'s, since a derivative is only as good as the
+    optimality of x̂. `backend`: "dense" (dense QR on the Hessian of the scaled unknowns;
+    vmappable), "schur" (the Schur backend's solve, CG preconditioned through the Schur
+    split: `jaxba._schur._adjoint`) or "auto" (`use_schur`, as `adjust` chooses, where the
+    problem's arrays are concrete: outside `jax.jit` / `jax.vmap`, `jax.grad` and friends
+    included; "dense" under a transformation that traces them). `plan` =
+    `linearisation_plan(problem)` (static structure as arrays, so it can vmap) for the dense
+    path, `structure` = `bundle_structure(problem)` for the Schur path (not vmappable);
+    each computed here when not given.
     """
+    if choose_backend(problem, backend) == "schur":
+        structure = bundle_structure(problem) if structure is None else structure
+        return schur_adjusted(problem, structure, max_steps=max_steps, rtol=rtol, atol=atol)[0]
     if plan is None:
         plan = linearisation_plan(problem)
     return _adjusted(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+
+
+def choose_backend(problem: BundleProblem, backend: str = "auto") -> str:
+    """"dense" or "schur" for `adjusted` (its docstring): `backend` where it is one of them,
+    for "auto" `use_schur` on the problem's values, "dense" where they are traced (jit,
+    vmap: no NumPy count of the observations there, and a batch needs the dense path)."""
+    if backend not in SOLVERS:
+        raise ValueError(f"backend must be one of {', '.join(SOLVERS)}, not {backend!r}")
+    if backend != "auto":
+        return backend
+    try:  # the values under jax.grad, a tracer's error under jit / vmap
+        return "schur" if use_schur(_stop_gradient(problem)) else "dense"
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+        return "dense"
 
 
 @eqx.filter_jit
@@ -117,6 +150,7 @@ def sensitivity(
     group: int = 0,
     model: str | None = None,
     row: int = 0,
+    backend: str = "auto",
     **solver_options,
 ) -> tuple[Float[Array, "n_iop n_obs 2"], list[str]]:
     """d(adjusted IOPs)/d(image coordinates) of the ImagePoints group `group`.
@@ -125,14 +159,17 @@ def sensitivity(
     `row` of `model` (default: the group's model), units IOP unit per image unit. External
     reliability: a blunder ∇ in observation (k, j) moves IOP i by S[i, k, j] ∇ (to first
     order); S ∇ with ∇ the MDB gives the IOPs' external reliability. One reverse pass per
-    IOP through the implicit adjoint (jax.jacrev).
+    IOP through the implicit adjoint (jax.jacrev); `backend` and `solver_options` as for
+    `adjusted` (on a block "auto" takes the Schur backend).
     """
     model = model if model is not None else problem.groups[group].model
-    plan = linearisation_plan(problem)
+    backend = choose_backend(problem, backend)
+    split = ({"structure": bundle_structure(problem)} if backend == "schur"
+             else {"plan": linearisation_plan(problem)})
 
     def iops(measured):
         moved = eqx.tree_at(lambda p: p.groups[group].measured, problem, measured)
-        return adjusted(moved, plan, **solver_options).cameras[model][row]
+        return adjusted(moved, backend=backend, **split, **solver_options).cameras[model][row]
 
     _, names = camera_positions(problem, model, row)
     keep = jnp.asarray([CAMERA_MODELS[model].parameter_names.index(n) for n in names])

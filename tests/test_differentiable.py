@@ -1,12 +1,20 @@
 """Gradients through the solve (implicit differentiation) against central differences of
-re-solved bundles; the network-design gradient against central differences."""
+re-solved bundles, the Schur backend's against the dense backend's; the network-design
+gradient against central differences."""
+
+import re
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxba
-from jaxba._differentiable import adjusted, iop_trace_gradient, sensitivity
+import jaxba._schur._choice
+from jaxba._differentiable import adjusted, choose_backend, iop_trace_gradient, sensitivity
+from jaxba._observations import ParameterObservations
+from jaxba._schur._bundle import bundle_structure
 
 GRAD_RTOL = 1e-5  # issue 6: d IOP / d observation against central differences, relative
 OBS_STEP = 1e-3  # mm (≈ σ): truncation ~1e-7; smaller steps drown in the re-solves' tolerance
@@ -62,3 +70,152 @@ def test_network_design_gradient(block):
         fd = (trace_at(image, axis, STATION_STEP) - trace_at(image, axis, -STATION_STEP))
         fd = fd / (2 * STATION_STEP)
         assert float(grad[image, axis]) == pytest.approx(fd, rel=1e-4, abs=1e-6 * float(value))
+
+
+# The Schur backend's adjoint (jaxba._schur._adjoint) against the dense one and against central
+# differences, on a block both can solve: 10 images, 80 targets, 5 free IOPs, the lab datum (6
+# fixed coordinates, the distances' scale) and weighted control on 3 points.
+BACKEND_RTOL = 1e-8  # Schur vs dense gradient, relative to each block's largest entry
+CONTROL_STEP = 1e-4  # m (≈ 0.1 σ of the control), central-difference step of a control value
+SCHUR_CHECKED = ((0, 0), (33, 1), (400, 0))  # (observation, coordinate)
+
+
+@pytest.fixture(scope="module")
+def small_block(tmp_path_factory):
+    truth = jaxba.write_synthetic_project(tmp_path_factory.mktemp("schur_diff"), seed=5,
+                                          n_images=10, n_targets=80,
+                                          free=("xp", "yp", "c", "K1", "K2"))
+    problem = jaxba.build_project(jaxba.read_project(truth.project_file)).problem
+    rows = jnp.array([5, 20, 41])
+    control = ParameterObservations(
+        name="control", block="points", rows=rows, observed=problem.initial.points[rows] + 0.002,
+        stddev=jnp.full((3, 3), 0.001))
+    return eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, control))
+
+
+def _data(problem):
+    """The arrays differentiated: image coordinates, control values, all initial values (the
+    datum's fixed coordinates among them)."""
+    return problem.groups[0].measured, problem.groups[-1].observed, problem.initial.points
+
+
+def _adjusted_quantity(problem, data, backend, **options):
+    """A scalar of the adjusted block: the free IOPs, an image's EOPs, some points."""
+    measured, control, points = data
+    moved = eqx.tree_at(lambda p: (p.groups[0].measured, p.groups[-1].observed, p.initial.points),
+                        problem, (measured, control, points))
+    x = adjusted(moved, backend=backend, **options)
+    iops = x.cameras["smac"][0]
+    return (jnp.sum(iops * jnp.arange(1.0, 1.0 + iops.size)) + jnp.sum(x.images[3])
+            + jnp.sum(x.points[10:13]))
+
+
+def _split(problem, backend):
+    """The static structure `adjusted` needs, made from the concrete problem: the initial
+    values are among the arrays differentiated."""
+    if backend == "schur":
+        return {"structure": bundle_structure(problem)}
+    return {"plan": jaxba.linearisation_plan(problem)}
+
+
+def _value_and_gradient(problem, data, backend):
+    """The quantity and its gradient w.r.t. `data`, solved to rounding (the tolerances of the
+    central differences' re-solves: one compiled program serves both)."""
+    options = dict(rtol=FD_SOLVE_TOL, atol=FD_SOLVE_TOL, max_steps=200, **_split(problem, backend))
+    return jax.value_and_grad(_adjusted_quantity, argnums=1)(problem, data, backend, **options)
+
+
+@pytest.fixture(scope="module")
+def schur_gradient(small_block):
+    return _value_and_gradient(small_block, _data(small_block), "schur")[1]
+
+
+@pytest.mark.slow  # ~20 s: compiles the dense path's adjustment and adjoint
+def test_schur_gradient_matches_dense(small_block, schur_gradient):
+    dense_gradient = _value_and_gradient(small_block, _data(small_block), "dense")[1]
+    for name, schur, dense in zip(("measured", "control", "points"), schur_gradient,
+                                  dense_gradient):
+        scale = np.abs(np.asarray(dense)).max()
+        assert scale > 0, name
+        error = np.abs(np.asarray(schur) - np.asarray(dense)).max() / scale
+        assert error < BACKEND_RTOL, (name, error)
+
+
+@pytest.mark.slow  # ~40 s: compiles both backends' jacrev (the Schur CG vmapped over 5 IOPs)
+def test_schur_sensitivity_matches_dense(small_block):
+    schur, names = sensitivity(small_block, backend="schur")
+    dense, dense_names = sensitivity(small_block, backend="dense")
+    assert names == dense_names == ["xp", "yp", "c", "K1", "K2"]
+    scale = np.abs(np.asarray(dense)).max(axis=(1, 2), keepdims=True)
+    error = np.abs(np.asarray(schur) - np.asarray(dense)) / scale
+    assert np.all(error < BACKEND_RTOL), dict(zip(names, error.max(axis=(1, 2))))
+
+
+def test_schur_gradient_matches_central_differences(small_block, schur_gradient):
+    problem = small_block
+    data = _data(problem)
+    grad = schur_gradient
+
+    def moved(which, index, step):
+        changed = list(data)
+        changed[which] = changed[which].at[index].add(step)
+        return float(_value_and_gradient(problem, tuple(changed), "schur")[0])
+
+    checked = [(0, index, OBS_STEP) for index in SCHUR_CHECKED]
+    checked += [(1, (0, 2), CONTROL_STEP), (1, (2, 0), CONTROL_STEP)]
+    fixed = int(np.flatnonzero(~np.asarray(problem.free.points).all(axis=1))[0])
+    checked += [(2, (fixed, int(np.flatnonzero(~np.asarray(problem.free.points[fixed]))[0])),
+                 CONTROL_STEP)]
+    for which, index, step in checked:
+        fd = (moved(which, index, step) - moved(which, index, -step)) / (2 * step)
+        scale = np.abs(np.asarray(grad[which])).max()
+        assert float(grad[which][index]) == pytest.approx(fd, abs=GRAD_RTOL * scale), (which, index)
+
+
+def _largest_matrix_dimension(text: str) -> int:
+    """The largest k such that some f64 tensor in the StableHLO `text` has two dimensions of
+    at least k."""
+    largest = 0
+    for shape in re.findall(r"tensor<((?:\d+x)+)f64>", text):
+        dims = sorted((int(d) for d in shape.rstrip("x").split("x")), reverse=True)
+        if len(dims) >= 2:
+            largest = max(largest, dims[1])
+    return largest
+
+
+def test_schur_adjoint_forms_no_dense_matrix(small_block):
+    """No array of the Schur path's forward solve and reverse pass has two dimensions longer
+    than the reduced camera matrix (n_r + 1, its padding column); the dense path's Hessian
+    (n_free x n_free) fails the same check."""
+    problem = small_block
+    n_reduced = bundle_structure(problem).n_reduced
+    n_free = problem.n_unknowns()
+    assert n_free > 2 * (n_reduced + 1)
+
+    def lowered(backend):  # the problem's index arrays concrete: closed over, not traced
+        split = _split(problem, backend)
+        gradient = jax.grad(lambda data: _adjusted_quantity(problem, data, backend, **split))
+        return jax.jit(gradient).lower(_data(problem))
+
+    schur = _largest_matrix_dimension(lowered("schur").as_text())
+    assert schur <= n_reduced + 1, (schur, n_reduced)
+    assert _largest_matrix_dimension(lowered("dense").as_text()) >= n_free
+
+
+def test_backend_choice(small_block, monkeypatch):
+    """"auto" chooses as `adjust` does where the problem's values are concrete, the dense path
+    (which batches) where they are traced."""
+    assert choose_backend(small_block) == "dense"  # 299 unknowns
+    monkeypatch.setattr(jaxba._schur._choice, "SCHUR_MIN_UNKNOWNS", 100)
+    assert choose_backend(small_block) == "schur"
+    assert choose_backend(small_block, "dense") == "dense"
+    chosen = []
+
+    def choose(problem):
+        chosen.append(choose_backend(problem))
+        return problem.initial.images
+
+    jax.eval_shape(choose, small_block)
+    assert chosen == ["dense"]
+    with pytest.raises(ValueError, match="backend must be one of"):
+        choose_backend(small_block, "cg")
