@@ -99,7 +99,7 @@ def test_examples_run(page, tmp_path):
     runner = tmp_path / "run_blocks.py"
     runner.write_text(_RUNNER, "utf-8")
     environment = {**os.environ, "JAX_ENABLE_X64": "1", "OPENBLAS_NUM_THREADS": "1",
-                   "MPLBACKEND": "Agg"}
+                   "MPLBACKEND": "Agg", "TMPDIR": str(tmp_path)}  # the examples' temp folders
     done = subprocess.run(
         [sys.executable, str(runner), str(blocks_file), str(page.relative_to(ROOT))],
         cwd=ROOT, env=environment, capture_output=True, text=True, timeout=EXAMPLES_TIMEOUT_S)
