@@ -1,0 +1,175 @@
+"""The documentation (docs/, README.md, mkdocs.yml) cannot drift from the code unnoticed.
+
+- The site builds with `mkdocs build --strict`: every link and anchor resolves, every page is
+  in the navigation (mkdocs.yml's `validation` turns these into warnings, strict into errors).
+- Nothing points outside the repository (the team's internal documents) or at private modules.
+- The Python examples marked `<!-- run -->` run, in order, as one session per page.
+- The command-line page names every subcommand and option the program prints in its --help,
+  each option in its subcommand's section.
+- The API page names every public name; the project-files page every setting and every
+  camera parameter.
+"""
+
+import dataclasses
+import importlib.util
+import json
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import pytest
+
+import jaxba
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+RUN_MARK = "<!-- run -->"
+FORBIDDEN = ("../shared", "FORMATS.md", "CONVENTIONS.md", "ARCHITECTURE.md", "jaxba._")
+EXAMPLES_TIMEOUT_S = 300  # the API page's examples take ~10 s, most of it compiling
+# A command-line option in a --help text: "-h", "--max-steps"; not the "-c" of "Schur-complement".
+OPTION = re.compile(r"(?<![\w-])--?[a-zA-Z][\w-]*")
+
+
+def documentation_files() -> list[pathlib.Path]:
+    return [*sorted(DOCS.rglob("*.md")), ROOT / "README.md", ROOT / "mkdocs.yml"]
+
+
+def runnable_blocks(text: str) -> list[tuple[int, str]]:
+    """(line of the code's first line, code) of every ```python block right after a
+    `<!-- run -->` line."""
+    pattern = re.compile(r"^<!-- run -->[ \t]*\n```python[ \t]*\n(.*?)^```[ \t]*$", re.M | re.S)
+    return [(text.count("\n", 0, match.start(1)) + 1, match.group(1))
+            for match in pattern.finditer(text)]
+
+
+def pages_with_examples() -> list[pathlib.Path]:
+    return [page for page in sorted(DOCS.glob("*.md")) if RUN_MARK in page.read_text("utf-8")]
+
+
+@pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None,
+                    reason="mkdocs is not installed (pip install 'jaxba[docs]' or '.[dev]')")
+def test_site_builds_in_strict_mode(tmp_path):
+    site = tmp_path / "site"
+    done = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (site / "index.html").is_file()
+    assert (site / "api" / "index.html").is_file()
+
+
+@pytest.mark.parametrize("path", documentation_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_reference_outside_the_repository(path):
+    text = path.read_text(encoding="utf-8")
+    found = [word for word in FORBIDDEN if word in text]
+    assert not found, f"{path.relative_to(ROOT)} mentions {found}"
+
+
+def test_examples_are_marked():
+    pages = pages_with_examples()
+    assert DOCS / "api.md" in pages
+    for page in pages:
+        text = page.read_text("utf-8")
+        assert text.count(RUN_MARK) == len(runnable_blocks(text)), (
+            f"{page.name}: a {RUN_MARK} line not followed by a ```python block")
+
+
+_RUNNER = """
+import json, sys, traceback
+blocks = json.load(open(sys.argv[1], encoding="utf-8"))
+namespace = {"__name__": "__main__"}
+for line, code in blocks:
+    try:
+        # Padded so that a traceback gives the line of the page.
+        exec(compile("\\n" * (line - 1) + code, sys.argv[2], "exec"), namespace)
+    except BaseException:
+        traceback.print_exc()
+        sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("page", pages_with_examples(), ids=lambda p: p.name)
+def test_examples_run(page, tmp_path):
+    """The page's runnable blocks, in order, in one fresh interpreter (float64 on, as a user
+    must), from the repository's root (the examples read configs/)."""
+    blocks_file = tmp_path / "blocks.json"
+    blocks_file.write_text(json.dumps(runnable_blocks(page.read_text("utf-8"))), "utf-8")
+    runner = tmp_path / "run_blocks.py"
+    runner.write_text(_RUNNER, "utf-8")
+    environment = {**os.environ, "JAX_ENABLE_X64": "1", "OPENBLAS_NUM_THREADS": "1",
+                   "MPLBACKEND": "Agg", "TMPDIR": str(tmp_path)}  # the examples' temp folders
+    done = subprocess.run(
+        [sys.executable, str(runner), str(blocks_file), str(page.relative_to(ROOT))],
+        cwd=ROOT, env=environment, capture_output=True, text=True, timeout=EXAMPLES_TIMEOUT_S)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+
+
+def _help(*command: str) -> str:
+    done = subprocess.run([sys.executable, "-m", "jaxba", *command, "--help"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def _subcommands(top_help: str) -> list[str]:
+    """The subcommands listed under "positional arguments" of `jaxba --help`."""
+    section = top_help.split("positional arguments:", 1)[1].split("\n\n", 1)[0]
+    return re.findall(r"^ {4}([a-z][\w-]*)\s", section, re.M)
+
+
+def _section(page: str, heading: str) -> str:
+    """The text of `## heading` up to the next level-2 heading."""
+    match = re.search(rf"^## {re.escape(heading)}[ \t]*\n(.*?)(?=^## |\Z)", page, re.M | re.S)
+    assert match, f"cli.md has no section '## {heading}'"
+    return match.group(1)
+
+
+def _named(word: str, text: str) -> bool:
+    return re.search(rf"(?<![\w-]){re.escape(word)}(?![\w-])", text) is not None
+
+
+def _table_rows(text: str) -> str:
+    return "\n".join(line for line in text.splitlines() if line.startswith("|"))
+
+
+def test_cli_page_names_every_subcommand_and_option():
+    """Every option in a table row of its section (the common ones in "Options of every
+    command"), every choice of an option in its section, every subcommand a section."""
+    page = (DOCS / "cli.md").read_text("utf-8")
+    top = _help()
+    commands = _subcommands(top)
+    assert {"adjust", "batch", "bal"} <= set(commands)
+    common = _table_rows(_section(page, "Options of every command"))
+    missing = [option for option in sorted(set(OPTION.findall(top))) if not _named(option, common)]
+    for command in commands:
+        text = _help(command)
+        section = _section(page, f"jaxba {command}")
+        rows = _table_rows(section)
+        missing += [f"{command} {option}" for option in sorted(set(OPTION.findall(text)))
+                    if option not in ("-h", "--help") and not _named(option, rows)]
+        choices = {choice for group in re.findall(r"\{([\w,]+)\}", text)
+                   for choice in group.split(",")}
+        missing += [f"{command} choice {choice}" for choice in sorted(choices)
+                    if not _named(choice, rows)]
+    assert not missing, f"not on the command-line page: {missing}"
+
+
+def test_api_page_names_every_public_name():
+    spans = " ".join(re.findall(r"`([^`\n]+)`", (DOCS / "api.md").read_text("utf-8")))
+    missing = [name for name in jaxba.__all__ if not _named(name, spans)]
+    assert not missing, f"public names not on the API page: {missing}"
+
+
+def test_project_files_page_names_every_setting_and_camera_parameter():
+    page = (DOCS / "project-files.md").read_text("utf-8")
+    settings = _section(page, "Settings")
+    fields = dataclasses.fields(jaxba.AdjustmentSettings)
+    missing = [f"[adjustment] {field.name}" for field in fields
+               if f"`{field.name}`" not in settings]
+    for model, camera in jaxba.CAMERA_MODELS.items():
+        row = re.search(rf"^\| `\"{model}\"` \| `([^`]*)`", page, re.M)
+        if row is None or row.group(1).split() != list(camera.parameter_names):
+            missing.append(f"camera model {model!r}: {' '.join(camera.parameter_names)}")
+    assert not missing, f"not (or not so) on the project-files page: {missing}"
