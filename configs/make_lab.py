@@ -1,6 +1,6 @@
 """Regenerate the bundled example project `configs/lab/`.
 
-A synthetic replica of the BASC self-calibration lab (jaxba._synthetic, seed 2018, defaults):
+A synthetic replica of the BASC self-calibration lab (`jaxba.write_synthetic_project`, seed 2018, defaults):
 18 convergent and rolled images of an 80-target 3D field, datum of six fixed coordinates of three
 targets, scale from four measured distances. Run from anywhere: `python configs/make_lab.py`.
 """
@@ -12,7 +12,7 @@ import tomllib
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # a checkout works without installing jaxba
 
-from jaxba._synthetic import write_synthetic_project  # noqa: E402
+from jaxba import write_synthetic_project  # noqa: E402
 
 
 def table_rows(path):

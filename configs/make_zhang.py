@@ -11,7 +11,7 @@ import sys
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # a checkout works without installing jaxba
 
-from jaxba._io import write_zhang_project  # noqa: E402
+from jaxba import write_zhang_project  # noqa: E402
 
 
 def main():

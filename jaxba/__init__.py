@@ -34,7 +34,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     ),
     "._datum": ("DatumError", "check_datum"),
     "._dense": ("solve",),
-    "._differentiable": ("adjusted", "covariance", "iop_trace_gradient", "sensitivity"),
+    "._differentiable": (
+        "adjusted", "camera_positions", "covariance", "iop_trace_gradient", "sensitivity",
+    ),
     "._free_network": ("InnerConstraints", "inner_constraints"),
     "._io": (
         "read_colmap_model", "write_colmap", "write_colmap_project", "write_dbat_project",
