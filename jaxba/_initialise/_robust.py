@@ -1,0 +1,420 @@
+"""Robust versions of the approximation tools for block initialisation: relative orientation
+of a pair, space resection and forward intersection with blunders among the image points.
+
+Everything works on normalised ideal coordinates q = (a, b), the ray (a, b, -1) ∝ M (X - X0)
+(`ideal_coordinates`), so the tools of `jaxba._approximations` take them with c = 1 and
+principal point 0; residuals are in the same normalised units (radians, near the axis).
+
+Hypotheses come from random minimal samples (a seeded `numpy.random.Generator`: the result is
+deterministic) and are scored over all points: by the least median of squares when no threshold
+is known yet (robust up to 50 % blunders; it also gives the noise level), by MSAC (truncated
+squares) otherwise. The best hypothesis is refined by the least-squares tool on its inliers,
+twice, re-selecting the inliers in between.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._approximations import (
+    essential_matrix,
+    forward_intersection,
+    relative_orientation,
+    space_resection,
+)
+from .._approximations._intersection import closest_point
+from .._rotation import matrix_to_opk, opk_to_matrix
+
+_OPK_TO_MATRIX = jax.jit(opk_to_matrix)
+_MATRIX_TO_OPK = jax.jit(matrix_to_opk)
+
+MAD_TO_SIGMA = 1.4826
+"""σ of a normal distribution per median absolute deviation (1D residuals)."""
+RAYLEIGH_MEDIAN = 1.1774
+"""Median of the norm of a 2D residual with σ per coordinate, in σ: sqrt(2 ln 2)."""
+SAMPSON_K = 3.0
+"""Inlier threshold of a Sampson distance (1D) in σ."""
+CONFIDENCE = 0.999
+"""Probability that RANSAC drew at least one clean sample (its number of samples)."""
+ESSENTIAL_SAMPLE = 9
+"""Points of an essential-matrix sample: `essential_matrix` takes its null vector from the SVD
+of the 9 x 9 system, so 9 points (8 leave the SVD one singular value short)."""
+SIGMA_FLOOR = 1e-9
+"""Smallest σ (normalised units) a threshold is made from (noise-free data)."""
+
+
+def rotation(opk) -> np.ndarray:
+    """M (3, 3) of (omega, phi, kappa) (radians), jaxba's `opk_to_matrix`."""
+    return np.asarray(_OPK_TO_MATRIX(jnp.asarray(opk, dtype=jnp.float64)))
+
+
+def angles(m) -> np.ndarray:
+    """(omega, phi, kappa) (radians) of a rotation matrix, jaxba's `matrix_to_opk`."""
+    return np.asarray(_MATRIX_TO_OPK(jnp.asarray(m, dtype=jnp.float64)))
+
+
+def rays(q: np.ndarray) -> np.ndarray:
+    """Rays (a, b, -1) (n, 3) of normalised coordinates (n, 2)."""
+    return np.c_[q, -np.ones(len(q))]
+
+
+def project(m: np.ndarray, station: np.ndarray, points: np.ndarray):
+    """Normalised coordinates (n, 2) = -(U, V) / W of points (n, 3) and W (n,) (W < 0: in
+    front), (U, V, W) = M (X - X0)."""
+    uvw = (points - station) @ m.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return -uvw[:, :2] / uvw[:, 2:], uvw[:, 2]
+
+
+def reprojection(m, station, points, q) -> np.ndarray:
+    """|q - projected| (n,) (normalised units); inf for points behind the image (W >= 0)."""
+    computed, w = project(m, station, points)
+    errors = np.linalg.norm(q - computed, axis=1)
+    return np.where((w < 0) & np.isfinite(errors), errors, np.inf)
+
+
+def samples_needed(inlier_fraction: float, size: int) -> float:
+    """Samples for CONFIDENCE that one of `size` points is all inliers."""
+    clean = inlier_fraction**size
+    if clean >= 1.0:
+        return 1.0
+    if clean <= 0.0:
+        return np.inf
+    return np.log(1 - CONFIDENCE) / np.log(1 - clean)
+
+
+def _score(errors: np.ndarray, threshold) -> float:
+    """Least median of squares (threshold None) or MSAC, lower is better."""
+    if threshold is None:
+        return float(np.median(errors**2))
+    return float(np.sum(np.minimum(errors, threshold) ** 2))
+
+
+# ----------------------------------------------------------------------------------------
+# Relative orientation of a pair.
+
+
+@dataclasses.dataclass(frozen=True)
+class Pair:
+    """A robustly oriented pair, in the frame of its first image (at the origin, M = I) with a
+    unit base: `eops` (2, 6); `inliers` (n,) bool; `sampson` (n,) coplanarity distances
+    (normalised units); `sigma` the robust σ of a normalised coordinate; `angles` (n,) the
+    intersection angles of the rays (radians); `hypotheses` tried."""
+
+    eops: np.ndarray
+    inliers: np.ndarray
+    sampson: np.ndarray
+    sigma: float
+    angles: np.ndarray
+    hypotheses: int
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def pair_geometry(r1, r2, m, base):
+    """Sampson distances (n,) of E = M [b]ₓ (r2ᵀ E r1 = 0) and the intersection angles (n,);
+    points behind either image get an infinite distance. Image 1 at the origin with identity
+    rotation, image 2 at `base` with rotation `m`."""
+    e = m @ _skew(base)
+    f = np.einsum("ni,ij,nj->n", r2, e, r1)
+    g1, g2 = r2 @ e, r1 @ e.T  # dF/dr1, dF/dr2
+    norm = np.sqrt(g1[:, 0] ** 2 + g1[:, 1] ** 2 + g2[:, 0] ** 2 + g2[:, 1] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sampson = np.abs(f) / norm
+    d2 = r2 @ m  # Mᵀ r2: image 2's rays in image 1's frame
+    # λ1 r1 - λ2 d2 ≈ b in least squares: both positive in front of both images.
+    aa, ab, bb = np.sum(r1 * r1, 1), np.sum(r1 * d2, 1), np.sum(d2 * d2, 1)
+    ab_, db_ = r1 @ base, d2 @ base
+    det = aa * bb - ab * ab
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lambda1 = (bb * ab_ - ab * db_) / det
+        lambda2 = (ab * ab_ - aa * db_) / det
+        cosines = ab / np.sqrt(aa * bb)
+    front = (lambda1 > 0) & (lambda2 > 0)
+    sampson = np.where(front & np.isfinite(sampson), sampson, np.inf)
+    return sampson, np.arccos(np.clip(cosines, -1.0, 1.0))
+
+
+def _independent_start(m, base):
+    """The independent relative orientation's parameters (phi1, kappa1, omega2, phi2, kappa2)
+    with bx = 1 of image 2 at unit `base` with rotation `m` (image 1 at the origin, M = I):
+    M1's first column is the base, so that the model's x axis runs along it."""
+    phi1 = np.arcsin(np.clip(base[2], -1.0, 1.0))
+    kappa1 = np.arctan2(-base[1], base[0])
+    m1 = rotation(np.array([0.0, phi1, kappa1]))
+    return np.r_[phi1, kappa1, angles(m @ m1)]
+
+
+def _pair_frame(orientation):
+    """(M, unit base) of image 2 in image 1's frame from a `RelativeOrientation`."""
+    m1, m2 = rotation(orientation.eops[0, 3:]), rotation(orientation.eops[1, 3:])
+    base = m1 @ orientation.eops[1, :3]
+    return m2 @ m1.T, base / np.linalg.norm(base)
+
+
+def orient_pair(q1, q2, rng, *, sigma=None, min_samples=30, rotation_samples=30,
+                max_samples=500) -> Pair:
+    """A robust relative orientation of two images from their conjugate normalised
+    coordinates q1, q2 (n, 2), n >= 8.
+
+    Hypotheses (rotation, base direction): the essential matrix of random 9-point samples
+    (`essential_matrix`), and, for near-parallel viewing directions (vertical aerial pairs,
+    where a flat scene makes the 8-point solution degenerate), the identity rotation with the
+    base from random 2-point samples (b ∝ (r1 × r2) × (r1' × r2')). Each is scored by the least
+    median of squared Sampson distances over all points (points behind an image count as
+    infinitely far): robust up to 50 % blunders, and it gives σ. Essential-matrix samples:
+    `min_samples`, more (up to `max_samples`) while the share of points within SAMPSON_K σ
+    of the best so far asks for them (CONFIDENCE). The best is refined by
+    `relative_orientation` (independent, bx = 1) on the points within SAMPSON_K σ. `sigma`: the
+    σ of a normalised coordinate when known (the inliers are then within SAMPSON_K sigma).
+    Raises ValueError when no hypothesis holds.
+    """
+    n = len(q1)
+    if n < ESSENTIAL_SAMPLE:
+        raise ValueError(f"{n} common points; a pair needs at least {ESSENTIAL_SAMPLE}")
+    r1, r2 = rays(q1), rays(q2)
+    best = (np.inf, None)
+    tried = 0
+
+    def consider(m, base):
+        nonlocal best
+        sampson, _ = pair_geometry(r1, r2, m, base)
+        score = float(np.median(sampson**2))
+        if score < best[0]:
+            best = (score, (m, base))
+
+    total, count = max_samples, 0
+    while count < total:
+        count += 1
+        sample = rng.choice(n, ESSENTIAL_SAMPLE, replace=False)
+        try:
+            ess = essential_matrix(q1[sample], q2[sample], 1.0)
+        except ValueError:
+            continue
+        tried += 1
+        consider(ess.rotation, ess.base)
+        if count >= min_samples and best[1] is not None:
+            # As many samples as the share of points near the best hypothesis asks for.
+            sampson, _ = pair_geometry(r1, r2, *best[1])
+            spread = MAD_TO_SIGMA * np.sqrt(best[0]) if sigma is None else sigma
+            fraction = np.mean(sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR))
+            total = int(min(max_samples, max(min_samples,
+                                             samples_needed(fraction, ESSENTIAL_SAMPLE))))
+    identity = np.eye(3)
+    for _ in range(rotation_samples):
+        a, b = rng.choice(n, 2, replace=False)
+        base = np.cross(np.cross(r1[a], r2[a]), np.cross(r1[b], r2[b]))
+        length = np.linalg.norm(base)
+        if not length > 0:
+            continue
+        tried += 2
+        consider(identity, base / length)
+        consider(identity, -base / length)
+    if best[1] is None:
+        raise ValueError("no essential matrix from any sample (degenerate point sets)")
+    m, base = best[1]
+    for _ in range(2):
+        sampson, _ = pair_geometry(r1, r2, m, base)
+        finite = sampson[np.isfinite(sampson)]
+        if len(finite) < 8:
+            raise ValueError("most points lie behind the images in the best hypothesis")
+        spread = sigma if sigma is not None else MAD_TO_SIGMA * float(np.median(finite)) * (
+            1 + 5 / max(len(finite) - 8, 1))
+        inliers = sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR)
+        if np.sum(inliers) < 8:
+            raise ValueError(f"only {int(np.sum(inliers))} of {n} points fit the best "
+                             "relative orientation")
+        refined = relative_orientation(q1[inliers], q2[inliers], 1.0,
+                                       parameterisation="independent", bx=1.0,
+                                       start=_independent_start(m, base))
+        m, base = _pair_frame(refined)
+    sampson, intersection = pair_geometry(r1, r2, m, base)
+    finite = sampson[np.isfinite(sampson)]
+    spread = sigma if sigma is not None else MAD_TO_SIGMA * float(np.median(finite)) * (
+        1 + 5 / max(len(finite) - 8, 1))
+    inliers = sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR)
+    eops = np.zeros((2, 6))
+    eops[1] = np.r_[base, angles(m)]
+    return Pair(eops=eops, inliers=inliers, sampson=sampson, sigma=float(spread),
+                angles=intersection, hypotheses=tried)
+
+
+# ----------------------------------------------------------------------------------------
+# Space resection.
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustResection:
+    """`eop` (6,); `inliers` (n,) bool; `errors` (n,) reprojection errors |v| (normalised);
+    `sigma`: the robust σ of a normalised coordinate of the inliers; `hypotheses` tried."""
+
+    eop: np.ndarray
+    inliers: np.ndarray
+    errors: np.ndarray
+    sigma: float
+    hypotheses: int
+
+
+def _errors(eop, points, q):
+    return reprojection(rotation(eop[3:]), eop[:3], points, q)
+
+
+def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_samples=200,
+           min_inliers=4) -> RobustResection:
+    """A robust space resection from normalised coordinates q (n, 2) of known points (n, 3).
+
+    Hypotheses: `space_resection` of random 6-point samples (4 when n < 6; its closed form
+    takes the plane homography or the calibrated DLT, a few Levenberg-Marquardt steps) and
+    `start` if given; scored by the least median of squared reprojection errors (`threshold`
+    None) or MSAC with `threshold` (n,) or scalar (normalised units, on |v|). The best is
+    refined by `space_resection` on its inliers (|v| <= threshold, or 3.5 robust σ).
+    Raises ValueError for fewer than `min_inliers` inliers or no hypothesis.
+    """
+    n = len(q)
+    if n < max(4, min_inliers):
+        raise ValueError(f"{n} points of known coordinates; need at least {max(4, min_inliers)}")
+    size = 6 if n >= 7 else 4
+    best = (np.inf, None)
+    tried = 0
+
+    def consider(eop):
+        nonlocal best
+        errors = _errors(eop, points, q)
+        score = _score(errors, threshold)
+        if score < best[0]:
+            best = (score, eop)
+
+    if start is not None and np.all(np.isfinite(start)):
+        consider(np.asarray(start, dtype=np.float64))
+    total, count = max_samples, 0
+    while count < total:
+        count += 1
+        sample = rng.choice(n, size, replace=False)
+        try:
+            fit = space_resection(q[sample], points[sample], 1.0, max_iterations=5)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if not np.all(np.isfinite(fit.eop)):
+            continue
+        tried += 1
+        consider(fit.eop)
+        if count >= min_samples and best[1] is not None:
+            errors = _errors(best[1], points, q)
+            cut = _cut(errors, threshold)
+            total = int(min(max_samples, max(min_samples,
+                                              samples_needed(np.mean(errors <= cut), size))))
+    if best[1] is None:
+        raise ValueError("no resection from any sample (collinear or degenerate points)")
+    eop = best[1]
+    for _ in range(2):
+        errors = _errors(eop, points, q)
+        inliers = errors <= _cut(errors, threshold)
+        if np.sum(inliers) < max(4, min_inliers):
+            raise ValueError(f"only {int(np.sum(inliers))} of {n} points fit the best "
+                             "resection")
+        try:
+            eop = space_resection(q[inliers], points[inliers], 1.0, start=eop).eop
+        except (ValueError, np.linalg.LinAlgError) as error:
+            raise ValueError(f"the resection on its inliers failed: {error}") from None
+    errors = _errors(eop, points, q)
+    inliers = errors <= _cut(errors, threshold)
+    return RobustResection(eop=eop, inliers=inliers, errors=errors,
+                           sigma=robust_sigma(errors), hypotheses=tried)
+
+
+def robust_sigma(errors) -> float:
+    """σ per coordinate from the median of 2D residual norms (Rayleigh), ignoring infinities."""
+    finite = np.asarray(errors)[np.isfinite(errors)]
+    return float(np.median(finite) / RAYLEIGH_MEDIAN) if len(finite) else np.inf
+
+
+def _cut(errors, threshold):
+    """The inlier cut of 2D residual norms: `threshold`, or 3.5 robust σ (chi² 2 dof 99.8 %)."""
+    if threshold is not None:
+        return threshold
+    return 3.5 * max(robust_sigma(errors), SIGMA_FLOOR)
+
+
+# ----------------------------------------------------------------------------------------
+# Forward intersection.
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustIntersection:
+    """`point` (3,) or None with `reason`; `inliers` (k,) bool; `errors` (k,) |v|
+    (normalised; inf behind an image); `angle`: the largest angle between inlier rays."""
+
+    point: np.ndarray | None
+    inliers: np.ndarray
+    errors: np.ndarray
+    angle: float
+    reason: str = ""
+
+
+def _largest_angle(directions):
+    units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    return float(np.max(np.arccos(np.clip(units @ units.T, -1.0, 1.0))))
+
+
+def intersect(q, eops, matrices, threshold, min_angle) -> RobustIntersection:
+    """A robust forward intersection of one point from k >= 2 rays (normalised coordinates q
+    (k, 2) in images `eops` (k, 6) with rotations `matrices` (k, 3, 3)).
+
+    All rays first (`forward_intersection`); when some misses by more than `threshold` (k,)
+    and k >= 3, every pair of rays proposes a point (the point closest to both rays), the
+    one that most rays fit wins and is refined on them. The point needs two inlier rays
+    meeting at `min_angle` (radians) or more.
+    """
+    k = len(q)
+    directions = np.einsum("kji,kj->ki", matrices, rays(q))  # Mᵀ r
+    threshold = np.broadcast_to(np.asarray(threshold, dtype=np.float64), (k,))
+
+    def errors_of(point):
+        uvw = np.einsum("kij,kj->ki", matrices, point - eops[:, :3])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            errors = np.linalg.norm(q + uvw[:, :2] / uvw[:, 2:], axis=1)
+        return np.where((uvw[:, 2] < 0) & np.isfinite(errors), errors, np.inf)
+
+    def fit(index):
+        try:
+            return forward_intersection(q[index], eops[index], 1.0, max_iterations=10).point
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+
+    every = np.arange(k)
+    point = fit(every)
+    errors = errors_of(point) if point is not None else np.full(k, np.inf)
+    inliers = errors <= threshold
+    if not np.all(inliers) and k >= 3:
+        best = (np.sum(inliers), -np.sum(np.minimum(errors, threshold) ** 2), point)
+        for i in range(k):
+            for j in range(i + 1, k):
+                try:
+                    candidate = closest_point(eops[[i, j], :3], directions[[i, j]], "")
+                except (ValueError, np.linalg.LinAlgError):
+                    continue
+                e = errors_of(candidate)
+                key = (np.sum(e <= threshold), -np.sum(np.minimum(e, threshold) ** 2))
+                if key > best[:2]:
+                    best = (*key, candidate)
+        if best[2] is not None and best[0] >= 2:
+            chosen = np.flatnonzero(errors_of(best[2]) <= threshold)
+            refined = fit(chosen)
+            if refined is not None:
+                point, errors = refined, errors_of(refined)
+                inliers = errors <= threshold
+    if point is None or np.sum(inliers) < 2:
+        worst = float(np.max(errors)) if np.all(np.isfinite(errors)) else np.inf
+        return RobustIntersection(None, inliers, errors, 0.0,
+                                  f"its {k} rays do not meet (largest miss {worst:.2e} "
+                                  "normalised units): a blunder?")
+    angle = _largest_angle(directions[inliers])
+    if angle < min_angle:
+        return RobustIntersection(None, inliers, errors, angle,
+                                  f"its rays meet at {np.degrees(angle):.2f}° < "
+                                  f"{np.degrees(min_angle):.2f}°")
+    return RobustIntersection(point, inliers, errors, angle)
