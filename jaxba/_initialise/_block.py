@@ -50,9 +50,6 @@ from ._robust import (
     rotation,
 )
 
-PAIR_ANGLE = np.radians(5.0)
-"""A pair whose median intersection angle reaches this scores by its inlier count alone;
-below it, the count is weighted down in proportion."""
 INLIER_K = 3.5
 """Inlier cut of a 2D reprojection error during the growth, in σ (chi² with 2 dof, 99.8 %)."""
 POLISH_EVERY = 5
@@ -283,6 +280,17 @@ class _Block:
             out[here] = np.where(w < 0, e, np.inf)
         return out
 
+    def redundancy(self, rows) -> np.ndarray:
+        """sqrt((2k - 3) / 2k) (n,) of image points `rows` of points with k used rays (1 for
+        fixed control points): the share of an image coordinate's σ its residual keeps when
+        the point is intersected from its k rays (the images taken as errorless)."""
+        rays = np.zeros(self.n_points)
+        used = np.flatnonzero(self.use & self.valid)
+        used = used[self.oriented[self.image[used]]]
+        np.add.at(rays, self.point[used], 1)
+        k = np.maximum(rays[self.point[rows]], 2)
+        return np.where(self.fixed[self.point[rows]], 1.0, np.sqrt((2 * k - 3) / (2 * k)))
+
     # -- seeds ---------------------------------------------------------------------------
 
     def seed_in_frame(self) -> bool:
@@ -310,15 +318,16 @@ class _Block:
                 self.orient(i, fit.eop, "control resection")
                 self.use[rows[~fit.inliers]] = False
                 resected.append(i)
-                pooled.append(fit.errors[fit.inliers])
+                # Residuals of a fit with 2n observations and 6 unknowns: σ sqrt(1 - 6 / 2n).
+                inliers = int(np.sum(fit.inliers))
+                pooled.append(fit.errors[fit.inliers]
+                              * np.sqrt(2 * inliers / max(2 * inliers - 6, 1)))
+                if self.sigma_given is None and sum(map(len, pooled)) >= 12:
+                    self.sigma_hat = robust_sigma(np.concatenate(pooled))
                 rms = np.sqrt(np.mean(fit.errors[fit.inliers] ** 2))
                 self.log.append(f"image {i}: resection on {count} control points "
                                 f"({int(np.sum(fit.inliers))} inliers, RMS "
                                 f"{self.in_units(rows, rms)})")
-        if self.sigma_given is None and pooled:
-            errors = np.concatenate(pooled)
-            if len(errors) >= 10:
-                self.sigma_hat = robust_sigma(errors)
         if np.sum(self.oriented) < 2:
             return False
         self.X[full] = self.control[full]
@@ -370,9 +379,7 @@ class _Block:
             except (ValueError, np.linalg.LinAlgError) as error:
                 self.log.append(f"pair {i}-{j}: no relative orientation ({error})")
                 continue
-            inliers = int(np.sum(pair.inliers))
-            angle = float(np.median(pair.angles[pair.inliers])) if inliers else 0.0
-            score = inliers * min(1.0, angle / PAIR_ANGLE)
+            inliers, angle, score = int(np.sum(pair.inliers)), pair.median_angle, pair.score
             self.log.append(f"pair {i}-{j}: {inliers} of {count} common points fit its relative "
                             f"orientation, median intersection angle {np.degrees(angle):.1f}°, "
                             f"σ {self.in_units(ri, pair.sigma)}")
@@ -381,6 +388,7 @@ class _Block:
         if best is None:
             return False
         _, i, j, pair, ri, rj = best
+        self.pair = (i, j)
         self.orient(i, pair.eops[0], "relative orientation")
         self.orient(j, pair.eops[1], "relative orientation")
         if self.sigma_given is None:
@@ -489,9 +497,18 @@ class _Block:
                 rows = np.flatnonzero(self.use & self.oriented[np.minimum(
                     self.image, self.n_images - 1)] & self.known[self.point])
                 if len(rows) >= 10:
-                    self.sigma_hat = robust_sigma(self.errors(rows))
+                    self.sigma_hat = robust_sigma(self.errors(rows) / self.redundancy(rows))
 
     # -- frame ---------------------------------------------------------------------------
+
+    def normalise_model(self, first, second):
+        """Move the model so that image `first` is at the origin with M = I and image `second`
+        at distance 1 (the refinement moves them a little)."""
+        base = np.linalg.norm(self.eops[second, :3] - self.eops[first, :3])
+        m = self.matrices[first]
+        self._apply(_similarity(-m @ self.eops[first, :3] / base, m, 1.0 / base))
+        self.eops[first] = 0.0
+        self.matrices[first] = np.eye(3)
 
     def to_object_frame(self) -> tuple[str, Similarity | None]:
         """Bring a model-frame block into the object frame (module docstring, step 4)."""
@@ -612,7 +629,8 @@ class _Block:
             v = image_residuals(camera, self.eops[self.image[here]], self.X[self.point[here]],
                                 self.xy[here])
             residuals[here] = v
-            norms = np.linalg.norm(v, axis=1)
+            # Residuals of points with few rays are small: judge them as if redundant.
+            norms = np.linalg.norm(v, axis=1) / self.redundancy(here)
             estimate = float(np.median(norms) / RAYLEIGH_MEDIAN)
             images = self.camera_of_image == g
             floor = 0.0 if self.sigma_given is None else float(
@@ -746,5 +764,6 @@ def initialise_block(
                          f"{np.sqrt(np.mean(block.errors(rows) ** 2)) if len(rows) else np.nan:.3g}"
                          " (normalised units)")
     if frame is None:
+        block.normalise_model(*block.pair)
         frame, similarity = block.to_object_frame()
     return block.result(frame, similarity)

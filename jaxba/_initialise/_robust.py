@@ -43,6 +43,9 @@ ESSENTIAL_SAMPLE = 9
 of the 9 x 9 system, so 9 points (8 leave the SVD one singular value short)."""
 SIGMA_FLOOR = 1e-9
 """Smallest σ (normalised units) a threshold is made from (noise-free data)."""
+PAIR_ANGLE = np.radians(5.0)
+"""A pair whose median intersection angle reaches this scores by its inlier count alone;
+below it, the count is weighted down in proportion."""
 
 
 def rotation(opk) -> np.ndarray:
@@ -110,6 +113,16 @@ class Pair:
     angles: np.ndarray
     hypotheses: int
 
+    @property
+    def median_angle(self) -> float:
+        """The median intersection angle of the inliers (radians)."""
+        return float(np.median(self.angles[self.inliers])) if np.any(self.inliers) else 0.0
+
+    @property
+    def score(self) -> float:
+        """Inliers, weighted by min(1, median intersection angle / PAIR_ANGLE)."""
+        return float(np.sum(self.inliers)) * min(1.0, self.median_angle / PAIR_ANGLE)
+
 
 def _skew(v):
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -156,67 +169,50 @@ def _pair_frame(orientation):
     return m2 @ m1.T, base / np.linalg.norm(base)
 
 
-def orient_pair(q1, q2, rng, *, sigma=None, min_samples=30, rotation_samples=30,
-                max_samples=500) -> Pair:
-    """A robust relative orientation of two images from their conjugate normalised
-    coordinates q1, q2 (n, 2), n >= 8.
+def _homography(r1, r2):
+    """H (3, 3) with r2 ∝ H r1 from 4 or more ray pairs (DLT: r2 × H r1 = 0), or None."""
+    zeros = np.zeros_like(r1)
+    rows = np.r_[np.c_[zeros, -r2[:, 2:] * r1, r2[:, 1:2] * r1],
+                 np.c_[r2[:, 2:] * r1, zeros, -r2[:, :1] * r1]]
+    _, singular, vt = np.linalg.svd(rows)
+    if singular[min(len(singular), 8) - 1] <= 1e-10 * singular[0]:
+        return None
+    return vt[-1].reshape(3, 3)
 
-    Hypotheses (rotation, base direction): the essential matrix of random 9-point samples
-    (`essential_matrix`), and, for near-parallel viewing directions (vertical aerial pairs,
-    where a flat scene makes the 8-point solution degenerate), the identity rotation with the
-    base from random 2-point samples (b ∝ (r1 × r2) × (r1' × r2')). Each is scored by the least
-    median of squared Sampson distances over all points (points behind an image count as
-    infinitely far): robust up to 50 % blunders, and it gives σ. Essential-matrix samples:
-    `min_samples`, more (up to `max_samples`) while the share of points within SAMPSON_K σ
-    of the best so far asks for them (CONFIDENCE). The best is refined by
-    `relative_orientation` (independent, bx = 1) on the points within SAMPSON_K σ. `sigma`: the
-    σ of a normalised coordinate when known (the inliers are then within SAMPSON_K sigma).
-    Raises ValueError when no hypothesis holds.
-    """
-    n = len(q1)
-    if n < ESSENTIAL_SAMPLE:
-        raise ValueError(f"{n} common points; a pair needs at least {ESSENTIAL_SAMPLE}")
-    r1, r2 = rays(q1), rays(q2)
-    best = (np.inf, None)
-    tried = 0
 
-    def consider(m, base):
-        nonlocal best
-        sampson, _ = pair_geometry(r1, r2, m, base)
-        score = float(np.median(sampson**2))
-        if score < best[0]:
-            best = (score, (m, base))
-
-    total, count = max_samples, 0
-    while count < total:
-        count += 1
-        sample = rng.choice(n, ESSENTIAL_SAMPLE, replace=False)
-        try:
-            ess = essential_matrix(q1[sample], q2[sample], 1.0)
-        except ValueError:
-            continue
-        tried += 1
-        consider(ess.rotation, ess.base)
-        if count >= min_samples and best[1] is not None:
-            # As many samples as the share of points near the best hypothesis asks for.
-            sampson, _ = pair_geometry(r1, r2, *best[1])
-            spread = MAD_TO_SIGMA * np.sqrt(best[0]) if sigma is None else sigma
-            fraction = np.mean(sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR))
-            total = int(min(max_samples, max(min_samples,
-                                             samples_needed(fraction, ESSENTIAL_SAMPLE))))
-    identity = np.eye(3)
-    for _ in range(rotation_samples):
-        a, b = rng.choice(n, 2, replace=False)
-        base = np.cross(np.cross(r1[a], r2[a]), np.cross(r1[b], r2[b]))
-        length = np.linalg.norm(base)
+def _decompose_homography(h, r1, r2):
+    """The (M, unit base) candidates of a calibrated homography H ∝ R + T Nᵀ / d (X2 = R X1 +
+    T; Ma, Soatto, Košecká and Sastry, "An Invitation to 3-D Vision", 5.3.3): H scaled to
+    its middle singular value 1 and signed so that r2ᵀ H r1 > 0 (depths positive), then the
+    two solutions from the eigenvectors of HᵀH and their negatives (T -> -T); the base is
+    b = -Rᵀ T (image 2 at b with M = R)."""
+    h = h / np.linalg.svd(h, compute_uv=False)[1]
+    if np.median(np.einsum("ni,ij,nj->n", r2, h, r1)) < 0:
+        h = -h
+    eigenvalues, v = np.linalg.eigh(h.T @ h)
+    s3, _, s1 = eigenvalues  # ascending: σ3², σ2² (= 1), σ1²
+    v1, v2, v3 = v[:, 2], v[:, 1], v[:, 0]
+    if s1 - s3 < 1e-12:
+        return []  # a pure rotation: no base
+    a, b = np.sqrt(max(1 - s3, 0.0)), np.sqrt(max(s1 - 1, 0.0))
+    out = []
+    for u in ((a * v1 + b * v3) / np.sqrt(s1 - s3), (a * v1 - b * v3) / np.sqrt(s1 - s3)):
+        hv2, hu = h @ v2, h @ u
+        m = np.c_[hv2, hu, np.cross(hv2, hu)] @ np.c_[v2, u, np.cross(v2, u)].T
+        normal = np.cross(v2, u)
+        t = (h - m) @ normal
+        length = np.linalg.norm(t)
         if not length > 0:
             continue
-        tried += 2
-        consider(identity, base / length)
-        consider(identity, -base / length)
-    if best[1] is None:
-        raise ValueError("no essential matrix from any sample (degenerate point sets)")
-    m, base = best[1]
+        base = -m.T @ t / length
+        out += [(m, base), (m, -base)]
+    return out
+
+
+def _refine_pair(q1, q2, r1, r2, m, base, sigma) -> "Pair":
+    """`relative_orientation` (independent, bx = 1) on the points within SAMPSON_K σ of the
+    hypothesis (M, base), twice, re-selecting them in between."""
+    n = len(q1)
     for _ in range(2):
         sampson, _ = pair_geometry(r1, r2, m, base)
         finite = sampson[np.isfinite(sampson)]
@@ -240,7 +236,91 @@ def orient_pair(q1, q2, rng, *, sigma=None, min_samples=30, rotation_samples=30,
     eops = np.zeros((2, 6))
     eops[1] = np.r_[base, angles(m)]
     return Pair(eops=eops, inliers=inliers, sampson=sampson, sigma=float(spread),
-                angles=intersection, hypotheses=tried)
+                angles=intersection, hypotheses=0)
+
+
+def orient_pair(q1, q2, rng, *, sigma=None, min_samples=30, rotation_samples=30,
+                homography_samples=30, max_samples=500) -> Pair:
+    """A robust relative orientation of two images from their conjugate normalised
+    coordinates q1, q2 (n, 2), n >= 9.
+
+    Hypotheses (rotation, base direction) of three kinds: the essential matrix of random
+    9-point samples (`essential_matrix`; `min_samples`, more up to `max_samples` while the
+    share of points within SAMPSON_K σ of the best so far asks for them, CONFIDENCE); the
+    decompositions of the homography of random 4-point samples (a flat scene, where the
+    essential matrix is degenerate); and the identity rotation with the base from random
+    2-point samples, b ∝ (r1 × r2) × (r1' × r2') (near-vertical aerial pairs). Each is scored
+    by the least median of squared Sampson distances over all points (points behind an image
+    count as infinitely far): robust up to 50 % blunders, and it gives σ. The best of each
+    kind is refined by `relative_orientation` (independent, bx = 1) on the points within
+    SAMPSON_K σ; of those the one with the best `Pair.score` (inliers, weighted down for
+    intersection angles below PAIR_ANGLE: a flat scene's twin solution has its base along
+    the view) wins, then the smaller median Sampson distance. `sigma`: the σ of a normalised
+    coordinate when known. Raises ValueError when no hypothesis holds.
+    """
+    n = len(q1)
+    if n < ESSENTIAL_SAMPLE:
+        raise ValueError(f"{n} common points; a pair needs at least {ESSENTIAL_SAMPLE}")
+    r1, r2 = rays(q1), rays(q2)
+    best = {"essential": (np.inf, None), "homography": (np.inf, None),
+            "rotation": (np.inf, None)}
+    tried = 0
+
+    def consider(kind, m, base):
+        nonlocal tried
+        tried += 1
+        sampson, _ = pair_geometry(r1, r2, m, base)
+        score = float(np.median(sampson**2))
+        if score < best[kind][0]:
+            best[kind] = (score, (m, base))
+
+    total, count = max_samples, 0
+    while count < total:
+        count += 1
+        sample = rng.choice(n, ESSENTIAL_SAMPLE, replace=False)
+        try:
+            ess = essential_matrix(q1[sample], q2[sample], 1.0)
+        except ValueError:
+            continue
+        consider("essential", ess.rotation, ess.base)
+        if count >= min_samples and best["essential"][1] is not None:
+            # As many samples as the share of points near the best hypothesis asks for.
+            score, hypothesis = best["essential"]
+            sampson, _ = pair_geometry(r1, r2, *hypothesis)
+            spread = MAD_TO_SIGMA * np.sqrt(score) if sigma is None else sigma
+            fraction = np.mean(sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR))
+            total = int(min(max_samples, max(min_samples,
+                                             samples_needed(fraction, ESSENTIAL_SAMPLE))))
+    for _ in range(homography_samples):
+        sample = rng.choice(n, 4, replace=False)
+        h = _homography(r1[sample], r2[sample])
+        if h is None:
+            continue
+        for m, base in _decompose_homography(h, r1[sample], r2[sample]):
+            consider("homography", m, base)
+    identity = np.eye(3)
+    for _ in range(rotation_samples):
+        a, b = rng.choice(n, 2, replace=False)
+        base = np.cross(np.cross(r1[a], r2[a]), np.cross(r1[b], r2[b]))
+        length = np.linalg.norm(base)
+        if not length > 0:
+            continue
+        consider("rotation", identity, base / length)
+        consider("rotation", identity, -base / length)
+    candidates, errors = [], []
+    for kind, (_, hypothesis) in best.items():
+        if hypothesis is None:
+            continue
+        try:
+            candidates.append(_refine_pair(q1, q2, r1, r2, *hypothesis, sigma))
+        except (ValueError, np.linalg.LinAlgError) as error:
+            errors.append(f"{kind}: {error}")
+    if not candidates:
+        raise ValueError("; ".join(errors) or "no hypothesis from any sample (degenerate "
+                         "point sets)")
+    chosen = max(candidates, key=lambda pair: (
+        pair.score, -float(np.median(pair.sampson[pair.inliers]))))
+    return dataclasses.replace(chosen, hypotheses=tried)
 
 
 # ----------------------------------------------------------------------------------------
@@ -259,6 +339,14 @@ class RobustResection:
     hypotheses: int
 
 
+def _space_resection(q, points, **options):
+    """`space_resection` with c = 1; 4 points without a start get one of them twice (its
+    closed form takes the null vector of an 8 x 9 system from an SVD that needs 9 rows)."""
+    if len(q) == 4 and options.get("start") is None:
+        q, points = np.r_[q, q[:1]], np.r_[points, points[:1]]
+    return space_resection(q, points, 1.0, **options)
+
+
 def _errors(eop, points, q):
     return reprojection(rotation(eop[3:]), eop[:3], points, q)
 
@@ -267,7 +355,7 @@ def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_sa
            min_inliers=4) -> RobustResection:
     """A robust space resection from normalised coordinates q (n, 2) of known points (n, 3).
 
-    Hypotheses: `space_resection` of random 6-point samples (4 when n < 6; its closed form
+    Hypotheses: `space_resection` of random 6-point samples (n when n < 7; its closed form
     takes the plane homography or the calibrated DLT, a few Levenberg-Marquardt steps) and
     `start` if given; scored by the least median of squared reprojection errors (`threshold`
     None) or MSAC with `threshold` (n,) or scalar (normalised units, on |v|). The best is
@@ -277,7 +365,7 @@ def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_sa
     n = len(q)
     if n < max(4, min_inliers):
         raise ValueError(f"{n} points of known coordinates; need at least {max(4, min_inliers)}")
-    size = 6 if n >= 7 else 4
+    size = 6 if n >= 7 else min(n, 5)
     best = (np.inf, None)
     tried = 0
 
@@ -295,7 +383,7 @@ def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_sa
         count += 1
         sample = rng.choice(n, size, replace=False)
         try:
-            fit = space_resection(q[sample], points[sample], 1.0, max_iterations=5)
+            fit = _space_resection(q[sample], points[sample], max_iterations=5)
         except (ValueError, np.linalg.LinAlgError):
             continue
         if not np.all(np.isfinite(fit.eop)):
@@ -317,7 +405,7 @@ def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_sa
             raise ValueError(f"only {int(np.sum(inliers))} of {n} points fit the best "
                              "resection")
         try:
-            eop = space_resection(q[inliers], points[inliers], 1.0, start=eop).eop
+            eop = _space_resection(q[inliers], points[inliers], start=eop).eop
         except (ValueError, np.linalg.LinAlgError) as error:
             raise ValueError(f"the resection on its inliers failed: {error}") from None
     errors = _errors(eop, points, q)
@@ -333,10 +421,12 @@ def robust_sigma(errors) -> float:
 
 
 def _cut(errors, threshold):
-    """The inlier cut of 2D residual norms: `threshold`, or 3.5 robust σ (chi² 2 dof 99.8 %)."""
+    """The inlier cut of the 2D residual norms of a resection: `threshold`, or 3.5 robust σ
+    (chi² 2 dof 99.8 %) with Rousseeuw's small-sample factor 1 + 5 / (2n - 6)."""
     if threshold is not None:
         return threshold
-    return 3.5 * max(robust_sigma(errors), SIGMA_FLOOR)
+    small = 1 + 5 / max(2 * len(errors) - 6, 1)
+    return 3.5 * max(robust_sigma(errors) * small, SIGMA_FLOOR)
 
 
 # ----------------------------------------------------------------------------------------
