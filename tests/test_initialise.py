@@ -12,7 +12,13 @@ import pytest
 
 import jaxba
 from jaxba._observations import ImagePoints
-from jaxba._synthetic import IOP_NAMES, make_stations, make_targets
+from jaxba._synthetic import (
+    IOP_NAMES,
+    datum_targets,
+    distance_pairs,
+    make_stations,
+    make_targets,
+)
 
 ANGLE = 1e-12
 
@@ -321,3 +327,28 @@ def test_nothing_to_orient_is_reported_not_raised():
         jaxba.initialise_block(observations[:, :3], [camera, camera])
     with pytest.raises(ValueError, match="eops"):
         jaxba.initialise_block(observations, [camera, camera], eops=np.zeros((3, 6)))
+
+
+def test_partial_control_and_the_lab_datum(lab):
+    """Fewer than 3 full control points: heights and single coordinates still set the frame
+    (`absolute_orientation` cannot start there); the lab's minimal datum (6 coordinates and
+    distances) fits several rotations, which the log says."""
+    _, observations, _, points, cameras = lab
+    control = np.full(points.shape, np.nan)
+    control[[0, 79]] = points[[0, 79]]
+    control[[5, 40, 60], 2] = points[[5, 40, 60], 2]
+    result = jaxba.initialise_block(observations, cameras, control=control, seed=9)
+    assert result.frame == "control"
+    assert any("similarity onto 9 control coordinates" in line for line in result.log)
+    np.testing.assert_allclose(result.points, points, atol=2e-3)
+    a, b, c = datum_targets(points)
+    lab_datum = np.full(points.shape, np.nan)
+    lab_datum[a], lab_datum[b, 1:], lab_datum[c, 2] = points[a], points[b, 1:], points[c, 2]
+    distances = np.array([[i, j, np.linalg.norm(points[i] - points[j])]
+                          for i, j in distance_pairs(points, 4)])
+    minimal = jaxba.initialise_block(observations, cameras, control=lab_datum,
+                                     distances=distances, seed=9)
+    assert minimal.frame == "control"
+    assert any("4 distinct rotations" in line for line in minimal.log)
+    np.testing.assert_allclose(minimal.points[[a, b, c]][[0, 1, 1, 2], [0, 1, 2, 2]],
+                               points[[a, b, c]][[0, 1, 1, 2], [0, 1, 2, 2]])

@@ -37,6 +37,7 @@ import scipy.sparse
 from .._approximations import Similarity, absolute_orientation, space_resection
 from .._camera import AbstractCamera
 from .._float64 import require_float64
+from ._frame import partial_similarity
 from ._ideal import ideal_coordinates, image_residuals
 from ._robust import (
     RAYLEIGH_MEDIAN,
@@ -157,6 +158,10 @@ class _Block:
         self.control = _rows(control, (3,), self.n_points, "control")
         self.distances = np.zeros((0, 3)) if distances is None else np.asarray(
             distances, dtype=np.float64).reshape(-1, 3)
+        ends = self.distances[:, :2]
+        if not np.all((ends == np.round(ends)) & (ends >= 0) & (ends < self.n_points)):
+            raise ValueError("initialise_block: distances must name points by index "
+                             f"(0 .. {self.n_points - 1})")
         self.rng = np.random.default_rng(seed)
         self.min_angle = float(min_angle)
         self.blunder_threshold = float(blunder_threshold)
@@ -335,6 +340,12 @@ class _Block:
         for p in np.flatnonzero(full):
             self.point_method[p] = "control"
         intersected = self.triangulate(np.flatnonzero(~self.known))
+        if self.sigma_hat is None and self.sigma_given is None:
+            # The first intersections took every ray: judge them again with σ̂.
+            self.estimate_sigma()
+            if self.sigma_hat is not None:
+                for p in np.flatnonzero(self.known & ~self.fixed):
+                    self.reintersect(p)
         growable = any(
             np.sum(self.known[self.point[rows]]) >= self.min_resection_points
             for i, rows in enumerate(self.obs_of_image) if not self.oriented[i])
@@ -431,6 +442,15 @@ class _Block:
         self.use[rows] = result.inliers
         return True
 
+    def reintersect(self, p):
+        """Intersect known point `p` again from all its oriented rays; forget it if that
+        fails."""
+        rows = self.obs_of_point[p]
+        if not self.intersect_point(p, rows[self.oriented[self.image[rows]]]):
+            self.X[p] = np.nan
+            self.known[p] = False
+            self.point_method[p] = None
+
     def grow(self):
         tried: dict[int, int] = {}
         added = 0
@@ -486,18 +506,22 @@ class _Block:
                 if np.all(np.isfinite(fit.eop)):
                     self.orient(i, fit.eop, self.image_method[i])
             for p in np.flatnonzero(self.known & ~self.fixed):
-                rows = self.obs_of_point[p]
-                rows = rows[self.oriented[self.image[rows]]]
-                if not self.intersect_point(p, rows):
-                    self.X[p] = np.nan
-                    self.known[p] = False
-                    self.point_method[p] = None
+                self.reintersect(p)
             self.triangulate(np.flatnonzero(~self.known))
-            if self.sigma_given is None:
-                rows = np.flatnonzero(self.use & self.oriented[np.minimum(
-                    self.image, self.n_images - 1)] & self.known[self.point])
-                if len(rows) >= 10:
-                    self.sigma_hat = robust_sigma(self.errors(rows) / self.redundancy(rows))
+            self.estimate_sigma()
+
+    def estimate_sigma(self):
+        """σ̂ of a normalised coordinate from the used image points' residuals (each scaled
+        by its `redundancy`), unless σ was given."""
+        if self.sigma_given is None:
+            rows = self.used_rows()
+            if len(rows) >= 10:
+                self.sigma_hat = robust_sigma(self.errors(rows) / self.redundancy(rows))
+
+    def used_rows(self) -> np.ndarray:
+        """Used image points of oriented images and known points."""
+        rows = np.flatnonzero(self.use & self.valid)
+        return rows[self.oriented[self.image[rows]] & self.known[self.point[rows]]]
 
     # -- frame ---------------------------------------------------------------------------
 
@@ -511,7 +535,10 @@ class _Block:
         self.matrices[first] = np.eye(3)
 
     def to_object_frame(self) -> tuple[str, Similarity | None]:
-        """Bring a model-frame block into the object frame (module docstring, step 4)."""
+        """Bring a model-frame block into the object frame (module docstring, step 4): by
+        `absolute_orientation` onto 3 or more full control points and given stations, else
+        onto one image's given EOPs (the scale from the distances or the control), else onto
+        partial control (`partial_similarity`), else only scaled by the distances."""
         points = np.flatnonzero(self.known & np.any(np.isfinite(self.control), axis=1))
         stations = np.flatnonzero(self.oriented & np.all(np.isfinite(self.given[:, :3]), axis=1))
         model = np.r_[self.X[points], self.eops[stations, :3]]
@@ -521,35 +548,53 @@ class _Block:
         similarity = None
         if np.sum(full) >= 3:
             similarity = self._absolute(model, ground, labels)
-        if similarity is None:
-            given = np.flatnonzero(self.oriented & np.all(np.isfinite(self.given), axis=1))
-            scale, source = self._scale(model[full], ground[full])
-            if len(given):
-                i = given[0]
-                m_model, m_given = self.matrices[i], rotation(self.given[i, 3:])
-                r = m_given.T @ m_model  # M_G = M_M Rᵀ
-                t = self.given[i, :3] - scale * r @ self.eops[i, :3]
-                similarity = _similarity(t, r, scale)
-                self.log.append(f"frame: rotated and shifted onto the given EOPs of image {i}, "
-                                f"scale {scale:.6g} from {source}")
-            elif source != "nothing":
-                similarity = _similarity(np.zeros(3), np.eye(3), scale)
-                self.log.append(f"frame: model scaled by {scale:.6g} from {source}; its origin "
-                                "and axes stay the first image's")
-                self._apply(similarity)
-                return "model", similarity
-            else:
-                self.log.append("frame: no control, EOPs or distances: the model's (first image "
-                                "at the origin, M = I, base 1)")
-                return "model", None
+        given = np.flatnonzero(self.oriented & np.all(np.isfinite(self.given), axis=1))
+        scale, source = self._scale(model[full], ground[full])
+        from_distances = source.endswith("distances")
+        if similarity is None and len(given):
+            i = given[0]
+            r = rotation(self.given[i, 3:]).T @ self.matrices[i]  # M_G = M_M Rᵀ
+            similarity = _similarity(self.given[i, :3] - scale * r @ self.eops[i, :3], r, scale)
+            self.log.append(f"frame: rotated and shifted onto the given EOPs of image {i}, "
+                            f"scale {scale:.6g} from {source}")
+        if similarity is None and np.sum(np.isfinite(ground)) + from_distances >= 7:
+            similarity = self._partial(model, ground, scale if from_distances else None,
+                                       source)
+        if similarity is not None:
+            self._apply(similarity)
+            return "control", similarity
+        if source == "nothing":
+            self.log.append("frame: no control, EOPs or distances: the model's (first image "
+                            "at the origin, M = I, base 1)")
+            return "model", None
+        similarity = _similarity(np.zeros(3), np.eye(3), scale)
+        self.log.append(f"frame: model scaled by {scale:.6g} from {source}; its origin and axes "
+                        "stay the first image's")
         self._apply(similarity)
-        return "control", similarity
+        return "model", similarity
 
     def _apply(self, similarity):
         self.eops[self.oriented] = similarity.transform_eops(self.eops[self.oriented])
         self.X[self.known] = similarity.transform(self.X[self.known])
         for i in np.flatnonzero(self.oriented):
             self.matrices[i] = rotation(self.eops[i, 3:])
+
+    def _partial(self, model, ground, fixed, source) -> Similarity | None:
+        """`partial_similarity` onto fewer than 3 full control points (and the distances'
+        scale `fixed`, or None); the log says when the control leaves several solutions."""
+        solutions = partial_similarity(model, ground, fixed)
+        if not solutions:
+            return None
+        t, r, s, rms = solutions[0]
+        count = int(np.sum(np.isfinite(ground)))
+        self.log.append(f"frame: similarity onto {count} control coordinates"
+                        + (f" with the scale {s:.6g} from {source}" if fixed else
+                           f", scale {s:.6g}") + f", RMS {rms:.3g} (object units)")
+        if len(solutions) > 1:
+            self.log.append(f"frame: WARNING the control fits {len(solutions)} distinct "
+                            "rotations equally well (a minimal datum): the first was taken; "
+                            "more control coordinates or given EOPs would decide")
+        return _similarity(t, r, s)
 
     def _absolute(self, model, ground, labels) -> Similarity | None:
         """`absolute_orientation`, dropping the worst full point while it is off by more than
@@ -757,8 +802,7 @@ def initialise_block(
     block.grow()
     if block.polish_rounds:
         block.polish(block.polish_rounds)
-        rows = np.flatnonzero(block.use & block.oriented[np.minimum(
-            block.image, block.n_images - 1)] & block.known[block.point])
+        rows = block.used_rows()
         block.log.append(f"refinement: {block.polish_rounds} rounds of resection and "
                          f"intersection of the whole block; RMS "
                          f"{np.sqrt(np.mean(block.errors(rows) ** 2)) if len(rows) else np.nan:.3g}"
