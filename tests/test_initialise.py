@@ -323,6 +323,15 @@ def test_nothing_to_orient_is_reported_not_raised():
     result = jaxba.initialise_block(observations, [camera, camera], seed=0)
     assert not np.any(result.initialised_images) and not np.any(result.initialised_points)
     assert set(result.failed_images) == {0, 1} and set(result.failed_points) == {0, 1}
+    # Two images from one station: no base, nothing to intersect.
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (30, 3)) + [0.0, 0.0, -10.0]
+    xy = camera_points(camera, np.zeros((30, 6)), points)
+    rows = np.r_[np.c_[np.zeros(30), np.arange(30), xy],
+                 np.c_[np.ones(30), np.arange(30), xy + rng.normal(0.0, 1e-3, xy.shape)]]
+    result = jaxba.initialise_block(rows, [camera, camera], seed=0)
+    assert not np.any(result.initialised_images) and len(result.failed_points) == 30
+    assert any("too short a base" in line for line in result.log)
     with pytest.raises(ValueError, match="shape"):
         jaxba.initialise_block(observations[:, :3], [camera, camera])
     with pytest.raises(ValueError, match="eops"):

@@ -14,9 +14,10 @@ from its image points, approximate cameras and whatever control, distances or EO
 3. Growth. Points seen by two or more oriented images are intersected (robust
    `forward_intersection`, rays meeting at `min_angle` or more); then the image with most
    points of known coordinates is resected (RANSAC over `space_resection`), and so on until
-   no image has `min_resection_points` of them. Every few images, and at the end, all images
-   are resected again and all points intersected again (`polish_rounds` rounds): a cheap
-   block refinement that spreads the errors of the sequence.
+   no image has `min_resection_points` of them. Whenever the oriented images have grown by
+   half (POLISH_GROWTH), and `polish_rounds` times at the end, all images are resected again
+   and all points intersected again: a cheap block refinement that spreads the errors of the
+   sequence.
 4. Frame. A model-frame block is brought into the object frame by `absolute_orientation`
    onto the control points and given camera stations it determined (3 or more full ones),
    else rotated and shifted onto one image's given EOPs, and scaled from the distances.
@@ -53,8 +54,11 @@ from ._robust import (
 
 INLIER_K = 3.5
 """Inlier cut of a 2D reprojection error during the growth, in σ (chi² with 2 dof, 99.8 %)."""
-POLISH_EVERY = 5
-"""Images resected between two refinement rounds during the growth."""
+POLISH_GROWTH = 1.5
+"""During the growth, a refinement round follows when the number of oriented images has grown
+by this factor since the last one (and by 3 images at least): a few rounds in all, so that
+their cost, a resection of every image and an intersection of every point, stays a few
+times that of the last round."""
 
 IMAGE_METHODS = ("given", "control resection", "relative orientation", "resection")
 POINT_METHODS = ("control", "intersection")
@@ -394,6 +398,10 @@ class _Block:
             self.log.append(f"pair {i}-{j}: {inliers} of {count} common points fit its relative "
                             f"orientation, median intersection angle {np.degrees(angle):.1f}°, "
                             f"σ {self.in_units(ri, pair.sigma)}")
+            if angle < self.min_angle:
+                self.log.append(f"pair {i}-{j}: its rays meet at less than "
+                                f"{np.degrees(self.min_angle):.1f}° (too short a base): not used")
+                continue
             if best is None or score > best[0]:
                 best = (score, i, j, pair, ri, rj)
         if best is None:
@@ -453,7 +461,7 @@ class _Block:
 
     def grow(self):
         tried: dict[int, int] = {}
-        added = 0
+        polished = int(np.sum(self.oriented))
         while True:
             best = None
             for i in np.flatnonzero(~self.oriented):
@@ -483,9 +491,10 @@ class _Block:
             self.log.append(f"image {i}: resection on {count} points ({int(np.sum(fit.inliers))}"
                             f" inliers, RMS {self.in_units(rows, rms)}); {new} new points "
                             "intersected")
-            added += 1
-            if added % POLISH_EVERY == 0:
+            oriented = int(np.sum(self.oriented))
+            if oriented >= max(POLISH_GROWTH * polished, polished + 3):
                 self.polish(1)
+                polished = oriented
 
     def polish(self, rounds):
         """Resect every image (but given ones) on its used points, then intersect every point
@@ -797,16 +806,18 @@ def initialise_block(
     else:
         block._reset()
         if not block.seed_pair():
+            for i in range(block.n_images):
+                block.image_reason[i] = ("no control or given EOPs to start from, and no image "
+                                         "pair could be oriented relatively (see the log)")
             return block.result("model", None)
         frame = None
     block.grow()
     if block.polish_rounds:
         block.polish(block.polish_rounds)
         rows = block.used_rows()
+        rms = np.sqrt(np.mean(block.errors(rows) ** 2)) if len(rows) else np.nan
         block.log.append(f"refinement: {block.polish_rounds} rounds of resection and "
-                         f"intersection of the whole block; RMS "
-                         f"{np.sqrt(np.mean(block.errors(rows) ** 2)) if len(rows) else np.nan:.3g}"
-                         " (normalised units)")
+                         f"intersection of the whole block; RMS {block.in_units(rows, rms)}")
     if frame is None:
         block.normalise_model(*block.pair)
         frame, similarity = block.to_object_frame()
