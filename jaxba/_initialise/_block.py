@@ -46,7 +46,9 @@ from ._robust import (
     angles,
     intersect,
     orient_pair,
+    pair_points,
     project,
+    reprojection,
     resect,
     robust_sigma,
     rotation,
@@ -54,6 +56,9 @@ from ._robust import (
 
 INLIER_K = 3.5
 """Inlier cut of a 2D reprojection error during the growth, in σ (chi² with 2 dof, 99.8 %)."""
+STRONG_RESECTION = 3
+"""An image that sees this many times `min_resection_points` points of known coordinates is
+resected; one that sees fewer is rather oriented relatively to an oriented neighbour."""
 POLISH_GROWTH = 1.5
 """During the growth, a refinement round follows when the number of oriented images has grown
 by this factor since the last one (and by 3 images at least): a few rounds in all, so that
@@ -235,6 +240,11 @@ class _Block:
         rows = np.flatnonzero(self.valid)[order]
         bounds = np.searchsorted(self.point[rows], np.arange(self.n_points + 1))
         self.obs_of_point = [rows[bounds[p]:bounds[p + 1]] for p in range(self.n_points)]
+        used = np.flatnonzero(self.valid)
+        incidence = scipy.sparse.csr_matrix(
+            (np.ones(len(used)), (self.image[used], self.point[used])),
+            shape=(self.n_images, self.n_points))
+        self.shared = (incidence @ incidence.T).tocsr()  # common points of image pairs
 
     def _reset(self):
         self.eops = np.full((self.n_images, 6), np.nan)
@@ -249,6 +259,8 @@ class _Block:
         self.point_reason: dict[int, str] = {}
         self.use = self.valid.copy()
         self.sigma_hat: float | None = None
+        self.tried: dict[int, int] = {}  # image -> known points when its resection failed
+        self.connect_tried: dict[int, int] = {}  # image -> oriented images when `connect` failed
 
     # -- helpers -------------------------------------------------------------------------
 
@@ -371,11 +383,7 @@ class _Block:
 
     def seed_pair(self) -> bool:
         """Orient the best-conditioned pair relatively; True on success."""
-        rows = np.flatnonzero(self.valid)
-        incidence = scipy.sparse.csr_matrix(
-            (np.ones(len(rows)), (self.image[rows], self.point[rows])),
-            shape=(self.n_images, self.n_points))
-        counts = (incidence @ incidence.T).tocoo()
+        counts = self.shared.tocoo()
         pairs = [(int(c), int(i), int(j)) for i, j, c in zip(counts.row, counts.col, counts.data)
                  if i < j and c >= self.min_pair_points]
         if not pairs:
@@ -460,41 +468,132 @@ class _Block:
             self.point_method[p] = None
 
     def grow(self):
-        tried: dict[int, int] = {}
+        """Orient one image after the other (`step`) and intersect its new points until none
+        is left; refine on the POLISH_GROWTH schedule, and once more when the growth stops
+        (the refinement may let more points in)."""
         polished = int(np.sum(self.oriented))
         while True:
-            best = None
-            for i in np.flatnonzero(~self.oriented):
-                rows = self.obs_of_image[i]
-                count = int(np.sum(self.known[self.point[rows]]))
-                if count >= self.min_resection_points and count > tried.get(i, -1):
-                    if best is None or count > best[0]:
-                        best = (count, i)
-            if best is None:
+            if not self.step():
+                if np.sum(self.oriented) > polished:
+                    self.polish(1)
+                    polished = int(np.sum(self.oriented))
+                    continue
                 break
-            count, i = best
-            rows = self.obs_of_image[i]
-            rows = rows[self.known[self.point[rows]]]
-            try:
-                fit = resect(self.q[rows], self.X[self.point[rows]], self.rng,
-                             threshold=self.threshold(rows),
-                             min_inliers=self.min_resection_points)
-            except ValueError as error:
-                tried[i] = count
-                self.image_reason[i] = f"resection on {count} points failed: {error}"
-                self.log.append(f"image {i}: {self.image_reason[i]}")
-                continue
-            self.orient(i, fit.eop, "resection")
-            self.use[rows] = fit.inliers
-            rms = np.sqrt(np.mean(fit.errors[fit.inliers] ** 2))
-            new = self.triangulate(self.point[self.obs_of_image[i]])
-            self.log.append(f"image {i}: resection on {count} points ({int(np.sum(fit.inliers))}"
-                            f" inliers, RMS {self.in_units(rows, rms)}); {new} new points "
-                            "intersected")
             oriented = int(np.sum(self.oriented))
             if oriented >= max(POLISH_GROWTH * polished, polished + 3):
                 self.polish(1)
                 polished = oriented
+
+    def step(self) -> bool:
+        """Try to orient one more image; False when there is none to try.
+
+        An image that sees STRONG_RESECTION times `min_resection_points` points of known
+        coordinates is resected. Otherwise the image with most points in common with an
+        oriented image (`min_pair_points` at least) is oriented relatively to it (`connect`):
+        many common points fix its rotation and base direction, and the few points of known
+        coordinates only the base's length. Failing that, an image with
+        `min_resection_points` known points is resected.
+        """
+        unoriented = np.flatnonzero(~self.oriented)
+        if len(unoriented) == 0:
+            return False
+        known = {int(i): int(np.sum(self.known[self.point[self.obs_of_image[i]]]))
+                 for i in unoriented}
+        fresh = [i for i in known if known[i] > self.tried.get(i, -1)]
+        strong = [i for i in fresh
+                  if known[i] >= STRONG_RESECTION * self.min_resection_points]
+        if strong:
+            self.resect_image(max(strong, key=known.get), known)
+            return True
+        oriented = np.flatnonzero(self.oriented)
+        common = self.shared[unoriented][:, oriented].toarray()
+        n_oriented = len(oriented)
+        candidates = sorted(
+            ((int(common[k].max()), int(i)) for k, i in enumerate(unoriented)
+             if common[k].max() >= self.min_pair_points
+             and self.connect_tried.get(int(i), -1) < n_oriented), reverse=True)
+        for _, i in candidates:
+            if self.connect(i):
+                return True
+            self.connect_tried[i] = n_oriented
+        weak = [i for i in fresh if known[i] >= self.min_resection_points]
+        if weak:
+            self.resect_image(max(weak, key=known.get), known)
+            return True
+        return False
+
+    def resect_image(self, i, known):
+        """Robust resection of image `i` on its points of known coordinates."""
+        count = known[i]
+        rows = self.obs_of_image[i]
+        rows = rows[self.known[self.point[rows]]]
+        try:
+            fit = resect(self.q[rows], self.X[self.point[rows]], self.rng,
+                         threshold=self.threshold(rows), min_inliers=self.min_resection_points)
+        except ValueError as error:
+            self.tried[i] = count
+            self.image_reason[i] = f"resection on {count} points failed: {error}"
+            self.log.append(f"image {i}: {self.image_reason[i]}")
+            return
+        self.orient(i, fit.eop, "resection")
+        self.use[rows] = fit.inliers
+        rms = np.sqrt(np.mean(fit.errors[fit.inliers] ** 2))
+        new = self.triangulate(self.point[self.obs_of_image[i]])
+        self.log.append(f"image {i}: resection on {count} points ({int(np.sum(fit.inliers))}"
+                        f" inliers, RMS {self.in_units(rows, rms)}); {new} new points "
+                        "intersected")
+
+    def connect(self, i) -> bool:
+        """Orient image `i` relatively to an oriented neighbour j (`orient_pair`, in j's camera
+        frame with base 1): M_i = R M_j, X0_i = X0_j + s M_jᵀ b, the base length s the median
+        of |X - X0_j| / |X_model| over the common inlier points of known coordinates (2 at
+        least, agreeing to 20 %). Accepted when half of i's points of known coordinates fit."""
+        oriented = np.flatnonzero(self.oriented)
+        common = self.shared[i][:, oriented].toarray()[0]
+        for k in np.argsort(-common)[:2]:
+            j = int(oriented[k])
+            if common[k] < self.min_pair_points:
+                break
+            rj, ri = self.common(j, i)
+            known = self.known[self.point[rj]]
+            if np.sum(known) < 2:
+                continue
+            sigma = None if self.sigma_hat is None and self.sigma_given is None else float(
+                np.median(self.sigma_normalised(np.r_[rj, ri])))
+            try:
+                pair = orient_pair(self.q[rj], self.q[ri], self.rng, sigma=sigma)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            both = pair.inliers & known
+            if np.sum(both) < 2 or pair.median_angle < self.min_angle:
+                continue
+            m_rel, base = rotation(pair.eops[1, 3:]), pair.eops[1, :3]
+            model = pair_points(self.q[rj][both], self.q[ri][both], m_rel, base)
+            world = self.X[self.point[rj][both]] - self.eops[j, :3]
+            scales = np.linalg.norm(world, axis=1) / np.linalg.norm(model, axis=1)
+            scale = float(np.median(scales))
+            if not (scale > 0 and np.median(np.abs(scales - scale)) <= 0.2 * scale):
+                continue
+            m_j = self.matrices[j]
+            eop = np.r_[self.eops[j, :3] + scale * m_j.T @ base, angles(m_rel @ m_j)]
+            rows = self.obs_of_image[i]
+            rows = rows[self.known[self.point[rows]]]
+            errors = reprojection(m_rel @ m_j, eop[:3], self.X[self.point[rows]], self.q[rows])
+            threshold = self.threshold(rows)
+            cut = 3.5 * max(robust_sigma(errors), SIGMA_FLOOR)
+            inliers = errors <= (cut if threshold is None else np.maximum(threshold, cut))
+            if np.sum(inliers) < max(2, len(rows) / 2):
+                continue
+            self.orient(i, eop, "relative orientation")
+            self.use[rows] = inliers
+            new = self.triangulate(self.point[self.obs_of_image[i]])
+            self.log.append(
+                f"image {i}: relative orientation to image {j} on {int(np.sum(pair.inliers))} "
+                f"of {len(ri)} common points, base from {int(np.sum(both))} points of known "
+                f"coordinates ({int(np.sum(inliers))} of {len(rows)} fit); {new} new points "
+                "intersected")
+            return True
+        return False
 
     def polish(self, rounds):
         """Resect every image (but given ones) on its used points, then intersect every point
@@ -813,7 +912,9 @@ def initialise_block(
         frame = None
     block.grow()
     if block.polish_rounds:
-        block.polish(block.polish_rounds)
+        for _ in range(block.polish_rounds):
+            block.polish(1)
+            block.grow()  # when the refinement let more points in
         rows = block.used_rows()
         rms = np.sqrt(np.mean(block.errors(rows) ** 2)) if len(rows) else np.nan
         block.log.append(f"refinement: {block.polish_rounds} rounds of resection and "

@@ -128,6 +128,24 @@ def _skew(v):
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+def _depths(r1, r2, m, base):
+    """λ1, λ2 (n,) with λ1 r1 - λ2 Mᵀ r2 ≈ b in least squares, and Mᵀ r2 (n, 3)."""
+    d2 = r2 @ m  # Mᵀ r2: image 2's rays in image 1's frame
+    aa, ab, bb = np.sum(r1 * r1, 1), np.sum(r1 * d2, 1), np.sum(d2 * d2, 1)
+    ab_, db_ = r1 @ base, d2 @ base
+    det = aa * bb - ab * ab
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (bb * ab_ - ab * db_) / det, (ab * ab_ - aa * db_) / det, d2
+
+
+def pair_points(q1, q2, m, base):
+    """Model points (n, 3) of a pair in image 1's frame (image 1 at the origin, M = I; image 2
+    at `base` with rotation `m`): the midpoints of the shortest segments between the rays."""
+    r1 = rays(q1)
+    lambda1, lambda2, d2 = _depths(r1, rays(q2), m, base)
+    return (lambda1[:, None] * r1 + base + lambda2[:, None] * d2) / 2
+
+
 def pair_geometry(r1, r2, m, base):
     """Sampson distances (n,) of E = M [b]ₓ (r2ᵀ E r1 = 0) and the intersection angles (n,);
     points behind either image get an infinite distance. Image 1 at the origin with identity
@@ -138,15 +156,10 @@ def pair_geometry(r1, r2, m, base):
     norm = np.sqrt(g1[:, 0] ** 2 + g1[:, 1] ** 2 + g2[:, 0] ** 2 + g2[:, 1] ** 2)
     with np.errstate(divide="ignore", invalid="ignore"):
         sampson = np.abs(f) / norm
-    d2 = r2 @ m  # Mᵀ r2: image 2's rays in image 1's frame
-    # λ1 r1 - λ2 d2 ≈ b in least squares: both positive in front of both images.
-    aa, ab, bb = np.sum(r1 * r1, 1), np.sum(r1 * d2, 1), np.sum(d2 * d2, 1)
-    ab_, db_ = r1 @ base, d2 @ base
-    det = aa * bb - ab * ab
+    # λ1 r1 - λ2 Mᵀ r2 ≈ b in least squares: both positive in front of both images.
+    lambda1, lambda2, d2 = _depths(r1, r2, m, base)
     with np.errstate(divide="ignore", invalid="ignore"):
-        lambda1 = (bb * ab_ - ab * db_) / det
-        lambda2 = (ab * ab_ - aa * db_) / det
-        cosines = ab / np.sqrt(aa * bb)
+        cosines = np.sum(r1 * d2, 1) / np.sqrt(np.sum(r1 * r1, 1) * np.sum(d2 * d2, 1))
     front = (lambda1 > 0) & (lambda2 > 0)
     sampson = np.where(front & np.isfinite(sampson), sampson, np.inf)
     return sampson, np.arccos(np.clip(cosines, -1.0, 1.0))
@@ -359,7 +372,8 @@ def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_sa
     takes the plane homography or the calibrated DLT, a few Levenberg-Marquardt steps) and
     `start` if given; scored by the least median of squared reprojection errors (`threshold`
     None) or MSAC with `threshold` (n,) or scalar (normalised units, on |v|). The best is
-    refined by `space_resection` on its inliers (|v| <= threshold, or 3.5 robust σ).
+    refined by `space_resection` on its inliers (|v| within 3.5 robust σ of its own errors,
+    or `threshold` if larger), twice.
     Raises ValueError for fewer than `min_inliers` inliers or no hypothesis.
     """
     n = len(q)
@@ -421,12 +435,13 @@ def robust_sigma(errors) -> float:
 
 
 def _cut(errors, threshold):
-    """The inlier cut of the 2D residual norms of a resection: `threshold`, or 3.5 robust σ
-    (chi² 2 dof 99.8 %) with Rousseeuw's small-sample factor 1 + 5 / (2n - 6)."""
-    if threshold is not None:
-        return threshold
+    """The inlier cut of the 2D residual norms of a resection: 3.5 robust σ of `errors`
+    (chi² 2 dof 99.8 %) with Rousseeuw's small-sample factor 1 + 5 / (2n - 6), or
+    `threshold` if larger (the errors of intersected points add to those of the image
+    coordinates: the image's own spread may exceed the block's σ)."""
     small = 1 + 5 / max(2 * len(errors) - 6, 1)
-    return 3.5 * max(robust_sigma(errors) * small, SIGMA_FLOOR)
+    own = 3.5 * max(robust_sigma(errors) * small, SIGMA_FLOOR)
+    return own if threshold is None else np.maximum(threshold, own)
 
 
 # ----------------------------------------------------------------------------------------
