@@ -9,22 +9,25 @@ from its image points, approximate cameras and whatever control, distances or EO
    whose rays intersect, the block grows in that frame. Otherwise the best-conditioned image
    pair (among the pairs with most common points, the one with most inliers, weighted by its
    median intersection angle up to PAIR_ANGLE) is oriented relatively (`orient_pair`:
-   essential matrix or near-vertical hypotheses, least median of squares, then
+   essential-matrix, homography and near-vertical hypotheses, least median of squares, then
    `relative_orientation`), its first image at the origin with M = I, the base 1.
 3. Growth. Points seen by two or more oriented images are intersected (robust
-   `forward_intersection`, rays meeting at `min_angle` or more); then the image with most
-   points of known coordinates is resected (RANSAC over `space_resection`), and so on until
-   no image has `min_resection_points` of them. Whenever the oriented images have grown by
+   `forward_intersection`, rays meeting at `min_angle` or more); then the next image is
+   oriented (`step`): resected (RANSAC over `space_resection`) when it sees many points of
+   known coordinates, else oriented relatively to its best-connected oriented neighbour with
+   only the base length from the known points (`connect`), else resected on its
+   `min_resection_points` or more; and so on. Whenever the oriented images have grown by
    half (POLISH_GROWTH), and `polish_rounds` times at the end, all images are resected again
    and all points intersected again: a cheap block refinement that spreads the errors of the
-   sequence.
+   sequence (the growth goes on if it let more points in).
 4. Frame. A model-frame block is brought into the object frame by `absolute_orientation`
    onto the control points and given camera stations it determined (3 or more full ones),
-   else rotated and shifted onto one image's given EOPs, and scaled from the distances.
-   Given EOPs and control coordinates then replace the computed ones.
+   else rotated and shifted onto one image's given EOPs, else fitted to partial control
+   (`partial_similarity`), and scaled from the distances where needed. Given EOPs and
+   control coordinates then replace the computed ones.
 5. Blunders. Every image point of an initialised image and point is projected through its
-   camera (`image_residuals`, the camera's units); those off by more than `blunder_threshold`
-   robust σ (per camera) are flagged.
+   camera (`image_residuals`, the camera's units); those whose residual, scaled for the
+   point's number of rays, exceeds `blunder_threshold` robust σ (per camera) are flagged.
 
 The numbers come with a log (strings, one step a line) that says what was done.
 """
