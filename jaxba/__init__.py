@@ -42,6 +42,10 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "read_colmap_model", "write_colmap", "write_colmap_project", "write_dbat_project",
         "write_opencv_yaml", "write_project_camera_yaml", "write_zhang_project",
     ),
+    "._initialise": (
+        "BlockInitialisation", "IdealCoordinates", "ideal_coordinates", "image_residuals",
+        "initialise_block",
+    ),
     "._levenberg_marquardt": ("NormalLevenbergMarquardt",),
     "._linearisation": ("LinearisationPlan", "linearisation_plan", "pad_plans"),
     "._montecarlo": ("Replicates", "bootstrap", "monte_carlo"),
