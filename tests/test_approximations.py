@@ -412,6 +412,16 @@ def test_essential_matrix_agrees_with_opencv():
                                atol=1e-8)
 
 
+def test_essential_matrix_from_exactly_eight_points():
+    """The minimal set of the 8-point method: the 8 x 9 system's null vector is unique (its
+    missing ninth singular value is 0, not a degeneracy), and it equals the 20-point E."""
+    _, xy1, xy2 = pair_scene(13, 20)
+    full = jaxba.essential_matrix(xy1, xy2, C, principal_point=(XP, YP))
+    eight = jaxba.essential_matrix(xy1[:8], xy2[:8], C, principal_point=(XP, YP))
+    np.testing.assert_allclose(eight.rotation, full.rotation, atol=1e-8)
+    np.testing.assert_allclose(eight.base, full.base, atol=1e-8)
+
+
 def test_relative_orientation_covariance_by_monte_carlo():
     """300 noisy replicates of the dependent orientation: the spread of the five parameters
     matches the predicted σ (a priori), without bias."""

@@ -140,8 +140,11 @@ def nearest_rotation(m: np.ndarray) -> np.ndarray:
 def null_vector(rows: np.ndarray, what: str, cause: str) -> np.ndarray:
     """The unit vector minimising |rows @ v| (SVD), or a ValueError when that minimum is not
     unique (the second smallest singular value vanishes too): `cause` says why."""
-    _, singular, vt = np.linalg.svd(rows)
-    if len(singular) < rows.shape[1] or singular[-2] <= 1e-10 * singular[0]:
+    _, singular, vt = np.linalg.svd(rows)  # vt: all n right singular vectors
+    # With fewer rows than unknowns the missing singular values are 0: a minimal set (8 rows
+    # for the 9 entries of E, ...) has a unique null vector when the others are all > 0.
+    singular = np.concatenate([singular, np.zeros(rows.shape[1] - len(singular))])
+    if singular[-2] <= 1e-10 * singular[0]:
         raise ValueError(f"{what}: the linear system is degenerate ({cause})")
     return vt[-1]
 
