@@ -5,6 +5,7 @@ import pathlib
 from .._project._build import Project
 from .._solve import Adjustment
 from ._atomic import replace_files
+from ._collect import shared_tables
 from ._csv import observations_csv
 from ._json import results_json
 from ._paths import check_outputs
@@ -21,13 +22,14 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
     as they were. Returns the paths.
     """
     paths = check_outputs(project.spec, out_dir)
-    texts = {
-        paths["out"]: out_text(project, result),
-        paths["res"]: res_text(project, result),
-        paths["sigma"]: sigma_text(project, result),
-        paths["json"]: results_json(project, result),
-        paths["observations"]: observations_csv(project, result),
-    }
+    with shared_tables():  # the residuals, statistics and point tables gathered once
+        texts = {
+            paths["out"]: out_text(project, result),
+            paths["res"]: res_text(project, result),
+            paths["sigma"]: sigma_text(project, result),
+            paths["json"]: results_json(project, result),
+            paths["observations"]: observations_csv(project, result),
+        }
     pathlib.Path(out_dir).mkdir(parents=True, exist_ok=True)
     replace_files(texts)
     return list(paths.values())
