@@ -2,6 +2,7 @@
 
 import pathlib
 
+from .._gc import paused_gc
 from .._project._build import Project
 from .._solve import Adjustment
 from ._atomic import replace_files
@@ -22,7 +23,9 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
     as they were. Returns the paths.
     """
     paths = check_outputs(project.spec, out_dir)
-    with shared_tables():  # the residuals, statistics and point tables gathered once
+    # The residuals, statistics and point tables gathered once; the collector paused while
+    # hundreds of thousands of rows are formatted (none of them in a cycle).
+    with shared_tables(), paused_gc():
         texts = {
             paths["out"]: out_text(project, result),
             paths["res"]: res_text(project, result),
