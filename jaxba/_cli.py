@@ -39,8 +39,8 @@ def _say(message: str = "") -> None:
 
 
 def _setup_jax() -> None:
-    """float64 (never set by the library at import), one BLAS thread and a persistent
-    compilation cache.
+    """float64 (never set by the library at import), one BLAS thread, a persistent
+    compilation cache and a C heap that gives freed memory back (`jaxba._memory`).
 
     OpenBLAS threads and XLA's own threads oversubscribe small machines (the dense QR of
     the LM step ran 3x slower), so BLAS is limited to one thread for the run. The cache is
@@ -50,6 +50,9 @@ def _setup_jax() -> None:
     import jax
     import threadpoolctl
 
+    from jaxba._memory import tune_allocator
+
+    tune_allocator()  # freed compiler and buffer memory back to the system, not kept
     threadpoolctl.threadpool_limits(1, user_api="blas")
     jax.config.update("jax_enable_x64", True)
     try:

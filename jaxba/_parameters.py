@@ -74,24 +74,14 @@ def parameter_labels(
     def ids(given, n):
         return list(given) if given is not None else [str(i) for i in range(n)]
 
-    labelled = Parameters(
-        cameras={
-            model: [
-                [f"camera {cid} {name}" for name in CAMERA_MODELS[model].parameter_names]
-                for cid in ids((camera_ids or {}).get(model), block.shape[0])
-            ]
-            for model, block in params.cameras.items()
-        },
-        images=[[f"image {i} {n}" for n in IMAGE_PARAMETER_NAMES]
-                for i in ids(image_ids, params.images.shape[0])],
-        points=[[f"point {p} {n}" for n in POINT_PARAMETER_NAMES]
-                for p in ids(point_ids, params.points.shape[0])],
-    )
-    return [label for leaf in _label_leaves(labelled) for label in leaf]
+    def block(prefix: str, row_ids: list[str], names) -> list[str]:
+        return [f"{prefix} {i} {n}" for i in row_ids for n in names]
 
-
-def _label_leaves(labelled: Parameters) -> list[list[str]]:
-    """Flattened label lists in the same leaf order as `flatten` (dict keys sorted)."""
-    blocks = [labelled.cameras[model] for model in sorted(labelled.cameras)]
-    blocks += [labelled.images, labelled.points]
-    return [[label for row in block for label in row] for block in blocks]
+    # The blocks in `flatten` order: cameras by sorted model name, images, points.
+    labels = []
+    for model in sorted(params.cameras):
+        rows = ids((camera_ids or {}).get(model), params.cameras[model].shape[0])
+        labels += block("camera", rows, CAMERA_MODELS[model].parameter_names)
+    labels += block("image", ids(image_ids, params.images.shape[0]), IMAGE_PARAMETER_NAMES)
+    labels += block("point", ids(point_ids, params.points.shape[0]), POINT_PARAMETER_NAMES)
+    return labels

@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from ._memory import release_free_memory
+
 
 @dataclasses.dataclass(frozen=True)
 class StepInfo:
@@ -91,6 +93,7 @@ def least_squares_stepwise(
     if not has_aux:
         fn = _NoAux(fn)
     state, terminate, result = _init(fn, solver, y0, args)
+    release_free_memory()  # what compiling `_init` freed, before `_step` compiles
     y, aux = y0, state.aux
     num_steps = 0
     while num_steps < max_steps and not _stops(terminate, result):

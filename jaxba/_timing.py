@@ -3,7 +3,9 @@
 jax reports every trace, lowering and backend compilation (or load from the persistent
 compilation cache) through `jax.monitoring`; `CompileLog` sums them while it is open, so a
 phase's compile seconds can be told from its run seconds. One listener is registered once
-per process and feeds every open log.
+per process and feeds every open log. At the end of every phase the C heap's free pages are
+returned to the system (`jaxba._memory`): a phase's compilations must not raise the next
+phase's memory.
 """
 
 import contextlib
@@ -12,6 +14,8 @@ import time
 from collections.abc import Callable, Iterator
 
 import jax
+
+from ._memory import release_free_memory
 
 # jax._src.dispatch's event names: tracing to a jaxpr, lowering to MLIR, backend compile
 # (which includes looking the executable up in the persistent cache).
@@ -104,6 +108,7 @@ class Timings:
         notify = None if self.on_compile is None else (lambda: self.on_compile(name))
         with CompileLog(on_compile=notify) as log:
             yield
+        release_free_memory()
         self.add(Phase(name, time.perf_counter() - start, log.seconds, log.count,
                        log.cache_hits))
 

@@ -91,7 +91,7 @@ def test_unknown_group_is_rejected(block):
 def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     problem = block if variant == "plain" else _with_control_and_robust(block)
     params = problem.initial
-    structure = bundle_structure(problem, chunk_mib=0.01)  # several chunks of points
+    structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
     normal = bundle_normal_equations(problem, structure, params)
     x_r, x_e = solve_bundle_damped(structure, normal, jnp.asarray(damping))
     step = flatten(_to_parameters(structure, params, x_r, x_e))[free_indices(problem)]
@@ -222,7 +222,7 @@ def test_redundancy_numbers_match_dense(block, variant):
     flat, unravel = ravel_pytree(problem.initial)
     perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
     params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))
-    structure = bundle_structure(problem, chunk_mib=0.01)  # several chunks of points
+    structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
     r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
     expected_r, expected_whitened = redundancy_numbers(problem, params)
     assert r.shape == expected_r.shape == (problem.n_observations(),)

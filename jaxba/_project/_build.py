@@ -93,23 +93,21 @@ def _images(spec: ProjectSpec):
 
 
 def _used_points(spec: ProjectSpec) -> list[str]:
-    used = {m.point for m in spec.image_points}
+    used = set(spec.image_points.point)
     used.update(p for d in spec.distances for p in (d.a, d.b))
     return [pid for pid in spec.points if pid in used]
 
 
 def _points(spec: ProjectSpec, point_ids: list[str]):
     """Point block, free mask and control observations; a free network frees them all."""
-    free_network = spec.settings.datum == "free"
-    xyz, free, sigma = [], [], []
-    for pid in point_ids:
-        point = spec.points[pid]
-        given = (None, None, None) if free_network else point.sigma
-        flags = [_sigma_to_free_and_observed(s) for s in given]
-        xyz.append(point.xyz)
-        free.append([f for f, _ in flags])
-        sigma.append([s for _, s in flags])
-    xyz, sigma = np.asarray(xyz, dtype=float), np.asarray(sigma, dtype=float)
+    rows = [spec.points[pid] for pid in point_ids]
+    xyz = np.array([point.xyz for point in rows], dtype=float).reshape(-1, 3)
+    if spec.settings.datum == "free":  # a free network frees them all
+        given = np.full(xyz.shape, np.nan)
+    else:  # the file's σ: None (NaN here) free, 0 fixed, > 0 weighted
+        given = np.array([point.sigma for point in rows], dtype=float).reshape(-1, 3)
+    free = ~(given == 0)
+    sigma = np.where(given > 0, given, np.inf)
     groups = []
     if np.isfinite(sigma).any():
         rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
@@ -127,11 +125,16 @@ def _pixel_grid(camera) -> PixelGrid | None:
 
 def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
     """One ImagePoints group per camera, in its model's units (pixels -> mm for mm-models)."""
-    by_camera: dict[str, list] = {}
-    for m in spec.image_points:
-        by_camera.setdefault(spec.images[m.image].camera, []).append(m)
+    table = spec.image_points
+    camera_of = {iid: image.camera for iid, image in spec.images.items()}
+    cameras = [camera_of[iid] for iid in table.image]
+    codes = {cid: k for k, cid in enumerate(dict.fromkeys(cameras))}  # order of first use
+    camera_code = np.array([codes[cid] for cid in cameras], dtype=int)
+    image = np.array([image_index[iid] for iid in table.image], dtype=int)
+    point = np.array([point_index[pid] for pid in table.point], dtype=int)
     groups = []
-    for camera_id, measurements in by_camera.items():
+    for camera_id, code in codes.items():
+        rows = np.flatnonzero(camera_code == code)
         model, row = camera_rows[camera_id]
         model_units = CAMERA_MODELS[model].image_units
         if spec.image_units != model_units and model_units != "mm":
@@ -139,9 +142,8 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
                 f"camera {camera_id!r}: model {model!r} works in {model_units} units, but the "
                 f'project has image_units = "{spec.image_units}"'
             )
-        xy = np.array([m.xy for m in measurements], dtype=float)
-        default = (spec.settings.image_sigma, spec.settings.image_sigma)
-        sigma = np.array([m.sigma or default for m in measurements], dtype=float)
+        xy = table.xy[rows]
+        sigma = np.where(np.isnan(table.sigma[rows]), spec.settings.image_sigma, table.sigma[rows])
         if spec.image_units == "pixel" and model_units == "mm":
             grid = grids[camera_id]
             xy = np.asarray(grid.pixel_to_image(xy))
@@ -149,9 +151,9 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
         groups.append(ImagePoints(
             name=f"image_points:{camera_id}",
             model=model,
-            camera=jnp.full(len(measurements), row),
-            image=jnp.asarray([image_index[m.image] for m in measurements]),
-            point=jnp.asarray([point_index[m.point] for m in measurements]),
+            camera=jnp.full(len(rows), row),
+            image=jnp.asarray(image[rows]),
+            point=jnp.asarray(point[rows]),
             measured=jnp.asarray(xy),
             stddev=jnp.asarray(sigma),
         ))

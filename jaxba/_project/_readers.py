@@ -9,20 +9,26 @@ number (weighted). Image points have no fixed state: their σ pair is `None` (us
 `image_sigma`) or two positive numbers.
 """
 
+import collections
 import dataclasses
+import math
 import os
 import pathlib
 import tomllib
 from collections.abc import Iterator, Mapping
 from typing import Any
 
+import numpy as np
+
 from .._camera._names import CAMERA_PARAMETER_NAMES, PRINCIPAL_DISTANCES
+from .._gc import paused_gc
 from ._errors import ProjectError
 from ._spec import (
     AdjustmentSettings,
     CameraSpec,
     DistanceSpec,
     ImagePointSpec,
+    ImagePointTable,
     ImageSpec,
     PointSpec,
     ProjectSpec,
@@ -70,7 +76,12 @@ def read_project(path: str | os.PathLike) -> ProjectSpec:
 
     **Raises:** `ProjectError` for any missing file, malformed entry or inconsistency.
     """
-    path = pathlib.Path(path)
+    with paused_gc():  # the tables' rows are many small lists, none in a cycle
+        return _read_project(pathlib.Path(path))
+
+
+def _read_project(path: pathlib.Path) -> ProjectSpec:
+    """`read_project`."""
     if not path.is_file():
         raise ProjectError(f"{path}: no such project file")
     name = path.name
@@ -321,6 +332,61 @@ def _parse_float(token: str) -> float | None:
     return value if abs(value) < float("inf") else None  # rejects nan and ±inf
 
 
+def _lines(file: _File) -> list[str]:
+    """The lines of a text table (BOM dropped, any line ending)."""
+    try:
+        with file.path.open(encoding="utf-8-sig") as stream:
+            return stream.read().split("\n")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ProjectError(f"{file.name}: cannot read {file.path}: {error}") from None
+
+
+def _token_columns(
+    file: _File, columns: tuple[str, ...], n_required: int
+) -> tuple[list[tuple[str, ...]], np.ndarray] | None:
+    """The fast path of `_rows`: the data lines' tokens as columns (rows with only the
+    `n_required` columns padded with "-", no σ), and their line numbers; None when a line has
+    another number of columns (`_rows` then says where)."""
+    lines = _lines(file)
+    for k in [k for k, line in enumerate(lines) if "#" in line]:
+        lines[k] = lines[k].split("#", 1)[0]
+    tokens = list(map(str.split, lines))
+    sizes = np.fromiter(map(len, tokens), dtype=int, count=len(tokens))
+    numbers = np.flatnonzero(sizes) + 1
+    rows = list(filter(None, tokens))
+    sizes = set(np.unique(sizes[sizes > 0]).tolist())
+    if not sizes <= {n_required, len(columns)}:
+        return None
+    if sizes == {n_required}:  # no optional column anywhere: all "-"
+        table = list(zip(*rows)) + [("-",) * len(rows)] * (len(columns) - n_required)
+    else:
+        padding = ["-"] * (len(columns) - n_required)
+        table = list(zip(*(row if len(row) == len(columns) else row + padding for row in rows)))
+    return table or [()] * len(columns), numbers
+
+
+def _numbers(tokens: tuple[str, ...]) -> np.ndarray | None:
+    """Finite numbers of magnitude at most `MAX_MAGNITUDE` (`_Row.number`), or None."""
+    try:
+        values = np.array(list(map(float, tokens)), dtype=float)
+    except ValueError:
+        return None
+    return values if np.all(np.abs(values) <= MAX_MAGNITUDE) else None  # NaN fails too
+
+
+def _sigmas(tokens: tuple[str, ...], *, fixed: bool = True) -> np.ndarray | None:
+    """σ as `_Row.sigma` reads them, NaN for "-" (None), or None if one is not valid."""
+    if tokens.count("-") == len(tokens):
+        return np.full(len(tokens), math.nan)
+    try:
+        values = np.array([math.nan if t == "-" else float(t) for t in tokens], dtype=float)
+    except ValueError:
+        return None
+    given = np.array([t != "-" for t in tokens], dtype=bool)
+    valid = np.isfinite(values) & ((values >= 0) if fixed else (values > 0))
+    return values if np.all(valid | ~given) else None
+
+
 def _rows(file: _File, columns: tuple[str, ...], n_required: int) -> Iterator[_Row]:
     """The data lines of a whitespace-separated table: comments (`#`) and blank lines skipped.
 
@@ -330,12 +396,7 @@ def _rows(file: _File, columns: tuple[str, ...], n_required: int) -> Iterator[_R
     layout = " ".join(columns[:n_required])
     if n_required < len(columns):
         layout += " [" + " ".join(columns[n_required:]) + "]"
-    try:
-        with file.path.open(encoding="utf-8-sig") as stream:
-            lines = stream.readlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise ProjectError(f"{file.name}: cannot read {file.path}: {error}") from None
-    for number, text in enumerate(lines, start=1):
+    for number, text in enumerate(_lines(file), start=1):
         tokens = tuple(text.split("#", 1)[0].split())
         if not tokens:
             continue
@@ -378,6 +439,30 @@ def _read_images(
 
 def _read_points(file: _File) -> dict[str, PointSpec]:
     """points: `point_id X Y Z [sX sY sZ]`; without σ columns the point is a tie point."""
+    points = _read_points_fast(file)
+    return points if points is not None else _read_points_by_row(file)
+
+
+def _read_points_fast(file: _File) -> dict[str, PointSpec] | None:
+    """`_read_points` column by column; None where a row needs `_read_points_by_row` (which
+    names the problem)."""
+    table = _token_columns(file, _POINT_COLUMNS, 4)
+    if table is None:
+        return None
+    (ids, *columns), lines = table
+    xyz = [_numbers(column) for column in columns[:3]]
+    sigma = [_sigmas(column) for column in columns[3:]]
+    if any(c is None for c in xyz + sigma) or len(set(ids)) != len(ids):
+        return None
+    sigma_lists = [[None if math.isnan(s) else s for s in column.tolist()] for column in sigma]
+    return {
+        point_id: PointSpec(point_id, xyz_k, sigma_k, line)
+        for point_id, xyz_k, sigma_k, line in zip(
+            ids, zip(*(c.tolist() for c in xyz)), zip(*sigma_lists), lines.tolist())
+    }
+
+
+def _read_points_by_row(file: _File) -> dict[str, PointSpec]:
     points: dict[str, PointSpec] = {}
     for row in _rows(file, _POINT_COLUMNS, 4):
         point_id = row.tokens[0]
@@ -393,8 +478,43 @@ def _read_image_points(
     images: Mapping[str, ImageSpec],
     points: Mapping[str, PointSpec],
     files: Mapping[str, _File],
-) -> list[ImagePointSpec]:
+) -> ImagePointTable:
     """image points: `image_id point_id x y [sx sy]`, σ both given (> 0) or both `-`/absent."""
+    table = _read_image_points_fast(file, images, points)
+    if table is not None:
+        return table
+    return ImagePointTable.from_records(_read_image_points_by_row(file, images, points, files))
+
+
+def _read_image_points_fast(
+    file: _File, images: Mapping[str, ImageSpec], points: Mapping[str, PointSpec]
+) -> ImagePointTable | None:
+    """`_read_image_points` column by column; None where a row needs
+    `_read_image_points_by_row` (which names the problem)."""
+    table = _token_columns(file, _IMAGE_POINT_COLUMNS, 4)
+    if table is None:
+        return None
+    (image, point, *columns), lines = table
+    xy = [_numbers(column) for column in columns[:2]]
+    sigma = [_sigmas(column, fixed=False) for column in columns[2:]]
+    if any(c is None for c in xy + sigma):
+        return None
+    if np.any(np.isnan(sigma[0]) != np.isnan(sigma[1])):
+        return None
+    if not (set(image) <= images.keys() and set(point) <= points.keys()):
+        return None
+    if len(set(zip(image, point))) != len(image):
+        return None
+    return ImagePointTable(list(image), list(point), np.column_stack(xy).reshape(-1, 2),
+                           np.column_stack(sigma).reshape(-1, 2), lines)
+
+
+def _read_image_points_by_row(
+    file: _File,
+    images: Mapping[str, ImageSpec],
+    points: Mapping[str, PointSpec],
+    files: Mapping[str, _File],
+) -> list[ImagePointSpec]:
     observations: list[ImagePointSpec] = []
     first_line: dict[tuple[str, str], ImagePointSpec] = {}
     for row in _rows(file, _IMAGE_POINT_COLUMNS, 4):
@@ -439,7 +559,7 @@ def _read_distances(
 def _check_consistency(
     images: Mapping[str, ImageSpec],
     points: Mapping[str, PointSpec],
-    image_points: list[ImagePointSpec],
+    image_points: ImagePointTable,
     distances: list[DistanceSpec],
     files: Mapping[str, _File],
 ) -> None:
@@ -447,10 +567,8 @@ def _check_consistency(
 
     A point used by nothing is allowed (and kept); so is a camera used by no image.
     """
-    images_of: dict[str, list[str]] = {}
-    for observation in image_points:
-        images_of.setdefault(observation.point, []).append(observation.image)
-    measured = {observation.image for observation in image_points}
+    counts = collections.Counter(image_points.point)
+    measured = set(image_points.image)
     for image in images.values():
         if image.id not in measured:
             raise ProjectError(
@@ -463,13 +581,14 @@ def _check_consistency(
         first_distance.setdefault(distance.a, distance)
         first_distance.setdefault(distance.b, distance)
     for point in points.values():
-        seen = images_of.get(point.id, [])
-        if None not in point.sigma or len(seen) >= 2:
+        seen = counts.get(point.id, 0)
+        if seen >= 2 or None not in point.sigma:
             continue
         where = f"{files['points'].name}:{point.line}"
         if seen:
+            image = image_points.image[image_points.point.index(point.id)]
             raise ProjectError(
-                f"{where}: point {point.id!r} is measured in only 1 image ({seen[0]}) "
+                f"{where}: point {point.id!r} is measured in only 1 image ({image}) "
                 "but has free coordinates"
             )
         if point.id in first_distance:

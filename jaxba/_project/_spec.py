@@ -6,7 +6,11 @@ Nothing here touches jax: the readers fill these records, `_build.py` turns them
 """
 
 import dataclasses
+import math
 import pathlib
+from collections.abc import Sequence
+
+import numpy as np
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +90,52 @@ class ImagePointSpec:
     line: int
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ImagePointTable(Sequence):
+    """The image points of a project as columns (one row per measurement, in file order); a
+    sequence of `ImagePointSpec` records to its readers.
+
+    `image`, `point`: the IDs (n,) as lists of str; `xy` (n, 2) in the project's image units;
+    `sigma` (n, 2), NaN where the file gave none (the project's `image_sigma`); `line` (n,)
+    the line numbers.
+    """
+
+    image: list[str]
+    point: list[str]
+    xy: np.ndarray
+    sigma: np.ndarray
+    line: np.ndarray
+
+    @classmethod
+    def from_records(cls, records: Sequence[ImagePointSpec]) -> "ImagePointTable":
+        return cls(
+            image=[m.image for m in records],
+            point=[m.point for m in records],
+            xy=np.array([m.xy for m in records], dtype=float).reshape(-1, 2),
+            sigma=np.array([m.sigma or (math.nan, math.nan) for m in records],
+                           dtype=float).reshape(-1, 2),
+            line=np.array([m.line for m in records], dtype=int),
+        )
+
+    def __len__(self) -> int:
+        return len(self.image)
+
+    def _record(self, k: int) -> ImagePointSpec:
+        sigma = None if math.isnan(self.sigma[k, 0]) else tuple(self.sigma[k].tolist())
+        return ImagePointSpec(self.image[k], self.point[k], tuple(self.xy[k].tolist()), sigma,
+                              int(self.line[k]))
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self._record(k) for k in range(len(self))[index]]
+        return self._record(range(len(self))[index])
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Sequence) or len(other) != len(self):
+            return False
+        return list(self) == list(other)
+
+
 @dataclasses.dataclass(frozen=True)
 class DistanceSpec:
     """A measured distance between two points, object units."""
@@ -108,6 +158,6 @@ class ProjectSpec:
     cameras: dict[str, CameraSpec]
     images: dict[str, ImageSpec]
     points: dict[str, PointSpec]
-    image_points: list[ImagePointSpec]
+    image_points: ImagePointTable
     distances: list[DistanceSpec]
     input_files: tuple[pathlib.Path, ...]

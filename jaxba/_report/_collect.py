@@ -9,7 +9,9 @@ point error ellipsoids. Jax is called only to evaluate the residual of an observ
 by data snooping (its v at the final solution) and for the covariance helpers of `_precision`.
 """
 
+import contextlib
 import dataclasses
+import functools
 import math
 
 import equinox as eqx
@@ -31,13 +33,14 @@ STATUS_CODE = {FREE: "-", FIXED: "0", WEIGHTED: "w"}
 
 @dataclasses.dataclass(frozen=True)
 class ParameterTable:
-    """Rows of one kind of unknown: `ids` (n,), `values` and `stds` (n, k), `status` (n, k)."""
+    """Rows of one kind of unknown: `ids` (n,), `values` and `stds` (n, k), `status` (n, k):
+    FREE, FIXED or WEIGHTED (a list of lists, or an object array of str)."""
 
     names: tuple[str, ...]
     ids: list[str]
     values: np.ndarray
     stds: np.ndarray
-    status: list[list[str]]
+    status: list[list[str]] | np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,17 +132,55 @@ class ReliabilitySummary:
     groups: dict[str, dict]
 
 
+_memo: dict | None = None  # (function, id(project), id(result)) -> (project, result, value)
+
+
+@contextlib.contextmanager
+def shared_tables():
+    """While open, each table below is gathered once per (project, result) and shared by every
+    writer that asks for it (the reports ask for the residuals, the group statistics and the
+    point tables several times each). The tables are read-only to their callers."""
+    global _memo
+    outer = _memo
+    _memo = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _memo = outer
+
+
+def _shared(function):
+    """`function(project, result)`, memoised while `shared_tables` is open."""
+
+    @functools.wraps(function)
+    def wrapper(project, result):
+        if _memo is None:
+            return function(project, result)
+        key = (function.__name__, id(project), id(result))
+        if key not in _memo:  # project and result kept: their ids cannot be reused meanwhile
+            _memo[key] = (project, result, function(project, result))
+        return _memo[key][2]
+
+    return wrapper
+
+
 def _status(estimated: bool, weighted: bool) -> str:
     if not estimated:
         return FIXED
     return WEIGHTED if weighted else FREE
 
 
-def _is_weighted(sigma) -> bool:
-    """File σ: None free, 0 fixed, > 0 weighted (an observation of the parameter)."""
-    return sigma is not None and sigma > 0
+def _status_table(estimated, sigma: list[tuple]) -> np.ndarray:
+    """`_status` of every entry of a table at once: `estimated` (n, k) bools, `sigma` n tuples
+    of k file σ (None free, 0 fixed, > 0 weighted). An (n, k) object array of str."""
+    estimated = np.asarray(estimated, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        weighted = np.array(sigma, dtype=float).reshape(estimated.shape) > 0  # None: NaN
+    names = np.array([FIXED, FREE, WEIGHTED], dtype=object)
+    return names[estimated * (1 + weighted)]
 
 
+@_shared
 def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTable]:
     """One single-row table per camera: every parameter of its model, value and σ."""
     tables = {}
@@ -157,6 +198,7 @@ def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTa
     return tables
 
 
+@_shared
 def image_table(project: Project, result: Adjustment) -> ParameterTable:
     """EOPs of all images; omega, phi, kappa and their σ in decimal degrees."""
     angles = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
@@ -164,21 +206,16 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
     stds = np.array(result.precision.std.images, dtype=float)
     values[:, angles] = np.degrees(values[:, angles])
     stds[:, angles] = np.degrees(stds[:, angles])
-    estimated = np.asarray(project.problem.free.images)
-    status = [
-        [_status(bool(e), _is_weighted(s)) for e, s in zip(estimated[k], spec.eop_sigma)]
-        for k, spec in enumerate(project.spec.images[iid] for iid in project.image_ids)
-    ]
+    sigma = [project.spec.images[iid].eop_sigma for iid in project.image_ids]
+    status = _status_table(project.problem.free.images, sigma)
     return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.image_ids), values, stds, status)
 
 
+@_shared
 def point_table(project: Project, result: Adjustment) -> ParameterTable:
     """Object points used by the adjustment (those observed in images or by distances)."""
-    estimated = np.asarray(project.problem.free.points)
-    status = [
-        [_status(bool(e), _is_weighted(s)) for e, s in zip(estimated[k], spec.sigma)]
-        for k, spec in enumerate(project.spec.points[pid] for pid in project.point_ids)
-    ]
+    sigma = [project.spec.points[pid].sigma for pid in project.point_ids]
+    status = _status_table(project.problem.free.points, sigma)
     return ParameterTable(
         POINT_PARAMETER_NAMES,
         list(project.point_ids),
@@ -269,6 +306,7 @@ def _unit_residuals(result: Adjustment, group: AbstractObservationGroup) -> np.n
     return np.asarray(unit.residuals(result.parameters, result.problem.refraction), dtype=float)
 
 
+@_shared
 def group_statistics(project: Project, result: Adjustment) -> list[GroupStatistics]:
     """v, r, w and outlier flags of every entry of every observation group of the result."""
     reliability = result.reliability
@@ -298,6 +336,7 @@ def group_statistics(project: Project, result: Adjustment) -> list[GroupStatisti
     return statistics
 
 
+@_shared
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
     statistics = list(enumerate(group_statistics(project, result)))
@@ -335,6 +374,7 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     )
 
 
+@_shared
 def other_observations(project: Project, result: Adjustment) -> list[ScalarObservation]:
     """Every scalar observation that is not an image coordinate, group by group.
 
@@ -383,6 +423,7 @@ def describe(ids: dict[str, str]) -> str:
     return " ".join(words + ([ids["coordinate"]] if "coordinate" in ids else []))
 
 
+@_shared
 def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySummary | None:
     """Min/mean/sum of the redundancy numbers and the largest |w|, overall and per group.
 
@@ -430,6 +471,7 @@ def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySumm
     )
 
 
+@_shared
 def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple[list, np.ndarray]]:
     """Per camera: the names of its estimated IOPs and their correlation matrix ρ."""
     return {
@@ -438,6 +480,7 @@ def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple
     }
 
 
+@_shared
 def point_ellipsoids(project: Project, result: Adjustment):
     """1σ error ellipsoids of the object points: semi-axes (n, 3) descending, object units;
     directions (n, 3, 3) with the unit axis k in column k; `has` (n,) True for points with
@@ -517,6 +560,7 @@ def row_tuples(table: np.ndarray):
     return zip(*(column.tolist() for column in np.asarray(table).T))
 
 
+@_shared
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     """Per observation group: its number of observations and its part vᵀPv of the total.
 

@@ -21,6 +21,7 @@ from ._collect import (
     rejections,
     reliability_summary,
     residual_summaries,
+    shared_tables,
 )
 from ._paths import OBSERVATIONS_FILE
 
@@ -58,16 +59,69 @@ def _points(project: Project, result: Adjustment) -> dict[str, dict]:
     semi-axes descending (object units) and "directions", the unit vector of each axis."""
     points = point_table(project, result)
     axes, directions, has = point_ellipsoids(project, result)
-    # Whole arrays to Python lists at once (26,200 points: ~1 s less than per point).
-    finite = np.all(np.isfinite(axes), axis=1) & np.all(np.isfinite(directions), axis=(1, 2))
-    axes_lists, direction_lists = axes.tolist(), np.swapaxes(directions, 1, 2).tolist()
-    entries = {}
-    for k, pid in enumerate(points.ids):
-        entries[pid] = _entries(points, k)
-        if has[k]:
-            ellipsoid = {"axes": axes_lists[k], "directions": direction_lists[k]}
-            entries[pid]["ellipsoid"] = ellipsoid if finite[k] else _nulls(ellipsoid)
-    return entries
+    return {pid: _point_entry(points, axes, directions, has, k) for k, pid in enumerate(points.ids)}
+
+
+def _point_entry(points: ParameterTable, axes, directions, has, k: int) -> dict:
+    entry = _entries(points, k)
+    if has[k]:
+        entry["ellipsoid"] = _nulls({
+            "axes": axes[k].tolist(), "directions": directions[k].T.tolist(),
+        })
+    return entry
+
+
+class _Deferred:
+    """A value of the results tree that lays itself out (`_layout`): `render(depth, indent)`
+    returns its JSON text."""
+
+    def __init__(self, render):
+        self.render = render
+
+
+def _points_text(project: Project, result: Adjustment, depth: int, indent: str) -> str:
+    """The "points" value of results.json as `_layout` writes `_points`, formatted row-wise:
+    one `%` per point with float reprs (json writes floats by `float.__repr__`). Points with a
+    non-finite number (null in JSON) go through `_layout`."""
+    if depth != 2:
+        return _layout(_points(project, result), depth, indent)
+    points = point_table(project, result)
+    if not points.ids:
+        return _layout({}, depth, indent)
+    axes, directions, has = point_ellipsoids(project, result)
+    values, stds = np.asarray(points.values, dtype=float), np.asarray(points.stds, dtype=float)
+    # Per point the semi-axes, then the unit vector of each axis (column k of `directions`).
+    ellipsoid = np.column_stack([axes, np.swapaxes(directions, 1, 2).reshape(len(axes), -1)])
+    finite = np.isfinite(values).all(axis=1) & np.isfinite(stds).all(axis=1)
+    finite &= ~has | np.isfinite(ellipsoid).all(axis=1)
+    inner, leaf = indent + "  ", indent + "    "
+    names = [json.dumps(name).replace("%", "%%") for name in points.names]
+    fields = [f'{name}: {{"value": %r, "std": %r, "status": %s}}' for name in names]
+    axes_text = "[" + ", ".join(["%r"] * axes.shape[1]) + "]"
+    direction_text = "[" + ", ".join([axes_text] * axes.shape[1]) + "]"
+    with_ellipsoid = f'"ellipsoid": {{"axes": {axes_text}, "directions": {direction_text}}}'
+    templates = [
+        "%s: {\n" + leaf + f",\n{leaf}".join(lines) + f"\n{inner}}}"
+        for lines in (fields, [*fields, with_ellipsoid])
+    ]
+    status = np.asarray(points.status, dtype=object)
+    encoded = {name: json.dumps(name) for name in set(status.ravel().tolist())}
+    columns = [[json.dumps(pid) for pid in points.ids]]
+    for j in range(values.shape[1]):
+        columns += [values[:, j].tolist(), stds[:, j].tolist(),
+                    [encoded[name] for name in status[:, j].tolist()]]
+    columns += [column.tolist() for column in ellipsoid.T]
+    size = 1 + 3 * values.shape[1]
+    items = []
+    for k, (row, has_k, finite_k) in enumerate(zip(zip(*columns), has.tolist(), finite.tolist())):
+        if not finite_k:
+            entry = _point_entry(points, axes, directions, has, k)
+            items.append(f"{row[0]}: {_layout(entry, depth - 1, inner)}")
+        elif has_k:
+            items.append(templates[1] % row)
+        else:
+            items.append(templates[0] % row[:size])
+    return "{\n" + inner + f",\n{inner}".join(items) + f"\n{indent}}}"
 
 
 def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:
@@ -118,6 +172,10 @@ def _timings(result: Adjustment) -> dict:
 
 
 def results_dict(project: Project, result: Adjustment) -> dict:
+    return _results_tree(project, result, _points(project, result))
+
+
+def _results_tree(project: Project, result: Adjustment, points) -> dict:
     """Everything of results.json as plain Python (no NaN: null instead).
 
     Keys of FORMATS.md (converged, sigma0, redundancy, iterations, cameras, images, points;
@@ -169,7 +227,7 @@ def results_dict(project: Project, result: Adjustment) -> dict:
         "cameras": {cid: _entries(table, 0) for cid, table in cameras.items()},
         "images": {iid: _entries(images, k) for k, iid in enumerate(images.ids)},
         "image_cameras": {iid: project.spec.images[iid].camera for iid in images.ids},
-        "points": _points(project, result),
+        "points": points,
         "image_residuals": _nulls(residual_summaries(image_residuals(project, result))),
         "observation_groups": _nulls(group_summaries(project, result)),
         "correlations": _correlations(project, result),
@@ -186,6 +244,8 @@ def results_dict(project: Project, result: Adjustment) -> dict:
 def _layout(value, depth: int, indent: str = "") -> str:
     """JSON text of `value`: dicts and lists indented by two spaces down to `depth` levels,
     each deeper value on one line (json's C encoder, fast for thousands of points)."""
+    if isinstance(value, _Deferred):
+        return value.render(depth, indent)
     if depth == 0 or not isinstance(value, dict | list) or not value:
         return json.dumps(value, allow_nan=False)
     inner = indent + "  "
@@ -201,4 +261,6 @@ def _layout(value, depth: int, indent: str = "") -> str:
 def results_json(project: Project, result: Adjustment) -> str:
     """results.json as text (strict JSON: raises if a NaN slipped through); indented to the
     entries of each point, image, camera and iteration, these on one line each."""
-    return _layout(results_dict(project, result), 3) + "\n"
+    points = _Deferred(lambda depth, indent: _points_text(project, result, depth, indent))
+    with shared_tables():
+        return _layout(_results_tree(project, result, points), 3) + "\n"

@@ -51,6 +51,42 @@ def table(header: list[str], rows: list[list[str]], align: str, *, prefix: str =
     return [prefix + line(header), *("  " + line(row) for row in rows)]
 
 
+def column_table(
+    header: list[str], texts: list[list[str]], numbers: np.ndarray, decimals: list[int],
+    tail: list[list[str]] = (), *, prefix: str = "  ",
+) -> list[str]:
+    """`table` of many rows, the same lines: left-aligned text columns `texts` (lists of n
+    str), then `numbers` (n, m) right aligned with `decimals[j]` decimals ("nan" where not
+    finite, as `fixed`), then left-aligned text columns `tail`. One `%` per row."""
+    numbers = np.asarray(numbers, dtype=float).reshape(-1, len(decimals))
+    numbers = np.where(np.isfinite(numbers), numbers, np.nan)
+    n_text = len(texts)
+    widths = [max(map(len, [name, *column])) for name, column in zip(header, texts)]
+    widths += [
+        max(len(name), _printed_width(numbers[:, j], d))
+        for j, (name, d) in enumerate(zip(header[n_text:], decimals))
+    ]
+    widths += [max(map(len, [name, *column])) for name, column in zip(header[-len(tail):], tail)]
+    cells = [f"%-{w}s" for w in widths[:n_text]]
+    cells += [f"%{w}.{d}f" for w, d in zip(widths[n_text:], decimals)]
+    cells += [f"%-{w}s" for w in widths[n_text + len(decimals):]]
+    row_format = "  " + "  ".join(cells)
+    columns = [*texts, *(column.tolist() for column in numbers.T), *tail]
+    rows = map(str.rstrip, map(row_format.__mod__, zip(*columns)))
+    sides = ["l"] * n_text + ["r"] * len(decimals) + ["l"] * len(tail)
+    head = "  ".join(c.ljust(w) if side == "l" else c.rjust(w)
+                     for c, w, side in zip(header, widths, sides))
+    return [prefix + head.rstrip(), *rows]
+
+
+def _printed_width(values: np.ndarray, decimals: int) -> int:
+    """Characters of the widest of `values` as `fixed` prints them ("nan" if not finite; the
+    widest finite one is the smallest or the largest), 0 for no values."""
+    finite = values[np.isfinite(values)]
+    widths = [len(f"{v:.{decimals}f}") for v in (finite.min(), finite.max())] if finite.size else []
+    return max(widths + [3] * (finite.size < values.size), default=0)
+
+
 def decimals_for(stds: np.ndarray, *, digits: int = 2, low: int = 3, high: int = 12) -> int:
     """Decimals that show the smallest positive σ with `digits` significant digits."""
     positive = np.asarray(stds, dtype=float)
@@ -200,47 +236,41 @@ def _reliability_section(project: Project, result: Adjustment) -> list[str]:
 def _ellipsoid_section(project: Project, result: Adjustment) -> list[str]:
     axes, _, has = point_ellipsoids(project, result)
     decimals = decimals_for(axes[has], low=4)
-    rows = [
-        [pid, *(fixed(a, decimals) for a in axes[k])]
-        for k, pid in enumerate(project.point_ids) if has[k]
-    ]
+    ids = np.asarray(project.point_ids, dtype=object)[has].tolist()
     return [
         "Error ellipsoids of object points (1 sigma semi-axes, largest first, object units;"
         " points with free coordinates)",
-        *table(["point", "a1", "a2", "a3"], rows, "lrrr"),
+        *column_table(["point", "a1", "a2", "a3"], [ids], axes[has], [decimals] * 3),
     ]
 
 
-def _parameter_rows(table_: ParameterTable, decimals: list[int]) -> list[list[str]]:
-    rows = []
-    for k, pid in enumerate(table_.ids):
-        values = [fixed(table_.values[k, j], d) for j, d in enumerate(decimals)]
-        stds = [fixed(table_.stds[k, j], d) for j, d in enumerate(decimals)]
-        status = "".join(STATUS_CODE[s] for s in table_.status[k])
-        rows.append([pid, *values, *stds, status])
-    return rows
+def _parameter_table(header: list[str], texts: list[list[str]], table_: ParameterTable,
+                     decimals: list[int]) -> list[str]:
+    """Lines of a parameter table: the text columns, values, σ, status codes."""
+    status = np.asarray(table_.status, dtype=object).reshape(len(table_.ids), len(table_.names))
+    codes = np.vectorize(STATUS_CODE.__getitem__, otypes=[object])(status)
+    status = ["".join(row) for row in codes.tolist()]
+    numbers = np.column_stack([table_.values, table_.stds]) if len(table_.ids) else np.zeros(0)
+    return column_table(header, [list(table_.ids), *texts], numbers, decimals * 2, [status])
 
 
 def _image_section(project: Project, images: ParameterTable) -> list[str]:
     positions = decimals_for(images.stds[:, :3], low=4)
     angles = decimals_for(images.stds[:, 3:], low=4)
-    rows = _parameter_rows(images, [positions] * 3 + [angles] * 3)
-    for row, iid in zip(rows, images.ids):
-        row.insert(1, project.spec.images[iid].camera)
+    cameras = [project.spec.images[iid].camera for iid in images.ids]
     header = ["image", "camera", *images.names, *(f"s{n}" for n in images.names), "status"]
     return [
         "Exterior orientation (X0 Y0 Z0 in object units; omega phi kappa in decimal degrees)",
-        *table(header, rows, "ll" + "r" * 12 + "l"),
+        *_parameter_table(header, [cameras], images, [positions] * 3 + [angles] * 3),
     ]
 
 
 def _point_section(points: ParameterTable) -> list[str]:
     decimals = decimals_for(points.stds, low=4)
-    rows = _parameter_rows(points, [decimals] * 3)
     header = ["point", *points.names, *(f"s{n}" for n in points.names), "status"]
     return [
         "Object points (object units)",
-        *table(header, rows, "l" + "r" * 6 + "l"),
+        *_parameter_table(header, [], points, [decimals] * 3),
     ]
 
 

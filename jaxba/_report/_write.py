@@ -3,8 +3,10 @@
 import pathlib
 
 from .._adjustment import Adjustment
+from .._gc import paused_gc
 from .._project._build import Project
 from ._atomic import replace_files
+from ._collect import shared_tables
 from ._csv import observations_csv
 from ._json import results_json
 from ._paths import check_outputs
@@ -21,13 +23,16 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
     as they were. Returns the paths.
     """
     paths = check_outputs(project.spec, out_dir)
-    texts = {
-        paths["out"]: out_text(project, result),
-        paths["res"]: res_text(project, result),
-        paths["sigma"]: sigma_text(project, result),
-        paths["json"]: results_json(project, result),
-        paths["observations"]: observations_csv(project, result),
-    }
+    # The residuals, statistics and point tables gathered once; the collector paused while
+    # hundreds of thousands of rows are formatted (none of them in a cycle).
+    with shared_tables(), paused_gc():
+        texts = {
+            paths["out"]: out_text(project, result),
+            paths["res"]: res_text(project, result),
+            paths["sigma"]: sigma_text(project, result),
+            paths["json"]: results_json(project, result),
+            paths["observations"]: observations_csv(project, result),
+        }
     pathlib.Path(out_dir).mkdir(parents=True, exist_ok=True)
     replace_files(texts)
     return list(paths.values())

@@ -91,10 +91,6 @@ class BundleStructure(eqx.Module):
       eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
       (`_pairs.block_rows`; padding: observation n_image_obs, block n_key_pairs);
       `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
-    - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
-      (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
-      points, for the point cofactors (padding: observation n_image_obs / local point
-      points_per_chunk / point n_eliminated);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
     - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
@@ -112,9 +108,6 @@ class BundleStructure(eqx.Module):
     pair_second: Int[Array, "n_pair_chunks rows row_size"]
     pair_block: Int[Array, "n_pair_chunks rows"]
     key_pairs: Int[Array, "n_key_pairs 2"]
-    chunk_obs: Int[Array, "n_chunks max_obs"]
-    chunk_local: Int[Array, "n_chunks max_obs"]
-    chunk_points: Int[Array, "n_chunks points_per_chunk"]
     reduced_points: Int[Array, " n_reduced_points"]
     eliminated_points: Int[Array, " n_eliminated"]
     point_column: Int[Array, " n_points"]
@@ -126,25 +119,22 @@ class BundleStructure(eqx.Module):
     n_reduced: int = eqx.field(static=True)
     m: int = eqx.field(static=True)
     point_width: int = eqx.field(static=True)
-    points_per_chunk: int = eqx.field(static=True)
     jacobian_batch: int = eqx.field(static=True)
 
 
 def bundle_structure(
     problem: BundleProblem,
     *,
-    chunk_mib: float = 64.0,
     jacobian_batch: int = 4096,
     pair_batch: int = 4096,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
 
-    `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
-    doubles) in the point cofactors; `jacobian_batch` is the number of image observations
-    differentiated at once, `pair_batch` the number of observation pairs multiplied at
-    once in S. The split depends on `problem.free` (`iop_columns`): rebuild it when the
-    free mask changes. Raises `ValueError` for observation groups other than
-    ImagePoints, ParameterObservations and Distances.
+    `jacobian_batch` is the number of image observations differentiated at once,
+    `pair_batch` the number of observation pairs multiplied at once in S and in the
+    cofactors (`_observation_cofactors`). The split depends on `problem.free`
+    (`iop_columns`): rebuild it when the free mask changes. Raises `ValueError` for
+    observation groups other than ImagePoints, ParameterObservations and Distances.
     """
     initial = problem.initial
     models = tuple(sorted(initial.cameras))
@@ -211,22 +201,6 @@ def bundle_structure(
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
 
-    points_per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
-    n_chunks = max(1, -(-n_eliminated // points_per_chunk))
-    order = np.argsort(point_rows[:n_obs], kind="stable")
-    chunk_of = point_rows[order] // points_per_chunk
-    keep = point_rows[order] < n_eliminated
-    order, chunk_of = order[keep], chunk_of[keep]
-    counts = np.bincount(chunk_of, minlength=n_chunks)
-    max_obs = max(1, int(counts.max(initial=0)))
-    chunk_obs = np.full((n_chunks, max_obs), n_obs, dtype=np.int64)
-    chunk_local = np.full((n_chunks, max_obs), points_per_chunk, dtype=np.int64)
-    rank = np.arange(order.size) - (np.cumsum(counts) - counts)[chunk_of]
-    chunk_obs[chunk_of, rank] = order
-    chunk_local[chunk_of, rank] = point_rows[order] - chunk_of * points_per_chunk
-    chunk_points = np.arange(n_chunks * points_per_chunk).reshape(n_chunks, points_per_chunk)
-    chunk_points = np.minimum(chunk_points, n_eliminated)
-
     return BundleStructure(
         image_columns=jnp.asarray(columns),
         image_point=jnp.asarray(point_rows),
@@ -238,9 +212,6 @@ def bundle_structure(
         pair_second=jnp.asarray(pairs[1]),
         pair_block=jnp.asarray(pairs[2]),
         key_pairs=jnp.asarray(key_pairs),
-        chunk_obs=jnp.asarray(chunk_obs),
-        chunk_local=jnp.asarray(chunk_local),
-        chunk_points=jnp.asarray(chunk_points),
         reduced_points=jnp.asarray(reduced_points),
         eliminated_points=jnp.asarray(eliminated_points),
         point_column=jnp.asarray(point_column),
@@ -252,7 +223,6 @@ def bundle_structure(
         n_reduced=int(n_reduced),
         m=int(m),
         point_width=point_width,
-        points_per_chunk=points_per_chunk,
         jacobian_batch=int(jacobian_batch),
     )
 
@@ -873,7 +843,8 @@ class BundleCofactors(eqx.Module):
     - `reduced`: (n_r, n_r) = S⁻¹, the full cofactor block of the reduced side (IOPs, EOPs,
       distance points; `BundleStructure` column order), rows/columns of fixed unknowns 0;
     - `points`: (n_points, 3, 3) the 3 x 3 cofactor block of every object point (reduced
-      ones copied from `reduced`), V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ for eliminated ones;
+      ones copied from `reduced`), V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ for eliminated ones
+      (`_observation_cofactors`);
     - `sigma0_squared`: σ0² eᵀe / (n_observations - n_unknowns);
     - `std`: Parameters of σ = sqrt(σ̂0²/σ0² diag Q) (Cxx = σ̂0² N⁻¹, N = σ0² JᵀJ), 0 for
       fixed unknowns (as `Precision.std`).
@@ -896,8 +867,9 @@ def schur_cofactors(
 
     With N = JᵀJ split as [[U, W], [Wᵀ, V]] (points eliminated), N⁻¹'s reduced block is S⁻¹,
     S = U - W V⁻¹ Wᵀ (n_r x n_r, inverted by Cholesky), and the 3 x 3 diagonal block of
-    eliminated point p is V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ (Y_p = W's rows of point p), built
-    a chunk of points at a time (Triggs et al. 2000, section 6.1). Same numbers as the dense
+    eliminated point p is V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ (Y_p = W's rows of point p), summed
+    over the pairs of observations of each point (Triggs et al. 2000, section 6.1;
+    `_observation_cofactors`). Same numbers as the dense
     `jaxba.precision` (σ̂0² = σ0² eᵀe / r) for bundles with a datum; not for free networks.
     """
     if structure is None:
@@ -951,45 +923,64 @@ def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:
     return cofactor, jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
 
 
-def _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk) -> tuple[Array, Array]:
-    """For a chunk of eliminated points: G = S⁻¹ Y_p V_p⁻¹ (n_r + 1, points, 3), so that
-    the reduced/point cofactor block is -G, and the points' 3 x 3 cofactor blocks
-    V_p⁻¹ + V_p⁻¹ Y_pᵀ G (points, 3, 3)."""
-    n_r, n_points = structure.n_reduced, structure.points_per_chunk
-    obs, local, points = chunk
-    _, t = _chunk_coupling(structure, normal, inverse, obs, local, points)
-    t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
-    g = (jnp.pad(cofactor, ((0, 1), (0, 1))) @ t_flat).reshape(n_r + 1, n_points, 3)
-    return g, inverse[points] + jnp.einsum("pci,cpk->pik", t, g)
+def _observation_cofactors(
+    structure: BundleStructure, normal: BundleNormalEquations, cofactor: Array, inverse: Array
+) -> tuple[Float[Array, "n_obs1 3 k"], Float[Array, "n_e1 3 3"]]:
+    """The cofactor blocks between the reduced side and the eliminated points that the
+    statistics need, pair-wise over the observations of each point, without the dense
+    n_r x 3 blocks G_p = S⁻¹ Y_p V_p⁻¹ (O(n_points n_r²) work).
+
+    With t_i = W_i V_p⁻¹ (k x 3; k = m - point_width, the columns W_i can be nonzero in),
+    Y_p V_p⁻¹ = Σ_{j∈p} t_j at the columns c_j of observation j, so G_p's rows at the
+    columns c_i of observation i are g_i = Σ_{j∈p} S⁻¹[c_i, c_j] t_j, and the point's
+    3 x 3 block is V_p⁻¹ + V_p⁻¹ Y_pᵀ S⁻¹ Y_p V_p⁻¹ = V_p⁻¹ + Σ_{i∈p} t_iᵀ g_i. The pairs
+    (i, j) are S's (`structure.pair_first`, ...: key_i >= key_j, in rows of one key pair,
+    whose S⁻¹ block is gathered once per key pair). `cofactor`: S⁻¹ (n_r, n_r); `inverse`:
+    V⁻¹ padded (n_e + 1, 3, 3). Returns g_iᵀ (n_obs1, 3, k) and the eliminated points' 3 x 3
+    cofactor blocks (n_e + 1, 3, 3; last: padding)."""
+    k = structure.m - structure.point_width
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+    first = structure.key_columns[structure.key_pairs[:, 0], :k]
+    second = structure.key_columns[structure.key_pairs[:, 1], :k]
+    blocks = padded[first[:, :, None], second[:, None, :]]  # S⁻¹[c_i, c_j] per key pair
+    t = _matmul(inverse[structure.image_point], normal.coupling[:, :, :k])  # t_iᵀ (n, 3, k)
+
+    def accumulate(total, chunk):
+        first, second, block = chunk  # (rows, row_size), (rows, row_size), (rows,)
+        q = blocks.at[block].get(mode="fill", fill_value=0.0)[:, None]  # (rows, 1, k, k)
+        t_first, t_second = t[first], t[second]  # (rows, row_size, 3, k)
+        # g_iᵀ += t_jᵀ S⁻¹[c_j, c_i], and for i != j also g_jᵀ += t_iᵀ S⁻¹[c_i, c_j].
+        to_first = sum(t_second[..., a, None] * q[:, :, None, :, a] for a in range(k))
+        to_second = sum(t_first[..., a, None] * q[:, :, None, a, :] for a in range(k))
+        to_second = jnp.where((first != second)[:, :, None, None], to_second, 0.0)
+        total = total.at[first].add(to_first).at[second].add(to_second)
+        return total, None
+
+    g, _ = jax.lax.scan(accumulate, jnp.zeros_like(t),
+                        (structure.pair_first, structure.pair_second, structure.pair_block))
+    n_e1 = inverse.shape[0]
+    points = inverse + jax.ops.segment_sum(
+        _matmul(t, g.transpose(0, 2, 1)), structure.image_point, n_e1)
+    return g, points
 
 
 def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
     """The 3 x 3 cofactor block of every object point (n_points, 3, 3), 0 where fixed, from
-    S⁻¹ and the eliminated points' blocks per chunk (n_chunks, points_per_chunk, 3, 3: the
-    second output of `_chunk_point_cofactors` over `structure`'s chunks)."""
+    S⁻¹ and the eliminated points' blocks (n_e + 1, 3, 3: `_observation_cofactors`)."""
     n_e = structure.eliminated_points.shape[0]
     points = jnp.zeros((problem.initial.points.shape[0], 3, 3), cofactor.dtype)
-    points = points.at[structure.eliminated_points].set(eliminated.reshape(-1, 3, 3)[:n_e])
+    points = points.at[structure.eliminated_points].set(eliminated[:n_e])
     index = structure.point_column[structure.reduced_points][:, None] + jnp.arange(3)
     points = points.at[structure.reduced_points].set(cofactor[index[:, :, None], index[:, None, :]])
     free = problem.free.points.astype(cofactor.dtype)
     return points * free[:, :, None] * free[:, None, :]
 
 
-def _point_chunks(structure: BundleStructure) -> tuple[Array, Array, Array]:
-    """The chunks of eliminated points scanned over: (observations, local point, point)."""
-    return structure.chunk_obs, structure.chunk_local, structure.chunk_points
-
-
 @eqx.filter_jit
 def _schur_cofactors(problem, structure, params, sigma0, redundancy):
     normal = bundle_normal_equations(problem, structure, params)
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
-
-    def chunk_blocks(_, chunk):
-        return None, _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)[1]
-
-    _, eliminated = jax.lax.scan(chunk_blocks, None, _point_chunks(structure))
+    _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
     points = _point_cofactors(problem, structure, cofactor, eliminated)
     residuals = problem.residuals(problem.with_free(params))
     sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy

@@ -9,7 +9,8 @@ eliminated point p),
 
 Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
 observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
-3 x 3 cofactor block, both built a chunk of points at a time as in `schur_cofactors`. Direct
+3 x 3 cofactor block; a needs only G_p's rows at its own columns, which, as Q_pp, are sums
+over the pairs of observations of the point (`_bundle._observation_cofactors`). Direct
 observations of unknowns (control, GNSS/INS, IOP priors) need one diagonal cofactor each;
 distances the 6 x 6 block of their two (reduced) points.
 """
@@ -26,12 +27,11 @@ from .._problem import BundleProblem, observation_mask
 from ._bundle import (
     BundleStructure,
     _block_columns,
-    _chunk_point_cofactors,
     _distance_columns,
     _distance_jacobians,
     _free_masks,
     _image_blocks,
-    _point_chunks,
+    _observation_cofactors,
     _point_cofactors,
     _reduced_cofactor,
     bundle_normal_equations,
@@ -87,7 +87,7 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
 
 def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:
     """j N⁻¹ jᵀ (n_image_obs, 2) of the image observations (see the module docstring), and
-    the eliminated points' 3 x 3 cofactor blocks per chunk that it needs on the way."""
+    the eliminated points' 3 x 3 cofactor blocks (n_e + 1, 3, 3) that it needs on the way."""
     padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
     per_key = padded[structure.key_columns[:, :, None], structure.key_columns[:, None, :]]
 
@@ -97,18 +97,14 @@ def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Arra
     # One observation's m x m block at a time, vmapped over batches: never all at once.
     leverage = jax.lax.map(lambda x: reduced_part(*x), (jr, structure.key),
                            batch_size=structure.jacobian_batch)
-
-    def chunk_leverages(total, chunk):
-        obs, local, _ = chunk
-        g, point_blocks = _chunk_point_cofactors(structure, normal, cofactor, inverse, chunk)
-        g_obs = g[structure.image_columns[obs], local[:, None], :]  # (max_obs, m, 3)
-        a, b = jr[obs], je[obs]
-        part = (jnp.einsum("nka,nab,nkb->nk", b, point_blocks[local], b)
-                - 2.0 * jnp.einsum("nka,nab,nkb->nk", a, g_obs, b))
-        return total.at[obs].add(part), point_blocks
-
-    leverage, eliminated = jax.lax.scan(chunk_leverages, leverage, _point_chunks(structure))
-    return leverage[:-1], eliminated
+    g, point_blocks = _observation_cofactors(structure, normal, cofactor, inverse)
+    k = g.shape[-1]
+    # a G_p[c_i] bᵀ per residual entry: (a g_i) is (2, 3), dotted with b row by row.
+    a_g = sum(jr[:, :, a, None] * g[:, None, :, a] for a in range(k))
+    b_q = sum(je[:, :, c, None] * point_blocks[structure.image_point][:, None, c, :]
+              for c in range(3))
+    leverage = leverage + jnp.sum((b_q - 2.0 * a_g) * je, axis=2)
+    return leverage[:-1], point_blocks
 
 
 def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Array, "n k"]:
