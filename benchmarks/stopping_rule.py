@@ -34,10 +34,10 @@ from jaxba._schur._bundle import (  # noqa: E402
     bundle_normal_equations,
     bundle_residuals,
     bundle_structure,
-    schur_cofactors,
     solve_bundle_damped,
     solve_schur,
 )
+from jaxba._schur._precision import schur_cofactors  # noqa: E402
 from jaxba._steps import _init, _NoAux, _step  # noqa: E402
 
 ZHANG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "zhang" / "zhang.toml"

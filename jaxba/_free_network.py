@@ -38,7 +38,8 @@ from ._linearisation import column_norms
 from ._observations import AbstractObservationGroup
 from ._parameters import Parameters, flatten, unflatten
 from ._problem import BundleProblem, free_indices
-from ._schur._bundle import BundleStructure, bundle_structure, schur_precision, schur_solve
+from ._schur._bundle import BundleStructure, bundle_structure, schur_solve
+from ._schur._precision import schur_precision
 from ._schur._reliability import schur_redundancy_numbers
 from ._statistics import Precision, SchurCovariance
 

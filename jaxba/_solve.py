@@ -21,9 +21,10 @@ from ._free_network import (
 from ._parameters import parameter_labels
 from ._problem import BundleProblem, free_indices, observed_minus_computed
 from ._progress import Iteration, StepRecorder
-from ._schur._bundle import bundle_structure, schur_precision, solve_schur
+from ._schur._bundle import bundle_structure, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
+from ._schur._precision import schur_precision
 from ._statistics import Precision, precision, precision_from_covariance
 from ._timing import Timings
 

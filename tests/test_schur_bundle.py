@@ -24,11 +24,11 @@ from jaxba._schur._bundle import (
     bundle_normal_equations,
     bundle_predicted_reduction,
     bundle_structure,
-    schur_cofactors,
     solve_bundle_damped,
     solve_schur,
 )
 from jaxba._schur._normal import marquardt_diagonal
+from jaxba._schur._precision import schur_cofactors
 from jaxba._schur._reliability import schur_redundancy_numbers
 from jaxba._trust_region import STEP_TOLERANCE
 

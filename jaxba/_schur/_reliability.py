@@ -10,7 +10,7 @@ eliminated point p),
 Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
 observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
 3 x 3 cofactor block; a needs only G_p's rows at its own columns, which, as Q_pp, are sums
-over the pairs of observations of the point (`_bundle._observation_cofactors`). Direct
+over the pairs of observations of the point (`_precision._observation_cofactors`). Direct
 observations of unknowns (control, GNSS/INS, IOP priors) need one diagonal cofactor each;
 distances the 6 x 6 block of their two (reduced) points.
 """
@@ -31,12 +31,10 @@ from ._bundle import (
     _distance_jacobians,
     _free_masks,
     _image_blocks,
-    _observation_cofactors,
-    _point_cofactors,
-    _reduced_cofactor,
     bundle_normal_equations,
     bundle_structure,
 )
+from ._precision import _observation_cofactors, _point_cofactors, _reduced_cofactor
 
 
 def schur_redundancy_numbers(
