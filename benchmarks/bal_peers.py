@@ -3,7 +3,7 @@
     python benchmarks/bal_peers.py scipy PROBLEM      # scipy least_squares, sparse Jacobian
     python benchmarks/bal_peers.py optx PROBLEM       # stock optx.LevenbergMarquardt (dense)
 
-Both minimise BAL's ½ Σ |residual|² (jaxba._bal's model) from the file's start, stop on a
+Both minimise BAL's ½ Σ |residual|² (jaxba._io._bal's model) from the file's start, stop on a
 relative cost change below 1e-6 as Ceres' function tolerance does (scipy: ftol; optx:
 rtol = atol = 1e-6 on its Cauchy test), and print one JSON line (final cost, iterations,
 solve and compile seconds, peak RSS). scipy's `least_squares(method="trf", tr_solver="lsmr",
@@ -28,9 +28,9 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxba._bal._reader import read_bal  # noqa: E402
-from jaxba._camera import NoRefraction  # noqa: E402
-from jaxba._observations import collinearity_residual  # noqa: E402
+from jaxba._io._bal._reader import read_bal  # noqa: E402
+from jaxba._models._cameras import NoRefraction  # noqa: E402
+from jaxba._problem._observations import collinearity_residual  # noqa: E402
 
 FUNCTION_TOLERANCE = 1e-6
 

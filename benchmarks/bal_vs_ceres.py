@@ -4,7 +4,7 @@
 
 Builds benchmarks/ceres_bal.cc with g++ (needs Ceres 2.x headers and library, e.g.
 `apt-get install -y libceres-dev`), decompresses each problem to a temporary folder, runs
-Ceres (SPARSE_SCHUR and DENSE_SCHUR, the given thread counts), `jaxba._bal.run_bal` and the
+Ceres (SPARSE_SCHUR and DENSE_SCHUR, the given thread counts), `jaxba._io._bal.run_bal` and the
 Python peers of `bal_peers.py` (`--peers`: scipy least_squares with a sparse Jacobian, stock
 optx.LevenbergMarquardt where its dense Jacobian fits), each in a fresh process with
 OPENBLAS_NUM_THREADS=1, and prints a Markdown table. Default problems: the BAL files of
@@ -30,7 +30,7 @@ JAXBA_RUN = """
 import json, sys
 import jax
 jax.config.update("jax_enable_x64", True)
-from jaxba._bal._cli import run_bal
+from jaxba._cli._bal import run_bal
 results = run_bal(sys.argv[1], sys.argv[2], on_iteration=None)
 print(json.dumps(results))
 """

@@ -4,7 +4,7 @@ N replicates of Zhang's calibration (5 images x 256 corners of a planar target, 
 camera; configs/zhang): the image points are recomputed from the adjusted solution of the real
 data (the "truth"), the truth's fx, fy, cx, cy varied by N(0, 5 px) per replicate and Gaussian
 noise of `--noise` px added. jaxba solves all N in one compiled call
-(`jaxba._batch.solve_batch`: the Levenberg-Marquardt of `solve`, vmapped over chunks of
+(`jaxba._adjust._batch.solve_batch`: the Levenberg-Marquardt of `solve`, vmapped over chunks of
 `--chunk` replicates, the chunks one after the other) from the project's approximations
 (Zhang's closed form, rounded intrinsics); OpenCV calibrates each replicate in a loop from its
 own initialisation (CALIB_FIX_K3 | CALIB_ZERO_TANGENT_DIST: fx, fy, cx, cy, k1, k2 and the
@@ -30,8 +30,8 @@ import numpy as np  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 import jaxba  # noqa: E402
-from jaxba._batch import solve_batch  # noqa: E402
-from jaxba._observations import collinearity_residual  # noqa: E402
+from jaxba._adjust._batch import solve_batch  # noqa: E402
+from jaxba._problem._observations import collinearity_residual  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

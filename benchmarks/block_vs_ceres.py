@@ -47,7 +47,7 @@ SHAPES = {  # name -> (blocks.py shape, free datum)
 }
 LINEAR_SOLVERS = ("SPARSE_SCHUR", "DENSE_SCHUR")
 PHASES = ("read", "build", "datum check", "solve", "statistics", "reports")
-CLI = "import sys; from jaxba._cli import main; sys.exit(main())"
+CLI = "import sys; from jaxba._cli._main import main; sys.exit(main())"
 
 
 # --- jaxba's pipeline, phase by phase (run in a child: `--child phases`) -----------------
@@ -110,9 +110,9 @@ def export_problem(project_file: pathlib.Path, path: pathlib.Path) -> None:
 
     jax.config.update("jax_enable_x64", True)
     import jaxba
-    from jaxba._camera import NoRefraction
-    from jaxba._free_network import InnerConstraints
-    from jaxba._observations import Distances, ImagePoints
+    from jaxba._models._cameras import NoRefraction
+    from jaxba._problem._observations import Distances, ImagePoints
+    from jaxba._statistics._free_network import InnerConstraints
 
     problem = jaxba.build_project(jaxba.read_project(project_file)).problem
     if list(problem.initial.cameras) != ["smac"] or problem.robust is not None:

@@ -4,7 +4,7 @@
     python benchmarks/blocks.py free-network DIR [--seed N]
 
 Two shapes, both with one SMAC camera (mm, BASC lab format 6000 x 4000 px of 3.69 µm) in front
-of the target wall of `jaxba._synthetic` (4 x 3 m with boxes), measurement noise 0.25 px:
+of the target wall of `jaxba._io._synthetic` (4 x 3 m with boxes), measurement noise 0.25 px:
 
 - close-range: 60 convergent, rolled images; 26,200 tie points, each measured in 2 + Poisson(1.45)
   of the images that see it (3.45 on average, like matched features), ~181,000 image coordinates,
@@ -26,7 +26,7 @@ import pathlib
 
 import numpy as np
 
-from jaxba._synthetic import (
+from jaxba._io._synthetic import (
     DEFAULT_CAMERA,
     PIXEL_SIZE,
     SENSOR,
@@ -86,7 +86,7 @@ def visible(points, stations, matrices, iop) -> list[dict[int, np.ndarray]]:
     """Noise-free measurements per image: for each image, point index -> (x, y) mm.
 
     `points` (n, 3) m, `stations` (m, 3) m, `matrices` (m, 3, 3); only points in front of the
-    camera and inside the sensor (`jaxba._synthetic.observe`, given only the points whose ideal
+    camera and inside the sensor (`jaxba._io._synthetic.observe`, given only the points whose ideal
     image lies within 1.2 x the format: far outside it the distortion has no inverse).
     """
     half = np.array(SENSOR) / 2 * np.array(PIXEL_SIZE)

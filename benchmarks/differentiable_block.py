@@ -1,4 +1,4 @@
-"""`jaxba._differentiable.adjusted` on the close-range block of `blocks.py` (Schur backend).
+"""`jaxba.adjusted` on the close-range block of `blocks.py` (Schur backend).
 
     python benchmarks/differentiable_block.py [PROJECT.toml] [--repeat 2] [--check]
 
@@ -33,14 +33,14 @@ import lineax as lx  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxba  # noqa: E402
-from jaxba._differentiable import adjusted  # noqa: E402
-from jaxba._schur._adjoint import (  # noqa: E402
+from jaxba._solvers._schur._adjoint import (  # noqa: E402
     HESSIAN_TAGS,
     SchurPreconditionedCG,
     _optimality,
     gauss_newton_factor,
 )
-from jaxba._schur._bundle import bundle_structure  # noqa: E402
+from jaxba._solvers._schur._bundle import bundle_structure  # noqa: E402
+from jaxba._statistics._differentiable import adjusted  # noqa: E402
 
 OBS_STEP = 1e-3  # mm, central-difference step of one image coordinate (~0.3 σ)
 

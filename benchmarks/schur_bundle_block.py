@@ -28,11 +28,11 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxba._camera import CAMERA_MODELS  # noqa: E402
-from jaxba._observations import Distances, ImagePoints, ParameterObservations  # noqa: E402
-from jaxba._parameters import Parameters  # noqa: E402
-from jaxba._problem import BundleProblem  # noqa: E402
-from jaxba._rotation import opk_to_matrix  # noqa: E402
+from jaxba._models._cameras import CAMERA_MODELS  # noqa: E402
+from jaxba._models._rotation import opk_to_matrix  # noqa: E402
+from jaxba._problem._bundle import BundleProblem  # noqa: E402
+from jaxba._problem._observations import Distances, ImagePoints, ParameterObservations  # noqa: E402
+from jaxba._problem._parameters import Parameters  # noqa: E402
 
 IOP = np.array([0.01, -0.02, 35.0, 0.0, -2.0e-5, 1.0e-9, 0.0, 2.0e-6, -1.0e-6, 0.0, 0.0, 0.0])
 FREE_IOP = np.array([1, 1, 1, 0, 1, 1, 0, 1, 1, 0, 0, 0], dtype=bool)
@@ -115,8 +115,8 @@ def synthetic_block(
 
 
 def main() -> None:
-    from jaxba._schur._bundle import _solve_schur, bundle_structure
-    from jaxba._trust_region import STEP_TOLERANCE
+    from jaxba._solvers._schur._bundle import _solve_schur, bundle_structure
+    from jaxba._solvers._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=200)

@@ -1,4 +1,4 @@
-"""The statistical stopping rule (`jaxba._trust_region`) measured on block A and on Zhang.
+"""The statistical stopping rule (`jaxba._solvers._trust_region`) measured on block A and on Zhang.
 
     python benchmarks/stopping_rule.py [--tolerances 1e-3 1e-4 1e-5 1e-6]
 
@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 from blocks import write_block  # noqa: E402
 
 import jaxba  # noqa: E402
-from jaxba._schur._bundle import (  # noqa: E402
+from jaxba._solvers._schur._bundle import (  # noqa: E402
     _make_schur_solver,
     _reduced_vector,
     bundle_normal_equations,
@@ -37,8 +37,8 @@ from jaxba._schur._bundle import (  # noqa: E402
     solve_bundle_damped,
     solve_schur,
 )
-from jaxba._schur._precision import schur_cofactors  # noqa: E402
-from jaxba._steps import _init, _NoAux, _step  # noqa: E402
+from jaxba._solvers._steps import _init, _NoAux, _step  # noqa: E402
+from jaxba._statistics._schur_precision import schur_cofactors  # noqa: E402
 
 ZHANG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "zhang" / "zhang.toml"
 

@@ -1,8 +1,9 @@
 """Regenerate the bundled example project `configs/lab/`.
 
-A synthetic replica of the BASC self-calibration lab (`jaxba.write_synthetic_project`, seed 2018, defaults):
-18 convergent and rolled images of an 80-target 3D field, datum of six fixed coordinates of three
-targets, scale from four measured distances. Run from anywhere: `python configs/make_lab.py`.
+A synthetic replica of the BASC self-calibration lab (`jaxba.write_synthetic_project`, seed
+2018, defaults): 18 convergent and rolled images of an 80-target 3D field, datum of six fixed
+coordinates of three targets, scale from four measured distances. Run from anywhere:
+`python configs/make_lab.py`.
 """
 
 import pathlib

@@ -1,5 +1,5 @@
 """`python -m jaxba ...`: the `jaxba` command line."""
 
-from ._cli import entry
+from ._cli._main import entry
 
 entry()

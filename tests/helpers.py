@@ -7,8 +7,8 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 import jaxba
-from jaxba._observations import ParameterObservations
-from jaxba._problem import free_indices, observation_mask, params_from_free
+from jaxba._problem._bundle import free_indices, observation_mask, params_from_free
+from jaxba._problem._observations import ParameterObservations
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions

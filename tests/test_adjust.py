@@ -1,4 +1,4 @@
-"""End-to-end adjustment of independent synthetic blocks (jaxba._synthetic, NumPy model)."""
+"""End-to-end adjustment of independent synthetic blocks (jaxba._io._synthetic, NumPy model)."""
 
 import math
 
@@ -9,7 +9,7 @@ import pytest
 from helpers import SYNTHETIC_BLOCK
 
 import jaxba
-from jaxba._schur._datum import check_datum_schur
+from jaxba._statistics._schur_datum import check_datum_schur
 
 # A result is "recovered" when it is within this many of its reported σ of the truth.
 RECOVERY_SIGMAS = 4.0

@@ -14,8 +14,8 @@ from scipy.spatial.transform import Rotation
 import jaxba
 from jaxba._approximations._relative_orientation import _coplanarity
 from jaxba._approximations._resection import collinearity
-from jaxba._camera import SmacCamera
-from jaxba._pose import OpkPose
+from jaxba._models._cameras import SmacCamera
+from jaxba._models._poses import OpkPose
 
 EXACT_TOL = 1e-9  # relative: noise-free recovery (float64 closed forms + a few LM steps)
 IMAGE_TOL = 1e-10  # mm: noise-free image residuals / reprojection by jaxba's model

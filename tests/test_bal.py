@@ -13,11 +13,11 @@ from helpers import FD_RTOL, assert_jacobian_matches_fd
 from scipy.spatial.transform import Rotation
 
 import jaxba
-from jaxba._bal import BalFormatError, bal_bundle, read_bal
-from jaxba._bal._cli import run_bal
-from jaxba._camera import NoRefraction
-from jaxba._datum import similarity_transform
-from jaxba._pose import rotate_point
+from jaxba._cli._bal import run_bal
+from jaxba._io._bal import BalFormatError, bal_bundle, read_bal
+from jaxba._models._cameras import NoRefraction
+from jaxba._models._poses import rotate_point
+from jaxba._statistics._datum import similarity_transform
 
 DATA = pathlib.Path(__file__).parent / "data" / "bal"
 TOY = DATA / "dubrovnik-3-7-pre.txt"

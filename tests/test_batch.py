@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._batch import adjust_batch, pad_problems
-from jaxba._batch_run import run_batch
-from jaxba._cli import main
-from jaxba._montecarlo import bootstrap, monte_carlo
+from jaxba._adjust._batch import adjust_batch, pad_problems
+from jaxba._adjust._montecarlo import bootstrap, monte_carlo
+from jaxba._cli._main import main
+from jaxba._io._project._batch_run import run_batch
 
 BATCH_RTOL = 1e-8  # issue 6: each batch result equals the single adjustment to 1e-8 relative
 SIZES = ((6, 20), (8, 26), (7, 30))  # (images, targets): three shapes padded to one

@@ -1,4 +1,5 @@
-"""Tests of `jaxba._camera` and `collinearity_residual` (CONVENTIONS.md, finite differences)."""
+"""Tests of `jaxba._models._cameras` and `collinearity_residual` (conventions, finite
+differences)."""
 
 import functools
 

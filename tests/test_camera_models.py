@@ -9,7 +9,7 @@ import pytest
 from helpers import FD_ATOL, FD_RTOL, FORMULA_RTOL, assert_jacobian_matches_fd
 
 import jaxba
-from jaxba._synthetic import look_at, opk_from_rotation
+from jaxba._io._synthetic import look_at, opk_from_rotation
 
 BalCamera = jaxba.CAMERA_MODELS["bal"]
 FisheyeCamera = jaxba.CAMERA_MODELS["fisheye"]
@@ -264,7 +264,7 @@ def test_new_models_refuse_a_mm_project_and_refraction(tmp_path, model):
 
 def test_parameter_name_table_matches_the_models():
     """The jax-free name table that project files are checked against is the models' own."""
-    from jaxba._camera import CAMERA_MODELS, CAMERA_PARAMETER_NAMES
+    from jaxba._models._cameras import CAMERA_MODELS, CAMERA_PARAMETER_NAMES
 
     assert {name: model.parameter_names for name, model in CAMERA_MODELS.items()} == (
         CAMERA_PARAMETER_NAMES)

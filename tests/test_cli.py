@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._cli import main
+from jaxba._cli._main import main
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
 OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
@@ -337,7 +337,7 @@ def test_bad_input_is_reported_before_jax_is_loaded(tmp_path, command):
         (tmp_path / "bad.txt").write_text("2 3 4\n0 0 1.0\n")
         argv = ["bal", str(tmp_path / "bad.txt"), "--out", str(tmp_path / "out")]
         named = "bad.txt"
-    script = ("import sys; from jaxba._cli import main; code = main(sys.argv[1:]);"
+    script = ("import sys; from jaxba._cli._main import main; code = main(sys.argv[1:]);"
               " print(code, 'jax' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True,
                           text=True, timeout=60)

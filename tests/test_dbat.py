@@ -14,7 +14,6 @@ import pytest
 from helpers import FD_ATOL, FD_RTOL, FORMULA_RTOL, assert_jacobian_matches_fd
 
 import jaxba
-from jaxba._camera import PhotoModelerCamera
 from jaxba._io import write_dbat_project
 from jaxba._io._dbat import (
     jaxba_pixels,
@@ -22,6 +21,7 @@ from jaxba._io._dbat import (
     read_control_points,
     read_mark_points,
 )
+from jaxba._models._cameras import PhotoModelerCamera
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "dbat_camcal"

@@ -11,10 +11,15 @@ import numpy as np
 import pytest
 
 import jaxba
-import jaxba._schur._choice
-from jaxba._differentiable import adjusted, choose_backend, iop_trace_gradient, sensitivity
-from jaxba._observations import ParameterObservations
-from jaxba._schur._bundle import bundle_structure
+import jaxba._solvers._schur._choice
+from jaxba._problem._observations import ParameterObservations
+from jaxba._solvers._schur._bundle import bundle_structure
+from jaxba._statistics._differentiable import (
+    adjusted,
+    choose_backend,
+    iop_trace_gradient,
+    sensitivity,
+)
 
 GRAD_RTOL = 1e-5  # issue 6: d IOP / d observation against central differences, relative
 OBS_STEP = 1e-3  # mm (≈ σ): truncation ~1e-7; smaller steps drown in the re-solves' tolerance
@@ -72,9 +77,9 @@ def test_network_design_gradient(block):
         assert float(grad[image, axis]) == pytest.approx(fd, rel=1e-4, abs=1e-6 * float(value))
 
 
-# The Schur backend's adjoint (jaxba._schur._adjoint) against the dense one and against central
-# differences, on a block both can solve: 10 images, 80 targets, 5 free IOPs, the lab datum (6
-# fixed coordinates, the distances' scale) and weighted control on 3 points.
+# The Schur backend's adjoint (jaxba._solvers._schur._adjoint) against the dense one and against
+# central differences, on a block both can solve: 10 images, 80 targets, 5 free IOPs, the lab
+# datum (6 fixed coordinates, the distances' scale) and weighted control on 3 points.
 BACKEND_RTOL = 1e-8  # Schur vs dense gradient, relative to each block's largest entry
 CONTROL_STEP = 1e-4  # m (≈ 0.1 σ of the control), central-difference step of a control value
 SCHUR_CHECKED = ((0, 0), (33, 1), (400, 0))  # (observation, coordinate)
@@ -206,7 +211,7 @@ def test_backend_choice(small_block, monkeypatch):
     """"auto" chooses as `adjust` does where the problem's values are concrete, the dense path
     (which batches) where they are traced."""
     assert choose_backend(small_block) == "dense"  # 299 unknowns
-    monkeypatch.setattr(jaxba._schur._choice, "SCHUR_MIN_UNKNOWNS", 100)
+    monkeypatch.setattr(jaxba._solvers._schur._choice, "SCHUR_MIN_UNKNOWNS", 100)
     assert choose_backend(small_block) == "schur"
     assert choose_backend(small_block, "dense") == "dense"
     chosen = []

@@ -24,14 +24,14 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._cli import EXIT_INTERNAL, EXIT_INTERRUPTED, main
+from jaxba._cli._main import EXIT_INTERNAL, EXIT_INTERRUPTED, main
 from jaxba._report import OutputError, output_lock, replace_files
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAB = ROOT / "configs" / "lab"
 REPORTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
 # Reports the command-line run and prints whether jax was loaded.
-RUN_AND_SAY_JAX = ("import sys; from jaxba._cli import main; code = main(sys.argv[1:]);"
+RUN_AND_SAY_JAX = ("import sys; from jaxba._cli._main import main; code = main(sys.argv[1:]);"
                    " print(code, 'jax' in sys.modules)")
 
 
@@ -232,7 +232,7 @@ def _fail_with(exception):
 
 
 def test_internal_error_is_one_line_exit_3(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr("jaxba._cli._adjust", _fail_with(TypeError("bad thing\nmore detail")))
+    monkeypatch.setattr("jaxba._cli._main._adjust", _fail_with(TypeError("bad thing\nmore detail")))
     code, _, err = _run("adjust", tmp_path / "p.toml", capsys=capsys)
     assert code == EXIT_INTERNAL == 3
     assert err.startswith("jaxba: internal error: TypeError: bad thing. This is a bug")
@@ -242,7 +242,7 @@ def test_internal_error_is_one_line_exit_3(monkeypatch, capsys, tmp_path):
 
 
 def test_interrupt_is_exit_130_without_traceback(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr("jaxba._cli._batch", _fail_with(KeyboardInterrupt()))
+    monkeypatch.setattr("jaxba._cli._main._batch", _fail_with(KeyboardInterrupt()))
     code, _, err = _run("batch", tmp_path / "p.toml", "--out", tmp_path, capsys=capsys)
     assert code == EXIT_INTERRUPTED == 130
     assert err == "jaxba: interrupted\n"

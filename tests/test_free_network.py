@@ -5,9 +5,13 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._datum import similarity_transform
-from jaxba._free_network import free_network_precision, inner_constraint_group, to_inner_datum
-from jaxba._reliability import redundancy_numbers
+from jaxba._statistics._datum import similarity_transform
+from jaxba._statistics._free_network import (
+    free_network_precision,
+    inner_constraint_group,
+    to_inner_datum,
+)
+from jaxba._statistics._reliability import redundancy_numbers
 
 GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
 

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._observations import ImagePoints
-from jaxba._synthetic import (
+from jaxba._io._synthetic import (
     IOP_NAMES,
     datum_targets,
     distance_pairs,
     make_stations,
     make_targets,
 )
+from jaxba._problem._observations import ImagePoints
 
 ANGLE = 1e-12
 

@@ -15,8 +15,8 @@ from helpers import jacfwd_jacobian, with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
-from jaxba._linearisation import dense_jacobian, normal_equations
-from jaxba._problem import free_indices
+from jaxba._problem._bundle import free_indices
+from jaxba._problem._linearisation import dense_jacobian, normal_equations
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 NORMAL_RTOL = 1e-10  # in units of the columns' norms: the same float64 sums in another order

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._problem import free_indices
-from jaxba._statistics import Precision
+from jaxba._problem._bundle import free_indices
+from jaxba._statistics._covariance import Precision
 
 matplotlib = pytest.importorskip("matplotlib")
 matplotlib.use("Agg")

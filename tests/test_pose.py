@@ -1,4 +1,4 @@
-"""Pose models (`jaxba._pose`): the camera-frame point, M and X0 against CONVENTIONS.md's
+"""Pose models (`jaxba._models._poses`): the camera-frame point, M and X0 against CONVENTIONS.md's
 formulas, the conversions by round trip, and the rows' linearised frames against
 differentiating the pose itself."""
 
@@ -12,8 +12,8 @@ from helpers import ANGLE_TOL, ROTATION_TOL
 from scipy.spatial.transform import Rotation
 
 import jaxba
-from jaxba._bal import bal_bundle, read_bal
-from jaxba._pose import POSE_MODELS, MatrixPose, OpkPose, RodriguesPose, image_frames
+from jaxba._io._bal import bal_bundle, read_bal
+from jaxba._models._poses import POSE_MODELS, MatrixPose, OpkPose, RodriguesPose, image_frames
 
 POINT_RTOL = 1e-14  # camera-frame points of unit-sized scenes, two float64 formulas
 DERIVATIVE_RTOL = 1e-13  # row_frame's derivative vs the pose's own, unit-sized values

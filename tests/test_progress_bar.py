@@ -1,6 +1,6 @@
 """`jaxba batch`'s progress bar: only the plain lines off a terminal, a bar when asked."""
 
-from jaxba._progress_bar import project_progress
+from jaxba._cli._progress_bar import project_progress
 
 
 def _report(bar):

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._parameters import Parameters, flatten, unflatten
-from jaxba._problem import free_indices
+from jaxba._problem._bundle import free_indices
+from jaxba._problem._parameters import Parameters, flatten, unflatten
 from jaxba._report import (
     OutputError,
     observations_csv,
@@ -28,7 +28,7 @@ from jaxba._report import (
     sigma_text,
     write_reports,
 )
-from jaxba._statistics import Precision
+from jaxba._statistics._covariance import Precision
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 LAB = CONFIGS / "lab"

@@ -1,4 +1,4 @@
-"""Tests of `jaxba._rotation` against CONVENTIONS.md, hand values and scipy's Rotation."""
+"""Tests of `jaxba._models._rotation` against CONVENTIONS.md, hand values and scipy's Rotation."""
 
 import math
 

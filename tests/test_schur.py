@@ -17,13 +17,13 @@ import optimistix as optx
 import pytest
 from helpers import jacfwd_jacobian
 
-from jaxba._bal import BalProblem, bal_bundle
-from jaxba._camera import BalCamera
-from jaxba._cholesky import cholesky_solve
-from jaxba._parameters import flatten
-from jaxba._pose import RodriguesPose
-from jaxba._problem import free_indices, params_from_free
-from jaxba._schur._bundle import (
+from jaxba._io._bal import BalProblem, bal_bundle
+from jaxba._models._cameras import BalCamera
+from jaxba._models._poses import RodriguesPose
+from jaxba._problem._bundle import free_indices, params_from_free
+from jaxba._problem._parameters import flatten
+from jaxba._solvers._cholesky import cholesky_solve
+from jaxba._solvers._schur._bundle import (
     _to_parameters,
     bundle_normal_equations,
     bundle_predicted_reduction,
@@ -31,8 +31,8 @@ from jaxba._schur._bundle import (
     solve_bundle_damped,
     solve_schur,
 )
-from jaxba._schur._normal import marquardt_diagonal
-from jaxba._schur._pairs import same_point_pairs
+from jaxba._solvers._schur._normal import marquardt_diagonal
+from jaxba._solvers._schur._pairs import same_point_pairs
 
 N_CAMERAS, N_POINTS = 5, 60
 NOISE_PX = 0.5

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
-from jaxba._statistics import SchurCovariance
+from jaxba._solvers._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
+from jaxba._statistics._covariance import SchurCovariance
 
 SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ apart
 PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ

@@ -1,4 +1,4 @@
-"""Schur-complement solve of photogrammetric bundles (`jaxba._schur._bundle`) against the
+"""Schur-complement solve of photogrammetric bundles (`jaxba._solvers._schur._bundle`) against the
 dense path: one damped step against the dense normal equations, the full solve against
 `jaxba.solve`, on synthetic self-calibration blocks (distances, GNSS/INS, control, fixed
 IOPs, robust loss)."""
@@ -15,11 +15,10 @@ from helpers import jacfwd_jacobian, with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
-from jaxba._observations import AbstractObservationGroup
-from jaxba._parameters import flatten
-from jaxba._problem import free_indices
-from jaxba._reliability import redundancy_numbers
-from jaxba._schur._bundle import (
+from jaxba._problem._bundle import free_indices
+from jaxba._problem._observations import AbstractObservationGroup
+from jaxba._problem._parameters import flatten
+from jaxba._solvers._schur._bundle import (
     _to_parameters,
     bundle_normal_equations,
     bundle_predicted_reduction,
@@ -27,10 +26,11 @@ from jaxba._schur._bundle import (
     solve_bundle_damped,
     solve_schur,
 )
-from jaxba._schur._normal import marquardt_diagonal
-from jaxba._schur._precision import schur_cofactors
-from jaxba._schur._reliability import schur_redundancy_numbers
-from jaxba._trust_region import STEP_TOLERANCE
+from jaxba._solvers._schur._normal import marquardt_diagonal
+from jaxba._solvers._trust_region import STEP_TOLERANCE
+from jaxba._statistics._reliability import redundancy_numbers
+from jaxba._statistics._schur_precision import schur_cofactors
+from jaxba._statistics._schur_reliability import schur_redundancy_numbers
 
 COVARIANCE_RTOL = 1e-7  # σ and point 3x3 covariances, Schur vs dense precision
 STEP_RTOL = 1e-9  # one damped step, Schur vs dense normal equations (float64)
@@ -142,7 +142,7 @@ def test_solve_schur_matches_dense_solve(block, variant):
 
 
 def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block):
-    from jaxba._progress import StepRecorder
+    from jaxba._solvers._progress import StepRecorder
 
     recorder = StepRecorder(redundancy=100)
     stepwise = solve_schur(block, on_step=recorder)
@@ -203,7 +203,7 @@ def test_synthetic_nadir_block_reaches_sigma0_one():
 def test_run_bal_with_and_without_progress_agree(tmp_path):
     """With progress the BAL solve runs step by step, without it as one program: same
     iterations and cost."""
-    from jaxba._bal._cli import run_bal
+    from jaxba._cli._bal import run_bal
 
     toy = pathlib.Path(__file__).parent / "data" / "bal" / "dubrovnik-3-7-pre.txt"
     quiet = run_bal(toy, tmp_path / "quiet", on_iteration=None)

@@ -1,4 +1,4 @@
-"""The pair-wise reduced camera matrix of photogrammetric bundles (`jaxba._schur._bundle`)
+"""The pair-wise reduced camera matrix of photogrammetric bundles (`jaxba._solvers._schur._bundle`)
 against the dense normal equations: S = N_rr - N_re N_ee⁻¹ N_er, and one damped step when
 the cameras of one model free different IOPs."""
 
@@ -9,9 +9,9 @@ import pytest
 from helpers import jacfwd_jacobian
 
 import jaxba
-from jaxba._parameters import flatten, unflatten
-from jaxba._problem import free_indices
-from jaxba._schur._bundle import (
+from jaxba._problem._bundle import free_indices
+from jaxba._problem._parameters import flatten, unflatten
+from jaxba._solvers._schur._bundle import (
     _reduced_positions,
     _schur_complement,
     _small_inverse,
@@ -20,7 +20,7 @@ from jaxba._schur._bundle import (
     bundle_structure,
     solve_bundle_damped,
 )
-from jaxba._schur._normal import marquardt_diagonal
+from jaxba._solvers._schur._normal import marquardt_diagonal
 
 RTOL = 1e-9  # Schur blocks vs dense normal equations (float64)
 

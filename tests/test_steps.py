@@ -9,8 +9,8 @@ import pytest
 from test_trust_region import DenseDescent, rosenbrock
 
 import jaxba
-from jaxba._steps import StepInfo, _step, least_squares_stepwise
-from jaxba._trust_region import LevenbergMarquardt
+from jaxba._solvers._steps import StepInfo, _step, least_squares_stepwise
+from jaxba._solvers._trust_region import LevenbergMarquardt
 
 
 def _rosenbrock(y, args):

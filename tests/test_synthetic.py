@@ -1,4 +1,4 @@
-"""Tests of the pure-NumPy synthetic block generator `jaxba._synthetic` (no jax)."""
+"""Tests of the pure-NumPy synthetic block generator `jaxba._io._synthetic` (no jax)."""
 
 import math
 import tomllib

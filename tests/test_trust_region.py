@@ -1,5 +1,5 @@
-"""jaxba's trust-region loop (`jaxba._trust_region.LevenbergMarquardt`) on toy problems, with
-a dense Gauss-Newton descent: convergence, each stopping rule, non-finite starts, and a
+"""jaxba's trust-region loop (`jaxba._solvers._trust_region.LevenbergMarquardt`) on toy problems,
+with a dense Gauss-Newton descent: convergence, each stopping rule, non-finite starts, and a
 descent whose steps never help (the radius must collapse in a few steps)."""
 
 from collections.abc import Callable
@@ -11,7 +11,7 @@ import numpy as np
 import optimistix as optx
 import pytest
 
-from jaxba._trust_region import (
+from jaxba._solvers._trust_region import (
     GAUSS_NEWTON_REGION,
     MIN_RADIUS,
     STEP_TOLERANCE,

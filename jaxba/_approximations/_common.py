@@ -2,7 +2,7 @@
 Hartley normalisation, the nearest rotation and a small Levenberg-Marquardt.
 
 The closed-form tools are plain NumPy in float64 (they run once, before any adjustment, on
-small arrays). Rotations are jaxba's own (`jaxba._rotation`, CONVENTIONS.md), so that every
+small arrays). Rotations are jaxba's own (`jaxba._models._rotation`, CONVENTIONS.md), so that every
 orientation found here is exactly the one jaxba's projection uses; they are evaluated by jax,
 which must therefore compute in float64 (`require_float64`, the caller's choice).
 """
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._float64 import require_float64
-from .._rotation import matrix_to_opk, opk_to_matrix
+from .._models._rotation import matrix_to_opk, opk_to_matrix
 
 _OPK_TO_MATRIX = jax.jit(opk_to_matrix)
 _OPK_DERIVATIVES = jax.jit(jax.jacfwd(opk_to_matrix))

@@ -82,7 +82,7 @@ def write_project_camera_yaml(project, camera_id: str, path: str | os.PathLike,
                               parameters=None) -> pathlib.Path:
     """Write camera `camera_id` of a `Project` with `parameters` (default: the starting values,
     e.g. `adjust_project(project).parameters` for the adjusted ones) as OpenCV YAML."""
-    from .._camera import CAMERA_MODELS  # late: keeps importing this module free of jax
+    from .._models._cameras import CAMERA_MODELS  # late: keeps importing this module free of jax
 
     parameters = project.problem.initial if parameters is None else parameters
     if camera_id not in project.camera_rows:

@@ -18,12 +18,17 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._adjustment import Adjustment
-from .._camera import CAMERA_MODELS
-from .._observations import AbstractObservationGroup, Distances, ImagePoints, ParameterObservations
-from .._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
-from .._precision import camera_correlation, error_ellipsoids, point_covariances
-from .._project._build import Project
+from .._io._project._build import Project
+from .._models._cameras import CAMERA_MODELS
+from .._problem._observations import (
+    AbstractObservationGroup,
+    Distances,
+    ImagePoints,
+    ParameterObservations,
+)
+from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from .._statistics._adjustment import Adjustment
+from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 MM, PIXEL = "mm", "pixel"  # image units of a camera model (CAMERA_MODELS[model].image_units)

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import scipy.stats
 
-from .._adjustment import Adjustment
-from .._progress import Iteration
-from .._project._build import Project
+from .._io._project._build import Project
+from .._solvers._progress import Iteration
+from .._statistics._adjustment import Adjustment
 from .._timing import Timings
 from ._collect import FIXED, camera_tables, describe, group_statistics, observation_ids, rejections
 

@@ -13,8 +13,8 @@ import pathlib
 
 import numpy as np
 
-from .._adjustment import Adjustment
-from .._project._build import Project
+from .._io._project._build import Project
+from .._statistics._adjustment import Adjustment
 from ._collect import ScalarObservation, image_residuals, other_observations, row_tuples
 
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")

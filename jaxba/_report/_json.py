@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
-from .._adjustment import Adjustment
-from .._project._build import Project
+from .._io._project._build import Project
+from .._statistics._adjustment import Adjustment
 from ._collect import (
     ParameterTable,
     camera_correlations,

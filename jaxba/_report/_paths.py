@@ -5,7 +5,7 @@ import pathlib
 import tempfile
 from collections.abc import Iterable
 
-from .._project._spec import ProjectSpec
+from .._io._project._spec import ProjectSpec
 
 OBSERVATIONS_FILE = "observations.csv"
 

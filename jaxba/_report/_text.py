@@ -9,8 +9,8 @@ import operator
 
 import numpy as np
 
-from .._adjustment import Adjustment
-from .._project._build import Project
+from .._io._project._build import Project
+from .._statistics._adjustment import Adjustment
 from ._collect import (
     MM,
     PIXEL,

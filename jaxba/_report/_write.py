@@ -2,9 +2,9 @@
 
 import pathlib
 
-from .._adjustment import Adjustment
 from .._gc import paused_gc
-from .._project._build import Project
+from .._io._project._build import Project
+from .._statistics._adjustment import Adjustment
 from ._atomic import replace_files
 from ._collect import shared_tables
 from ._csv import observations_csv

@@ -1,0 +1,1 @@
+"""Orchestration: datum -> solve -> statistics, re-adjustments, batches, Monte Carlo."""

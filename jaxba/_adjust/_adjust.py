@@ -1,0 +1,161 @@
+"""Adjust a bundle: datum check, solve on the backend its size calls for, statistics."""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import numpy as np
+import optimistix as optx
+
+from .._float64 import require_float64
+from .._problem._bundle import BundleProblem, free_indices, observed_minus_computed
+from .._problem._parameters import parameter_labels
+from .._solvers._dense import solve
+from .._solvers._progress import Iteration, StepRecorder
+from .._solvers._schur._bundle import bundle_structure, solve_schur
+from .._solvers._schur._choice import use_schur
+from .._statistics._adjustment import Adjustment
+from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
+from .._statistics._covariance import Precision, precision, precision_from_covariance
+from .._statistics._datum import check_datum, nonfinite_start_error
+from .._statistics._free_network import (
+    free_network_precision,
+    inner_constraint_group,
+    minimal_constraints,
+    to_inner_datum,
+)
+from .._statistics._schur_datum import check_datum_schur
+from .._statistics._schur_precision import schur_precision
+from .._timing import Timings
+
+
+class NotConvergedError(RuntimeError):
+    """The adjustment stopped without meeting its convergence criteria."""
+
+
+_whitened = eqx.filter_jit(BundleProblem.whitened)
+
+
+def _stop_reason(result: optx.RESULTS, max_steps: int) -> str:
+    """Why an unconverged solve stopped, in words."""
+    if result == optx.RESULTS.nonlinear_max_steps_reached:
+        return f"the maximum number of steps ({max_steps}) was reached"
+    return optx.RESULTS[result]
+
+
+def _stalled(iterations: list[Iteration]) -> bool:
+    """Whether the cost fell by less than half over the last two accepted iterations (a
+    solve stuck far from the solution, not one merely cut short by `max_steps`)."""
+    costs = [it.cost for it in iterations]
+    return len(costs) < 3 or not costs[-1] < 0.5 * costs[-3]
+
+
+def _precision_unavailable(problem, params, sigma0, final_cost, redundancy) -> Precision:
+    """σ̂0² from the final cost; covariance and σ NaN (the normal matrix was singular)."""
+    n_free = free_indices(problem).size
+    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy if redundancy > 0 else np.nan
+    return precision_from_covariance(problem, params, np.full((n_free, n_free), np.nan),
+                                     sigma0_squared, redundancy, problem.n_observations())
+
+
+def adjust(
+    problem: BundleProblem,
+    *,
+    sigma0: float = 1.0,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    labels: list[str] | None = None,
+    on_iteration: Callable[[Iteration], None] | None = None,
+    throw: bool = False,
+    check: bool = True,
+    solver: str = "auto",
+    timings: Timings | None = None,
+) -> Adjustment:
+    """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
+
+    The datum is checked first (`DatumError` names the unobservable directions, using
+    `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
+    re-adjusting a checked bundle with new weights). `on_iteration` is called for
+    every accepted iterate. With `throw=True` a non-converged solve raises
+    `NotConvergedError`; otherwise `converged` and `message` say what happened. Where the
+    normal matrix at the solution is singular (a degenerate solution, e.g. from far-off
+    approximations) the statistics are unavailable (σ and covariance NaN) and the result
+    is marked not converged. Needs float64 (`ValueError` otherwise).
+
+    `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
+    points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
+    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" for large
+    bundles). A free network on the Schur backend is solved with a minimal datum and
+    carried over to its inner constraints (`jaxba._statistics._free_network`). The phases are timed
+    into `timings` (a new `Timings` when None), which the result holds.
+    """
+    require_float64("jaxba.adjust")
+    timings = Timings() if timings is None else timings
+    schur = use_schur(problem, solver)
+    free_network = schur and inner_constraint_group(problem) is not None
+    solved = minimal_constraints(problem, problem.initial) if free_network else problem
+    # The Schur split's structure, computed once for the datum check, solve and covariance.
+    split = {"structure": bundle_structure(solved)} if schur else {}
+    if check:
+        with timings.phase("datum check"):
+            if schur:
+                check_datum_schur(solved, labels=labels, **split)
+            else:
+                check_datum(problem, labels=labels)
+    redundancy = problem.n_observations() - problem.n_unknowns()
+    recorder = StepRecorder(redundancy, sigma0, on_iteration)
+    with timings.phase("solve"):
+        solution = (solve_schur if schur else solve)(
+            solved, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder, **split)
+        solution = jax.block_until_ready(solution)
+    params, result, steps = solution.parameters, solution.result, solution.steps
+    if free_network:
+        params = to_inner_datum(problem, params)
+    final_cost = float(solution.cost)
+    if not np.isfinite(final_cost):
+        # A trial point with a non-finite cost is rejected and the first, the approximations,
+        # always accepted: only approximations where the model is not finite get here.
+        error = nonfinite_start_error(problem, labels or parameter_labels(problem.initial))
+        if error is not None:
+            raise error
+        raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
+    converged = result == optx.RESULTS.successful
+    message = "converged" if converged else _stop_reason(result, max_steps)
+    if throw and not converged:
+        raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
+    with timings.phase("statistics"):
+        whitened = _whitened(problem, params)
+        residuals = observed_minus_computed(problem, whitened)
+        try:
+            if free_network:
+                parameter_precision = free_network_precision(
+                    problem, params, sigma0=sigma0, **split)
+            else:
+                parameter_precision = (schur_precision if schur else precision)(
+                    problem, params, sigma0=sigma0, **split)
+        except np.linalg.LinAlgError as error:
+            parameter_precision = _precision_unavailable(
+                problem, params, sigma0, final_cost, redundancy)
+            converged, message = False, (
+                f"the normal matrix at the solution is singular ({error}): no σ, no"
+                " correlations; check the approximations and which parameters are free")
+    sigma_ratio = np.sqrt(parameter_precision.sigma0_squared) / sigma0
+    if not converged and not sigma_ratio <= DIVERGED_SIGMA0 and _stalled(recorder.iterations):
+        # Stuck far from a consistent solution: name the approximations it left behind.
+        cause = divergence_cause(problem, params, parameter_precision.std, whitened,
+                                 labels or parameter_labels(problem.initial))
+        after = "" if "maximum number of steps" in message else f", after {int(steps)} steps"
+        message = f"{cause} ({message}{after}; σ̂0/σ0 = {sigma_ratio:.3g})"
+    return Adjustment(
+        problem=problem,
+        parameters=params,
+        precision=parameter_precision,
+        residuals=residuals,
+        iterations=recorder.iterations,
+        converged=bool(converged),
+        message=str(message),
+        steps=int(steps),
+        backend="schur" if schur else "dense",
+        timings=timings,
+    )

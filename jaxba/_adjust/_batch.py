@@ -1,0 +1,414 @@
+"""Many bundles in one call: pad problems to a common shape, solve them vmapped, then the
+statistics of each, also vmapped.
+
+Padding changes no result:
+
+- observation rows added to a group repeat the group's first row with σ = inf, so they are
+  whitened to exactly 0 and counted nowhere (`AbstractObservationGroup.mask`);
+- camera, image and point rows added to a block copy its first row and are fixed
+  (free = False); no real observation references them;
+- one extra point row is always added; the free-index vector of every problem is padded to
+  the longest one with the flat position of that spare point's X. The padded entries of
+  the solver vector therefore move an unreferenced coordinate: their Jacobian columns are
+  exactly 0, the damped Gauss-Newton step decouples them (JᵀJ + λI is block diagonal) and
+  they stay 0. The statistics drop them (their block of N is replaced by I), and the
+  redundancy r = n - u counts real observations and unknowns only.
+
+The solver is `solve`'s (Levenberg-Marquardt on the Jacobi-scaled unknowns, dense QR) run
+without the per-step host callback: under `jax.vmap` a `jax.debug.callback` is unrolled
+once per batch element, which would make compile time grow with the batch size.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float, Int
+
+from .._problem._bundle import (
+    BundleProblem,
+    free_indices,
+    observation_mask,
+    observed_minus_computed,
+    params_from_free,
+)
+from .._problem._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
+from .._problem._observations import AbstractObservationGroup
+from .._problem._parameters import Parameters, flatten
+from .._solvers._dense import solve
+from .._solvers._progress import Iteration
+from .._solvers._solution import Solution
+from .._statistics._adjustment import Adjustment
+from .._statistics._covariance import precision_from_covariance
+from .._statistics._datum import DatumError, check_datum_with_jacobian
+from .._statistics._reliability import reliability_from_redundancy
+
+
+@dataclasses.dataclass(frozen=True)
+class PaddedBatch:
+    """Problems padded to one shape and stacked along a leading batch axis.
+
+    - `problem`: a BundleProblem whose every array leaf has a leading axis of `n_batch`;
+    - `plan`: the stacked `LinearisationPlan`s of the padded problems; `plan.free_index`
+      (n_batch, n_free_max) the free positions in `flatten` order, padded;
+    - `problems`: the original (unpadded) problems;
+    - `n_free`, `n_observations`: per problem, real unknowns and observations.
+    """
+
+    problem: BundleProblem
+    plan: LinearisationPlan
+    problems: tuple[BundleProblem, ...]
+    n_free: np.ndarray
+    n_observations: np.ndarray
+
+    @property
+    def n_batch(self) -> int:
+        return len(self.problems)
+
+    @property
+    def free_index(self) -> Int[Array, "n_batch n_free_max"]:
+        return self.plan.free_index
+
+
+def _signature(problem: BundleProblem) -> tuple:
+    """What must agree between problems for them to share a padded shape."""
+    groups = tuple(
+        (type(g).__name__, getattr(g, "model", None), getattr(g, "block", None),
+         tuple(np.shape(g.stddev)[1:]))
+        for g in problem.groups
+    )
+    cameras = tuple((m, np.shape(b)[1]) for m, b in sorted(problem.initial.cameras.items()))
+    return groups, cameras, problem.refraction, problem.robust
+
+
+def _pad_rows(array, n: int, fill=None):
+    """Pad the leading axis of `array` to `n` rows by repeating row 0 (or with `fill`)."""
+    array = np.asarray(array)
+    extra = n - array.shape[0]
+    if extra == 0:
+        return array
+    if fill is None:
+        rows = np.repeat(array[:1], extra, axis=0)
+    else:
+        rows = np.full((extra, *array.shape[1:]), fill, dtype=array.dtype)
+    return np.concatenate([array, rows])
+
+
+def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractObservationGroup:
+    """Rows repeated from row 0 up to `n`, σ = inf on the added rows; `name` unified."""
+    n_real = np.shape(group.stddev)[0]
+    leaves = {
+        field.name: getattr(group, field.name)
+        for field in dataclasses.fields(group)
+        if not field.metadata.get("static", False) and field.name != "stddev"
+    }
+    padded = {key: jnp.asarray(_pad_rows(value, n)) for key, value in leaves.items()}
+    stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
+    stddev[n_real:] = np.inf
+    group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
+    group = eqx.tree_at(lambda g: g.stddev, group, jnp.asarray(stddev))
+    return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
+
+
+def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | None) -> Parameters:
+    def pad(leaf, like):
+        n = np.shape(like)[0]
+        if fill_free is None:
+            return jnp.asarray(_pad_rows(leaf, n))
+        return jnp.asarray(_pad_rows(leaf, n, fill=fill_free))
+
+    return jax.tree.map(pad, params, shapes)
+
+
+def pad_problems(problems) -> PaddedBatch:
+    """Pad bundles of one kind (same observation groups in the same order, same camera
+    models, refraction and robust loss) to a common shape and stack them.
+
+    Raises ValueError naming the first problem whose structure differs from the first one.
+    """
+    problems = tuple(problems)
+    if not problems:
+        raise ValueError("pad_problems: no problems")
+    reference = _signature(problems[0])
+    for k, problem in enumerate(problems):
+        if _signature(problem) != reference:
+            raise ValueError(
+                f"problem {k} has another structure than problem 0 (observation groups, camera"
+                " models, refraction or robust loss); pad only problems of one kind"
+            )
+    # Target shapes: the largest of every block, one spare point row.
+    n_cameras = {m: max(p.initial.cameras[m].shape[0] for p in problems)
+                 for m in problems[0].initial.cameras}
+    n_images = max(p.initial.images.shape[0] for p in problems)
+    n_points = max(p.initial.points.shape[0] for p in problems) + 1
+    shapes = Parameters(
+        cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
+                 for m, n in n_cameras.items()},
+        images=np.zeros((n_images, 6)),
+        points=np.zeros((n_points, 3)),
+    )
+    n_rows = [max(np.shape(p.groups[g].stddev)[0] for p in problems)
+              for g in range(len(problems[0].groups))]
+    names = [g.name for g in problems[0].groups]
+    padded, indices = [], []
+    for problem in problems:
+        initial = _pad_parameters(problem.initial, shapes, None)
+        free = _pad_parameters(problem.free, shapes, False)
+        groups = tuple(_pad_group(g, n, name) for g, n, name in zip(problem.groups, n_rows, names))
+        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust)
+        padded.append(one)
+        indices.append(free_indices(one))
+    n_free = np.array([len(i) for i in indices])
+    spare = flatten(padded[0].initial).size - 3  # X of the spare (last) point
+    free_index = np.full((len(problems), n_free.max()), spare)
+    for k, index in enumerate(indices):
+        free_index[k, : len(index)] = index
+    # One set of live slots for all: problems may free different IOPs.
+    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
+    live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
+    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+    return PaddedBatch(
+        problem=stacked,
+        plan=pad_plans([linearisation_plan(one, index, live)
+                        for one, index in zip(padded, free_index)]),
+        problems=problems,
+        n_free=n_free,
+        n_observations=np.array([p.n_observations() for p in problems]),
+    )
+
+
+@eqx.filter_jit
+def solve_batch(
+    problem: BundleProblem,
+    plan: LinearisationPlan,
+    *,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    chunk_size: int | None = None,
+) -> Solution:
+    """`solve` vmapped over a leading batch axis of `problem` and `plan` (`pad_plans`, or
+    one plan broadcast with `broadcast_plan` for problems of one structure): one
+    compilation per padded shape. Returns a Solution with a leading batch axis.
+
+    `chunk_size`: solve `chunk_size` problems at a time (vmapped), the chunks one after the
+    other (`jax.lax.map`), in one compiled call. A vmapped solve runs every problem until
+    the slowest of its chunk has converged, and its per-row arrays outgrow the CPU caches:
+    for Zhang-size calibrations (1280 rows) chunks of 10 ran ~1.3x faster than one chunk
+    of 250 (benchmarks/README.md). None: all at once.
+    """
+    return _solve_batch(problem, plan, max_steps, rtol, atol, chunk_size)
+
+
+@eqx.filter_jit
+def _solve_batch(problem, plan, max_steps, rtol, atol, chunk_size) -> Solution:
+    arrays, static = eqx.partition((problem, plan), eqx.is_array)
+
+    def one(arrays):
+        problem, plan = eqx.combine(arrays, static)
+        return solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+
+    if chunk_size is None:
+        return jax.vmap(one)(arrays)
+    return jax.lax.map(one, arrays, batch_size=chunk_size)
+
+
+def broadcast_plan(plan: LinearisationPlan, n: int) -> LinearisationPlan:
+    """`plan` repeated along a new leading batch axis of length `n`."""
+    return jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (n, *jnp.shape(leaf))), plan)
+
+
+class BatchStatistics(eqx.Module):
+    """Per problem (leading batch axis): cost ½eᵀe at the start and the solution, the
+    cofactor matrix (JᵀJ)⁻¹ of the (padded) free unknowns, the leverages diag(J(JᵀJ)⁻¹Jᵀ)
+    of every residual entry and the whitened residuals e."""
+
+    initial_cost: Float[Array, " n_batch"]
+    cofactor: Float[Array, "n_batch n_free n_free"]
+    leverage: Float[Array, "n_batch n_residuals"]
+    whitened: Float[Array, "n_batch n_residuals"]
+
+
+def _jacobian_one(problem: BundleProblem, params: Parameters, index) -> tuple:
+    """Whitened Jacobian d e / d x[index] (padded rows 0) and e at `params`."""
+    at = eqx.tree_at(lambda p: p.initial, problem, params)
+
+    def whitened(x_free):
+        values = params_from_free(at, x_free, index)
+        return jnp.concatenate([jnp.ravel(e) for e in problem.whitened(values)])
+
+    x_free = ravel_pytree(params)[0][index]
+    return jax.jacfwd(whitened)(x_free), whitened(x_free)
+
+
+@eqx.filter_jit
+def batch_jacobian(problem: BundleProblem, parameters: Parameters, free_index) -> tuple:
+    """`_jacobian_one` vmapped: (n_batch, n_residuals, n_free) and (n_batch, n_residuals)."""
+    return jax.vmap(_jacobian_one)(problem, parameters, free_index)
+
+
+def _statistics_one(problem: BundleProblem, params: Parameters, index, n_free) -> tuple:
+    jacobian, whitened = _jacobian_one(problem, params, index)
+    real = jnp.arange(index.shape[0]) < n_free
+    norms = jnp.linalg.norm(jacobian, axis=0)
+    column_scale = jnp.where(real & (norms > 0), 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
+    scaled = jacobian * column_scale
+    # Padded unknowns: their (zero) block of N replaced by I, so they drop out.
+    normal = scaled.T @ scaled + jnp.diag(jnp.where(real, 0.0, 1.0))
+    factor = jax.scipy.linalg.cho_factor(normal)
+    inverse = jax.scipy.linalg.cho_solve(factor, jnp.eye(index.shape[0]))
+    leverage = jnp.sum(scaled * (inverse @ scaled.T).T, axis=1)
+    cofactor = column_scale[:, None] * inverse * column_scale[None, :]
+    at = eqx.tree_at(lambda p: p.initial, problem, params)
+    initial = 0.5 * sum(jnp.sum(e**2) for e in at.whitened(problem.initial))
+    return initial, cofactor, leverage, whitened
+
+
+@eqx.filter_jit
+def batch_statistics(
+    problem: BundleProblem, parameters: Parameters, free_index, n_free
+) -> BatchStatistics:
+    """Dense statistics of every problem of a padded batch at `parameters`, vmapped."""
+    return BatchStatistics(*jax.vmap(_statistics_one)(problem, parameters, free_index, n_free))
+
+
+def _take(tree, k: int):
+    return jax.tree.map(lambda leaf: np.asarray(leaf[k]), tree)
+
+
+def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
+    return jax.tree.map(lambda leaf, ref: jnp.asarray(leaf[: np.shape(ref)[0]]), padded, like)
+
+
+def _unpad_residuals(padded_problem: BundleProblem, problem: BundleProblem, flat) -> list:
+    """Split a flat padded residual vector into the real rows of each group of `problem`."""
+    parts, start = [], 0
+    for padded_group, group in zip(padded_problem.groups, problem.groups):
+        shape = np.shape(padded_group.stddev)[1:]
+        size = int(np.prod(np.shape(padded_group.stddev)[1:])) * np.shape(padded_group.stddev)[0]
+        block = np.asarray(flat[start:start + size]).reshape(-1, *shape)
+        parts.append(block[: np.shape(group.stddev)[0]])
+        start += size
+    return parts
+
+
+def _real_rows(padded_problem: BundleProblem, problem: BundleProblem) -> np.ndarray:
+    """Positions in the padded flat residual vector of the real observations of `problem`
+    (the rows `dense_jacobian(problem, ...)` has, in its order)."""
+    rows, start = [], 0
+    for padded_group, group in zip(padded_problem.groups, problem.groups):
+        size = int(np.size(group.stddev))
+        rows.append(start + np.arange(size))
+        start += int(np.size(padded_group.stddev))
+    return np.concatenate(rows)[observation_mask(problem)]
+
+
+def check_datum_batch(
+    problems, *, labels: list | None = None, rtol: float = 1e-9
+) -> list[DatumError | None]:
+    """`check_datum` of every problem, with one vmapped Jacobian for all (one compilation):
+    per problem None, or the `DatumError` that `check_datum` would raise."""
+    batch = pad_problems(problems)
+    jacobian, _ = jax.device_get(
+        batch_jacobian(batch.problem, batch.problem.initial, batch.free_index)
+    )
+    labels = labels if labels is not None else [None] * batch.n_batch
+    found = []
+    for k, problem in enumerate(batch.problems):
+        padded = _take(batch.problem, k)
+        real = jacobian[k][_real_rows(padded, problem)][:, : batch.n_free[k]]
+        try:
+            check_datum_with_jacobian(problem, real, labels=labels[k], rtol=rtol)
+        except DatumError as error:
+            found.append(error)
+        else:
+            found.append(None)
+    return found
+
+
+def adjust_batch(
+    problems,
+    *,
+    sigma0: float | list[float] = 1.0,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    alpha: float | list[float] | None = None,
+    familywise: bool | list[bool] = False,
+) -> list[Adjustment]:
+    """Adjust bundles of one kind in one padded, jitted, vmapped solve; then their
+    statistics in one vmapped call.
+
+    Each returned `Adjustment` equals `adjust(problem)` of that problem alone (to rounding):
+    parameters, σ̂0² = σ0² eᵀe / r, Cxx = σ̂0² (σ0² JᵀJ)⁻¹, residuals. Its `iterations`
+    hold only the start and the solution (no per-step report inside a batch). With `alpha`
+    (one per problem or one for all) `reliability` is filled in as `reliability(result,
+    alpha=..., familywise=...)` would. No datum check: call `check_datum` first (the CLI's
+    `run_batch` does).
+    """
+    batch = pad_problems(problems)
+    n = batch.n_batch
+    sigma0s = [sigma0] * n if np.ndim(sigma0) == 0 else list(sigma0)
+    alphas = [alpha] * n if alpha is None or np.ndim(alpha) == 0 else list(alpha)
+    familywises = [familywise] * n if np.ndim(familywise) == 0 else list(familywise)
+    solution = solve_batch(batch.problem, batch.plan, max_steps=max_steps, rtol=rtol, atol=atol)
+    stats = batch_statistics(batch.problem, solution.parameters, batch.free_index,
+                             jnp.asarray(batch.n_free))
+    solution, stats = jax.device_get((solution, stats))
+    padded_problems = [_take(batch.problem, k) for k in range(n)]
+    results = []
+    for k, problem in enumerate(batch.problems):
+        results.append(_adjustment(
+            problem, padded_problems[k], _take(solution, k), _take(stats, k),
+            int(batch.n_free[k]), sigma0s[k], alphas[k], familywises[k],
+        ))
+    return results
+
+
+def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familywise):
+    params = _unpad_parameters(solution.parameters, problem.initial)
+    n_obs = problem.n_observations()
+    redundancy = n_obs - n_free
+    whitened = _unpad_residuals(padded, problem, stats.whitened)
+    final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
+    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy
+    covariance = (sigma0_squared / sigma0**2) * stats.cofactor[:n_free, :n_free]
+    prec = precision_from_covariance(problem, params, covariance, sigma0_squared, redundancy,
+                                     n_obs)
+    residuals = observed_minus_computed(problem, whitened)
+    iterations = [
+        Iteration(0, float(stats.initial_cost),
+                  sigma0**2 * 2 * float(stats.initial_cost) / max(redundancy, 1)),
+        Iteration(1, final_cost, sigma0_squared),
+    ]
+    converged = bool(solution.converged)
+    result = Adjustment(
+        problem=problem,
+        parameters=params,
+        precision=prec,
+        residuals=residuals,
+        iterations=iterations,
+        converged=converged,
+        message="converged" if converged else str(optx.RESULTS[solution.result]),
+        steps=int(solution.steps),
+    )
+    if alpha is None:
+        return result
+    leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(padded, problem,
+                                                                      stats.leverage)])
+    flat_e = np.concatenate([np.ravel(e) for e in whitened])
+    mask = observation_mask(problem)
+    r, e = 1.0 - leverage[mask], flat_e[mask]
+    return dataclasses.replace(result, reliability=reliability_from_redundancy(
+        problem, r, e, alpha=alpha, familywise=familywise
+    ))
+
+
+__all__ = [
+    "PaddedBatch", "adjust_batch", "batch_statistics", "check_datum_batch", "pad_problems",
+    "solve_batch",
+]

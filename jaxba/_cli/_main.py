@@ -1,0 +1,407 @@
+"""The `jaxba` command line: `jaxba adjust PROJECT.toml [--out DIR]`, `jaxba bal PROBLEM`.
+
+Thin: reading, adjusting and reporting live in the library and `jaxba._report`; this module
+parses arguments, sets up jax (float64, persistent compilation cache), holds the output
+folder's lock for the run, prints progress and maps outcomes to exit codes: 0 success, 1 not
+converged (reports still written), 2 bad input (or an output folder that cannot be used),
+3 internal error (a bug: one line, the traceback with --debug), 130 interrupted (Ctrl-C).
+Each subcommand is an `_add_<name>` function that registers its parser and its `run` function.
+"""
+
+import argparse
+import io
+import os
+import pathlib
+import sys
+import time
+import traceback
+from collections.abc import Sequence
+
+EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
+EXIT_CODES = (
+    "Exit codes: 0 converged, 1 not converged (reports written), 2 bad input, 3 internal"
+    " error, 130 interrupted."
+)
+CACHE_DIR = pathlib.Path("~/.cache/jaxba/jax")
+
+
+class _UsageError(Exception):
+    """Bad input from the user: printed as `jaxba: error: ...`, exit code 2."""
+
+
+def _error(message: str, kind: str = "error") -> None:
+    print(f"jaxba: {kind}: {message}", file=sys.stderr, flush=True)
+
+
+def _say(message: str = "") -> None:
+    print(message, flush=True)
+
+
+def _setup_jax() -> None:
+    """float64 (never set by the library at import), one BLAS thread, a persistent
+    compilation cache and a C heap that gives freed memory back (`jaxba._memory`).
+
+    OpenBLAS threads and XLA's own threads oversubscribe small machines (the dense QR of
+    the LM step ran 3x slower), so BLAS is limited to one thread for the run. The cache is
+    `~/.cache/jaxba/jax`, or jax's own `JAX_COMPILATION_CACHE_DIR` where that is set; best
+    effort: if its folder cannot be made or written, jax runs without it.
+    """
+    import jax
+    import threadpoolctl
+
+    from jaxba._memory import tune_allocator
+
+    tune_allocator()  # freed compiler and buffer memory back to the system, not kept
+    threadpoolctl.threadpool_limits(1, user_api="blas")
+    jax.config.update("jax_enable_x64", True)
+    try:
+        cache = pathlib.Path(os.environ.get("JAX_COMPILATION_CACHE_DIR") or CACHE_DIR)
+        cache = cache.expanduser()
+        cache.mkdir(parents=True, exist_ok=True)
+        if not os.access(cache, os.W_OK):
+            return
+        jax.config.update("jax_compilation_cache_dir", str(cache))
+        # Every program, however small: loading one is several times faster than compiling
+        # it, even for the few small eager operations of a run.
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    except (OSError, RuntimeError, ValueError):
+        pass
+
+
+# --- jaxba adjust ---------------------------------------------------------------------------
+
+
+def _add_adjust(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "adjust",
+        help="adjust a project and write its reports",
+        description=(
+            "Adjust the bundle of PROJECT.toml and write NAME.out, NAME.res, NAME.sigma and"
+            " results.json (NAME = the project name). " + EXIT_CODES
+        ),
+        parents=[_common_options()],
+    )
+    parser.add_argument("project", type=pathlib.Path, help="the project file (TOML)")
+    parser.add_argument(
+        "--out", type=pathlib.Path, default=None, metavar="DIR",
+        help="folder for the reports (default: the project file's folder)",
+    )
+    parser.add_argument(
+        "--plots", action="store_true",
+        help="also write residuals.png and correlation_<camera>.png (needs matplotlib)",
+    )
+    parser.add_argument(
+        "--solver", choices=("auto", "dense", "schur"), default=None,
+        help="dense normal equations, or object points eliminated (Schur complement); auto:"
+             " schur above 2000 unknowns (default: the project's solver setting, auto)",
+    )
+    parser.set_defaults(run=_adjust)
+
+
+def _plot_name(camera_id: str) -> str:
+    return "correlation_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in camera_id)
+
+
+def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
+    """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
+
+    Never over an input (an input's name is skipped with a warning); the files replace the
+    old ones together (`replace_files`).
+    """
+    import jaxba
+    from jaxba._report import replace_files
+
+    out_dir = pathlib.Path(out_dir)
+    inputs = {pathlib.Path(path).resolve() for path in project.spec.input_files}
+    figures = {"residuals.png": lambda: jaxba.plot_image_residuals(project, result)}
+    for cid, (model, row) in project.camera_rows.items():
+        if bool(project.problem.free.cameras[model][row].any()):
+            figures[_plot_name(cid) + ".png"] = (
+                lambda cid=cid: jaxba.plot_correlation(result, project, cid)
+            )
+    images = {}
+    for name, make in figures.items():
+        path = out_dir / name
+        if path.resolve() in inputs:
+            _error(f"--plots: {path} is an input file of the project; not written", "warning")
+            continue
+        image = io.BytesIO()
+        make().savefig(image, dpi=100, format="png")
+        images[path] = image.getvalue()
+    replace_files(images)
+    return list(images)
+
+
+def _read_checked(args: argparse.Namespace):
+    """Read the project and check the output folder, without jax: bad input is reported
+    within a fraction of a second. Returns the spec, the output folder and the seconds."""
+    from jaxba._io._project import ProjectError, read_project
+    from jaxba._report import OutputError, check_outputs
+
+    start = time.perf_counter()
+    try:
+        spec = read_project(args.project)
+        out_dir = args.out if args.out is not None else spec.path.parent
+        check_outputs(spec, out_dir)
+    except (ProjectError, OutputError) as error:
+        raise _UsageError(str(error)) from None
+    return spec, out_dir, time.perf_counter() - start
+
+
+def _plots_possible() -> bool:
+    """Whether matplotlib can be imported; warns (before the run) when it cannot."""
+    try:
+        import matplotlib  # noqa: F401
+        return True
+    except ImportError:
+        pass
+    _error("--plots: matplotlib is not installed (pip install 'jaxba[plots]'); no plots will"
+           " be written", "warning")
+    return False
+
+
+def _adjust(args: argparse.Namespace) -> int:
+    from jaxba._report import output_lock
+
+    spec, out_dir, read_seconds = _read_checked(args)
+    plots = args.plots and _plots_possible()
+    with output_lock(out_dir):
+        return _adjust_locked(args, spec, out_dir, read_seconds, plots)
+
+
+def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int:
+    start = time.perf_counter()
+    _setup_jax()
+    import jaxba
+    from jaxba import _report
+    from jaxba._timing import Phase, Timings
+
+    jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
+    timings = Timings(on_compile=lambda name: _say(f"  {name}: compiling..."))
+    timings.add(Phase("read", read_seconds, 0.0, 0, 0))
+    timings.add(Phase("start-up", time.perf_counter() - start, 0.0, 0, 0))
+    try:
+        with timings.phase("read"):
+            project = jaxba.build_project(spec)
+        _say(_report.start_line(project))
+        result = jaxba.adjust_project(
+            project, on_iteration=lambda it: _say(_report.iteration_line(it)),
+            solver=args.solver, timings=timings,
+        )
+    except (jaxba.ProjectError, jaxba.DatumError) as error:
+        raise _UsageError(str(error)) from None
+    except jaxba.NotConvergedError as error:
+        _error(f"the adjustment failed: {error}")
+        return EXIT_NOT_CONVERGED
+    try:
+        with timings.phase("reports"):
+            written = _report.write_reports(project, result, out_dir)
+            if plots:
+                written += _write_plots(project, result, out_dir)
+    except (_report.OutputError, OSError) as error:
+        raise _UsageError(str(error)) from None
+
+    for line in _report.summary_lines(project, result):
+        _say(line)
+    _say(_report.timing_line(timings))
+    _say("wrote")
+    for path in written:
+        _say(f"  {path}")
+    for line in _report.warning_lines(project, result):
+        _error(line, "warning")
+    if not result.converged:
+        said = result.message.startswith("the adjustment")
+        _error(result.message if said else f"the adjustment did not converge: {result.message}",
+               "warning")
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+# --- jaxba bal ------------------------------------------------------------------------------
+
+
+def _add_bal(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "bal",
+        help="solve a BAL problem file (Schur-complement LM) and write results.json",
+        description=(
+            "Solve a 'Bundle Adjustment in the Large' problem (plain, .bz2 or .gz) with the"
+            " Schur-complement Levenberg-Marquardt and write results.json. " + EXIT_CODES
+        ),
+        parents=[_common_options()],
+    )
+    parser.add_argument("problem", type=pathlib.Path, help="the BAL problem file")
+    parser.add_argument(
+        "--out", type=pathlib.Path, default=pathlib.Path("."), metavar="DIR",
+        help="folder for results.json (default: the current folder)",
+    )
+    parser.add_argument("--max-steps", type=int, default=100, metavar="N")
+    parser.add_argument(
+        "--no-progress", action="store_true",
+        help="no per-iteration output: the solve runs as one compiled program instead of one"
+        " compiled step at a time",
+    )
+    parser.set_defaults(run=_bal)
+
+
+def _bal(args: argparse.Namespace) -> int:
+    from jaxba._io._bal import BalFormatError, read_bal
+    from jaxba._report import check_folder, check_targets, output_lock
+
+    if args.max_steps < 1:
+        raise _UsageError(f"--max-steps {args.max_steps}: must be at least 1")
+    check_folder(args.out)
+    check_targets([args.out / "results.json"], [args.problem], "the BAL problem")
+    try:
+        bal = read_bal(args.problem)  # before jax: a bad file is reported at once
+    except (OSError, BalFormatError) as error:
+        raise _UsageError(str(error)) from None
+    residuals, unknowns = 2 * bal.n_observations, 9 * bal.n_cameras + 3 * bal.n_points
+    if residuals < unknowns:
+        raise _UsageError(
+            f"{args.problem}: under-determined: {bal.n_observations} observations give"
+            f" {residuals} residuals for {unknowns} unknowns")
+    with output_lock(args.out):
+        return _bal_locked(args, bal)
+
+
+def _bal_locked(args: argparse.Namespace, bal) -> int:
+    _setup_jax()
+    from jaxba._cli._bal import run_bal
+
+    quiet = {"on_iteration": None} if args.no_progress else {}
+    try:
+        results = run_bal(args.problem, args.out, max_steps=args.max_steps, bal=bal, **quiet)
+    except OSError as error:
+        raise _UsageError(str(error)) from None
+    _say(
+        f"final cost {results['final_cost']:.9e} after {results['iterations']} iterations"
+        f" ({results['solve_seconds']:.2f} s solve, {results['compile_seconds']:.2f} s compile);"
+        f" {args.out / 'results.json'}"
+    )
+    return EXIT_OK if results["converged"] else EXIT_NOT_CONVERGED
+
+
+# --- jaxba batch ----------------------------------------------------------------------------
+
+
+def _add_batch(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "batch",
+        help="adjust many projects in one padded, vmapped solve",
+        description=(
+            "Adjust every PROJECT.toml (projects of one kind share one compiled, vmapped solve),"
+            " write each project's reports into DIR/<project name>/ and summary.csv and"
+            " summary.json into DIR. A failing project is reported in the summary and does"
+            " not stop the others. Exit codes: 0 all converged, 1 some project failed or did"
+            " not converge, 2 bad usage (or a report would overwrite an input), 3 internal"
+            " error, 130 interrupted."
+        ),
+        parents=[_common_options()],
+    )
+    parser.add_argument("projects", type=pathlib.Path, nargs="+", metavar="PROJECT.toml")
+    parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                        help="folder for the per-project reports and the summary")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="a bar over the projects (default: only on a terminal)")
+    parser.set_defaults(run=_batch)
+
+
+def _batch(args: argparse.Namespace) -> int:
+    from jaxba._io._project._batch_read import read_batch
+    from jaxba._report import output_lock
+
+    entries = read_batch(args.projects, args.out)  # checks every report against every input
+    with output_lock(args.out):
+        _setup_jax()
+        from jaxba._cli._progress_bar import project_progress
+        from jaxba._io._project._batch_run import run_batch
+
+        with project_progress(len(args.projects), _say, bar=args.progress) as progress:
+            rows = run_batch(args.projects, args.out, progress=progress.say,
+                             advance=progress.advance, entries=entries)
+    ok = sum(row["status"] == "ok" for row in rows)
+    _say(f"{ok} of {len(rows)} projects converged")
+    return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED
+
+
+# --- entry point ----------------------------------------------------------------------------
+
+
+def _common_options() -> argparse.ArgumentParser:
+    """Options of every subcommand (also accepted before it)."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--debug", action="store_true", default=argparse.SUPPRESS,
+        help="on an internal error, print the traceback",
+    )
+    return common
+
+
+def _version() -> str:
+    from jaxba import __version__  # the package's metadata: no jax
+
+    return __version__
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxba", description="Self-calibrating photogrammetric bundle adjustment in JAX.",
+        epilog=EXIT_CODES, parents=[_common_options()],
+    )
+    parser.add_argument("--version", action="version", version=f"jaxba {_version()}")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_adjust(subparsers)
+    _add_bal(subparsers)
+    _add_batch(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code: 0 ok, 1 not converged, 2 bad input,
+    3 internal error, 130 interrupted."""
+    from jaxba._report import OutputError
+
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # --help, or a usage error already printed by argparse
+        return exit_.code if isinstance(exit_.code, int) else EXIT_BAD_INPUT
+    try:
+        return args.run(args)
+    except (_UsageError, OutputError) as error:
+        _error(str(error))
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("jaxba: interrupted", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+    except Exception as error:  # a bug: one line, the traceback only when asked for
+        if getattr(args, "debug", False):
+            traceback.print_exc()
+        lines = str(error).strip().splitlines()
+        what = type(error).__name__ + (f": {lines[0]}" if lines else "")
+        hint = "" if getattr(args, "debug", False) else "; run with --debug for the traceback"
+        _error(f"{what}. This is a bug in jaxba: please report it with the command and its"
+               f" input{hint}", "internal error")
+        return EXIT_INTERNAL
+
+
+def entry() -> None:
+    """The `jaxba` program: `main`, then exit with its code.
+
+    After Ctrl-C the process ends at once (`os._exit`), without the interpreter's clean-up:
+    an interrupt during compilation left XLA's threads running while the interpreter shut
+    down, which ended in a segmentation fault.
+    """
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    entry()

@@ -1,0 +1,73 @@
+"""`jaxba batch`, first step: read every project file and check every output, without jax.
+
+A project that cannot be read is marked failed and the others go on; a report or summary
+that would overwrite an input of any project of the batch, or an output folder that cannot
+be written, stops the whole batch before anything is computed (`OutputError`).
+"""
+
+import dataclasses
+import pathlib
+
+from ..._report._paths import check_folder, check_outputs, check_targets
+from . import ProjectError, read_project
+from ._spec import ProjectSpec
+
+
+@dataclasses.dataclass
+class BatchEntry:
+    """One project of a batch: where it came from, what happened, and its result."""
+
+    path: pathlib.Path
+    name: str
+    status: str = "pending"  # ok | not converged | failed
+    reason: str = ""
+    mode: str = ""  # batch | single
+    spec: ProjectSpec | None = None
+    project: object = None
+    result: object = None
+    out_dir: pathlib.Path | None = None
+
+
+def summary_paths(out_dir) -> dict[str, pathlib.Path]:
+    """The batch's own outputs in `out_dir`: summary.csv and summary.json."""
+    out_dir = pathlib.Path(out_dir)
+    return {"csv": out_dir / "summary.csv", "json": out_dir / "summary.json"}
+
+
+def _unique_folder(name: str, taken: set[str]) -> str:
+    folder, k = name, 2
+    while folder in taken:
+        folder, k = f"{name}_{k}", k + 1
+    taken.add(folder)
+    return folder
+
+
+def read_batch(paths, out_dir) -> list[BatchEntry]:
+    """Read the project files `paths` and give each its report folder `out_dir/<name>/`
+    (`<name>_2`, ... for repeated names).
+
+    Returns one `BatchEntry` per path, in order; one that cannot be read has status
+    "failed" and the reason. Raises `OutputError` when `out_dir` is not a writable folder,
+    or when summary.csv, summary.json or any project's report would be an input file of any
+    project of the batch (its TOML or a table it names) or a folder.
+    """
+    out_dir = pathlib.Path(out_dir)
+    check_folder(out_dir)
+    entries, taken = [], set()
+    for path in map(pathlib.Path, paths):
+        entry = BatchEntry(path=path, name=path.stem)
+        entries.append(entry)
+        try:
+            entry.spec = read_project(path)
+        except ProjectError as error:
+            entry.status, entry.reason = "failed", str(error)
+            continue
+        entry.name = entry.spec.name
+        entry.out_dir = out_dir / _unique_folder(entry.spec.name, taken)
+    inputs = [file for entry in entries
+              for file in (entry.spec.input_files if entry.spec else (entry.path,))]
+    check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
+    for entry in entries:
+        if entry.spec is not None:
+            check_outputs(entry.spec, entry.out_dir, inputs=inputs)
+    return entries

@@ -1,0 +1,225 @@
+"""Turn a validated ProjectSpec into a BundleProblem, keeping the IDs for the reports."""
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
+from ..._models._robust import RobustLoss
+from ..._problem._bundle import BundleProblem
+from ..._problem._observations import Distances, ImagePoints, ParameterObservations
+from ..._problem._parameters import Parameters, parameter_labels
+from ..._statistics._free_network import inner_constraints
+from ._errors import ProjectError
+from ._spec import ProjectSpec
+
+_ANGLE_COLUMNS = slice(3, 6)
+
+
+@dataclasses.dataclass(frozen=True)
+class Project:
+    """A project ready to adjust: the problem plus what maps its rows back to IDs.
+
+    `camera_rows[camera_id] = (model, row)`; `image_ids` and `point_ids` are the row
+    order of the image and point blocks; `labels` names every scalar unknown.
+    """
+
+    spec: ProjectSpec
+    problem: BundleProblem
+    camera_rows: dict[str, tuple[str, int]]
+    image_ids: list[str]
+    point_ids: list[str]
+    pixel_grids: dict[str, PixelGrid | None]
+    labels: list[str]
+
+
+def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
+    """File σ (None free, 0 fixed, > 0 weighted) -> (estimated?, σ of a prior or inf)."""
+    if sigma is None:
+        return True, math.inf
+    if sigma == 0:
+        return False, math.inf
+    return True, float(sigma)
+
+
+def _cameras(spec: ProjectSpec):
+    """IOP blocks per camera model, cameras used by no image left out."""
+    rows, values, free, prior_sigma = {}, {}, {}, {}
+    used = {image.camera for image in spec.images.values()}
+    for camera in (c for c in spec.cameras.values() if c.id in used):
+        names = CAMERA_MODELS[camera.model].parameter_names
+        rows[camera.id] = (camera.model, len(values.setdefault(camera.model, [])))
+        values[camera.model].append([camera.values.get(n, 0.0) for n in names])
+        free.setdefault(camera.model, []).append(
+            [n in camera.free or n in camera.sigma for n in names])
+        prior_sigma.setdefault(camera.model, []).append(
+            [camera.sigma.get(n, math.inf) for n in names])
+    priors = [
+        ParameterObservations(
+            name="camera_priors" if len(values) == 1 else f"camera_priors:{model}",
+            block=f"cameras/{model}",
+            rows=jnp.arange(len(values[model])),
+            observed=jnp.asarray(values[model], dtype=float),
+            stddev=jnp.asarray(prior_sigma[model], dtype=float),
+        )
+        for model in values
+        if np.isfinite(prior_sigma[model]).any()
+    ]
+    as_arrays = {m: jnp.asarray(v, dtype=float) for m, v in values.items()}
+    return rows, as_arrays, {m: jnp.asarray(f) for m, f in free.items()}, priors
+
+
+def _images(spec: ProjectSpec):
+    eop, free, sigma = [], [], []
+    for image in spec.images.values():
+        values = np.asarray(image.eop, dtype=float)
+        values[_ANGLE_COLUMNS] = np.radians(values[_ANGLE_COLUMNS])
+        flags = [_sigma_to_free_and_observed(s) for s in image.eop_sigma]
+        observed_sigma = np.array([s for _, s in flags])
+        observed_sigma[_ANGLE_COLUMNS] = np.radians(observed_sigma[_ANGLE_COLUMNS])
+        eop.append(values)
+        free.append([f for f, _ in flags])
+        sigma.append(observed_sigma)
+    eop, sigma = np.asarray(eop), np.asarray(sigma)
+    groups = []
+    if np.isfinite(sigma).any():
+        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
+        groups.append(ParameterObservations(
+            name="gnss_ins", block="images", rows=jnp.asarray(rows),
+            observed=jnp.asarray(eop[rows]), stddev=jnp.asarray(sigma[rows])))
+    return jnp.asarray(eop), jnp.asarray(free), groups
+
+
+def _used_points(spec: ProjectSpec) -> list[str]:
+    used = set(spec.image_points.point)
+    used.update(p for d in spec.distances for p in (d.a, d.b))
+    return [pid for pid in spec.points if pid in used]
+
+
+def _points(spec: ProjectSpec, point_ids: list[str]):
+    """Point block, free mask and control observations; a free network frees them all."""
+    rows = [spec.points[pid] for pid in point_ids]
+    xyz = np.array([point.xyz for point in rows], dtype=float).reshape(-1, 3)
+    if spec.settings.datum == "free":  # a free network frees them all
+        given = np.full(xyz.shape, np.nan)
+    else:  # the file's σ: None (NaN here) free, 0 fixed, > 0 weighted
+        given = np.array([point.sigma for point in rows], dtype=float).reshape(-1, 3)
+    free = ~(given == 0)
+    sigma = np.where(given > 0, given, np.inf)
+    groups = []
+    if np.isfinite(sigma).any():
+        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
+        groups.append(ParameterObservations(
+            name="control", block="points", rows=jnp.asarray(rows),
+            observed=jnp.asarray(xyz[rows]), stddev=jnp.asarray(sigma[rows])))
+    return jnp.asarray(xyz), jnp.asarray(free), groups
+
+
+def _pixel_grid(camera) -> PixelGrid | None:
+    if camera.pixel_size is None or camera.sensor is None:
+        return None
+    return PixelGrid(tuple(camera.pixel_size), tuple(camera.sensor))
+
+
+def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
+    """One ImagePoints group per camera, in its model's units (pixels -> mm for mm-models)."""
+    table = spec.image_points
+    camera_of = {iid: image.camera for iid, image in spec.images.items()}
+    cameras = [camera_of[iid] for iid in table.image]
+    codes = {cid: k for k, cid in enumerate(dict.fromkeys(cameras))}  # order of first use
+    camera_code = np.array([codes[cid] for cid in cameras], dtype=int)
+    image = np.array([image_index[iid] for iid in table.image], dtype=int)
+    point = np.array([point_index[pid] for pid in table.point], dtype=int)
+    groups = []
+    for camera_id, code in codes.items():
+        rows = np.flatnonzero(camera_code == code)
+        model, row = camera_rows[camera_id]
+        model_units = CAMERA_MODELS[model].image_units
+        if spec.image_units != model_units and model_units != "mm":
+            raise ProjectError(
+                f"camera {camera_id!r}: model {model!r} works in {model_units} units, but the "
+                f'project has image_units = "{spec.image_units}"'
+            )
+        xy = table.xy[rows]
+        sigma = np.where(np.isnan(table.sigma[rows]), spec.settings.image_sigma, table.sigma[rows])
+        if spec.image_units == "pixel" and model_units == "mm":
+            grid = grids[camera_id]
+            xy = np.asarray(grid.pixel_to_image(xy))
+            sigma = sigma * np.asarray(grid.pixel_size)
+        groups.append(ImagePoints(
+            name=f"image_points:{camera_id}",
+            model=model,
+            camera=jnp.full(len(rows), row),
+            image=jnp.asarray(image[rows]),
+            point=jnp.asarray(point[rows]),
+            measured=jnp.asarray(xy),
+            stddev=jnp.asarray(sigma),
+        ))
+    return groups
+
+
+def _datum_rows(spec: ProjectSpec, point_index: dict[str, int]) -> list[int] | None:
+    """Rows of the free network's datum points; None for all points."""
+    names = spec.settings.datum_points
+    unknown = [p for p in names if p not in point_index]
+    if unknown:
+        raise ProjectError(
+            f"{spec.path.name}: [adjustment] datum_points: no measured point {unknown[0]!r}"
+        )
+    return [point_index[p] for p in names] or None
+
+
+def build_project(spec: ProjectSpec) -> Project:
+    """The BundleProblem of a project, in mm (image) and object units; angles in radians."""
+    camera_rows, iop, iop_free, camera_priors = _cameras(spec)
+    image_ids = list(spec.images)
+    point_ids = _used_points(spec)
+    eop, eop_free, gnss = _images(spec)
+    xyz, xyz_free, control = _points(spec, point_ids)
+    grids = {cid: _pixel_grid(camera) for cid, camera in spec.cameras.items()}
+    image_index = {iid: k for k, iid in enumerate(image_ids)}
+    point_index = {pid: k for k, pid in enumerate(point_ids)}
+    groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids)
+    groups += control + gnss + camera_priors
+    if spec.distances:
+        groups.append(Distances(
+            name="distances",
+            a=jnp.asarray([point_index[d.a] for d in spec.distances]),
+            b=jnp.asarray([point_index[d.b] for d in spec.distances]),
+            observed=jnp.asarray([[d.distance] for d in spec.distances], dtype=float),
+            stddev=jnp.asarray([[d.sigma] for d in spec.distances], dtype=float),
+        ))
+    settings = spec.settings
+    for camera_id, (model, _) in camera_rows.items():
+        if settings.refraction and CAMERA_MODELS[model].image_units != "mm":
+            raise ProjectError(
+                f"camera {camera_id!r}: model {model!r} has no atmospheric refraction; "
+                "set refraction = false in [adjustment]"
+            )
+    refraction = (
+        AtmosphericRefraction(settings.object_unit_km, settings.height_offset)
+        if settings.refraction else NoRefraction()
+    )
+    if not settings.snooping_alpha < 1:
+        raise ProjectError(f"{spec.path.name}: [adjustment] snooping_alpha must be < 1")
+    robust = (
+        None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
+    )
+    initial = Parameters(iop, eop, xyz)
+    problem = BundleProblem(
+        initial=initial,
+        free=Parameters(iop_free, eop_free, xyz_free),
+        groups=tuple(groups),
+        refraction=refraction,
+        robust=robust,
+    )
+    camera_ids: dict[str, list[str]] = {}
+    for cid, (model, _) in camera_rows.items():
+        camera_ids.setdefault(model, []).append(cid)
+    labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
+    if settings.datum == "free":
+        problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
+    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels)
+

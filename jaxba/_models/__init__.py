@@ -1,0 +1,1 @@
+"""Models of one observation: cameras, distortion, refraction, poses, rotations, robust losses."""

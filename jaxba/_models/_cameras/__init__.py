@@ -1,0 +1,22 @@
+"""Camera, distortion and refraction models; `CAMERA_MODELS` names them for project files.
+
+`CAMERA_PARAMETER_NAMES` needs no jax; the models are imported when first used.
+"""
+
+from ..._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._abstract": ("AbstractCamera", "AbstractDistortion", "AbstractRefraction"),
+    "._affine": ("Affine",),
+    "._bal": ("BalCamera",),
+    "._decentering": ("DecenteringSmac",),
+    "._fisheye": ("FisheyeCamera",),
+    "._names": ("CAMERA_PARAMETER_NAMES",),
+    "._opencv": ("OpenCVCamera",),
+    "._photomodeler": ("PhotoModelerCamera",),
+    "._pixel": ("PixelGrid",),
+    "._radial": ("RadialSmac",),
+    "._refraction": ("AtmosphericRefraction", "NoRefraction"),
+    "._registry": ("CAMERA_MODELS",),
+    "._smac": ("SmacCamera",),
+})

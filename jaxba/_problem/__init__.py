@@ -1,0 +1,1 @@
+"""The problem: parameter blocks, observation groups and their linearisation."""

@@ -1,0 +1,112 @@
+"""A bundle-adjustment problem: parameter blocks, their fixing, and observation groups."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Bool, Float
+
+from .._models._cameras import AbstractRefraction, NoRefraction
+from .._models._robust import RobustLoss
+from ._observations import AbstractObservationGroup, ImagePoints
+from ._parameters import Parameters, flatten, where_free
+
+
+class BundleProblem(eqx.Module):
+    """Everything the solver needs; pure arrays and static structure, no file names.
+
+    - `initial`: approximations of all unknowns and the values of the fixed ones;
+    - `free`: Parameters of booleans, True where the scalar is estimated (free or
+      weighted: weighted ones are free with a prior observation in `groups`);
+    - `groups`: the observation groups (image points per camera, control, distances...);
+    - `refraction`: the atmospheric refraction model (NoRefraction for close range);
+    - `robust`: an optional robust loss applied to the image-point groups.
+
+    `pose` (a property) is the pose model that reads `images` rows; every image group of a
+    problem names the same one (checked at construction).
+    """
+
+    initial: Parameters
+    free: Parameters
+    groups: tuple[AbstractObservationGroup, ...]
+    refraction: AbstractRefraction = NoRefraction()
+    robust: RobustLoss | None = None
+
+    def __check_init__(self):
+        poses = {group.pose for group in self.groups if isinstance(group, ImagePoints)}
+        if len(poses) > 1:
+            raise ValueError(f"the image groups name different pose models {sorted(poses)}:"
+                             " one problem reads its images rows one way")
+
+    @property
+    def pose(self) -> str:
+        """The pose model (`POSE_MODELS`) of the images rows: its image groups' ("opk"
+        without image groups)."""
+        poses = [group.pose for group in self.groups if isinstance(group, ImagePoints)]
+        return poses[0] if poses else "opk"
+
+    def whitened(self, params: Parameters) -> tuple[Array, ...]:
+        """Whitened residuals e = v/σ of every group, masked entries exactly 0."""
+        return tuple(
+            jnp.where(group.mask(), group.residuals(params, self.refraction), 0.0)
+            for group in self.groups
+        )
+
+    def residuals(self, params: Parameters) -> tuple[Array, ...]:
+        """The residuals the solver minimises: whitened, robustified where a loss is set."""
+        whitened = self.whitened(params)
+        if self.robust is None:
+            return whitened
+        return tuple(
+            self.robust(e) if isinstance(group, ImagePoints) else e
+            for group, e in zip(self.groups, whitened)
+        )
+
+    def with_free(self, values: Parameters) -> Parameters:
+        """`values` on the free entries, the fixed values of `initial` elsewhere."""
+        return where_free(self.free, values, self.initial)
+
+    def n_observations(self) -> int:
+        """Number of real scalar observations over all groups."""
+        return int(sum(np.sum(np.asarray(group.mask())) for group in self.groups))
+
+    def n_unknowns(self) -> int:
+        """Number of free (estimated) scalars."""
+        return int(np.sum(flatten(self.free)))
+
+
+def observed_minus_computed(problem: BundleProblem, whitened) -> tuple[np.ndarray, ...]:
+    """Residuals v = observed - computed in each group's units from its whitened e = v/σ
+    (masked entries 0), as NumPy arrays of the groups' shapes."""
+    return tuple(
+        np.asarray(e) * np.where(np.asarray(g.mask()), np.asarray(g.sigma()), 0.0)
+        for e, g in zip(whitened, problem.groups)
+    )
+
+
+def free_indices(problem: BundleProblem) -> np.ndarray:
+    """Positions of the free scalars in `flatten(Parameters)` order."""
+    return np.flatnonzero(flatten(problem.free))
+
+
+def observation_mask(problem: BundleProblem) -> Bool[np.ndarray, " n_residuals"]:
+    """Flat mask of real observations, in the order of the raveled residuals."""
+    return np.concatenate([np.ravel(np.asarray(group.mask())) for group in problem.groups])
+
+
+def params_from_free(
+    problem: BundleProblem, x_free: Float[Array, " n_free"], index: Array
+) -> Parameters:
+    """The Parameters with the free scalars (positions `index` in `flatten` order) set to
+    `x_free` and all others at their values in `problem.initial`. Traceable."""
+    flat, unravel = ravel_pytree(problem.initial)
+    return unravel(flat.at[index].set(x_free))
+
+
+def params_from_scaled(
+    problem: BundleProblem, z: Float[Array, " n_free"], index: Array, scale: Float[Array, " n_free"]
+) -> Parameters:
+    """The Parameters at the solvers' Jacobi-scaled unknowns z: x_free = x_free,0 + scale ⊙ z
+    (x_free,0 from `problem.initial`), all other scalars as in `problem.initial`."""
+    x_free = ravel_pytree(problem.initial)[0][index]
+    return params_from_free(problem, x_free + scale * z, index)

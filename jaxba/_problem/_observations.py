@@ -1,0 +1,222 @@
+"""Observation groups: each is one per-observation residual function vmapped over the group.
+
+Residuals are whitened, e = (observed - computed) / σ, so that the solver minimises
+½ Σ e² = ½ vᵀ Σ⁻¹ v. Every group reports which residual entries are real observations
+(`mask`), so that padding entries (a coordinate with no observation) count nowhere.
+"""
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._custom_types import Vector2, Vector3
+from .._models._cameras import CAMERA_MODELS, AbstractRefraction
+from .._models._poses import POSE_MODELS, image_frames
+from ._parameters import Parameters
+
+
+class AbstractObservationGroup(eqx.Module):
+    """A set of observations of one kind.
+
+    `stddev` holds the a priori σ of every residual entry (units of the observation);
+    σ = inf marks an entry that is not an observation (an unobserved coordinate, or a
+    measurement removed as a blunder): it is whitened to 0 and counted nowhere.
+
+    A row-local group (every group here but the inner constraints) says which unknowns
+    each row depends on (`local_values`) and computes one row from them
+    (`row_residual`); `residuals` vmaps that row function and `row_jacobians`
+    differentiates it (reverse mode: k outputs, few inputs). `ImagePoints` overrides
+    both, to make each image's pose frame once rather than once per row. A group that
+    is not row-local overrides `residuals` and leaves `local_values` None.
+    """
+
+    name: eqx.AbstractVar[str]
+    stddev: eqx.AbstractVar[Float[Array, "n k"]]
+    # True for rows that fix a datum (inner constraints): counted as constraints, not
+    # as observations, by the covariance.
+    constraint: ClassVar[bool] = False
+
+    def local_values(self, params: Parameters) -> Array | None:
+        """(n, width): the values of the unknowns row i depends on, taken from `params`
+        by indexing only (so a Parameters of flat positions gives their positions).
+        None: rows may depend on any unknown."""
+        del params
+        return None
+
+    def row_residual(self, values: Array, row: Array, refraction: AbstractRefraction) -> Array:
+        """Whitened residual (k,) of row `row` from its unknowns `values` (width,)."""
+        raise NotImplementedError(f"{type(self).__name__} has no row function")
+
+    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
+        """Whitened residuals (observed - computed) / σ, shape (n, k)."""
+        values = self.local_values(params)
+        rows = jnp.arange(values.shape[0])
+        return jax.vmap(lambda v, i: self.row_residual(v, i, refraction))(values, rows)
+
+    def row_jacobians(
+        self, params: Parameters, refraction: AbstractRefraction
+    ) -> tuple[Float[Array, "n k"], Float[Array, "n k width"]]:
+        """The residuals (as `residuals`, unmasked) and d residual row / d its unknowns,
+        for every row (row-local groups only): one forward and k backward passes a row."""
+        values = self.local_values(params)
+        rows = jnp.arange(values.shape[0])
+
+        def row(v, i):
+            e = self.row_residual(v, i, refraction)
+            return e, e
+
+        jacobians, residuals = jax.vmap(jax.jacrev(row, has_aux=True))(values, rows)
+        return residuals, jacobians
+
+    def mask(self) -> Bool[Array, "n k"]:
+        """True where the residual entry is an observation."""
+        return jnp.isfinite(self.stddev)
+
+    def sigma(self) -> Float[Array, "n k"]:
+        """A priori σ of every residual entry."""
+        return self.stddev
+
+
+def collinearity_residual(
+    model: str,
+    iop: Float[Array, " n_iop"],
+    eop: Float[Array, " 6"],
+    point: Vector3,
+    measured: Vector2,
+    sigma: Vector2,
+    refraction: AbstractRefraction,
+    pose: str = "opk",
+) -> Vector2:
+    """Whitened image residual (x_obs - x, y_obs - y) / σ of one measured image point; `eop`
+    is the image's row of the pose model `pose` (`POSE_MODELS`)."""
+    return _frame_collinearity_residual(
+        model, iop, POSE_MODELS[pose].from_parameters(eop), point, measured, sigma, refraction)
+
+
+def _frame_collinearity_residual(
+    model: str,
+    iop: Float[Array, " n_iop"],
+    frame,
+    point: Vector3,
+    measured: Vector2,
+    sigma: Vector2,
+    refraction: AbstractRefraction,
+) -> Vector2:
+    """`collinearity_residual` with the image's pose given as a frame (a pose's `frame()`:
+    `to_camera`, `station`)."""
+    camera = CAMERA_MODELS[model].from_parameters(iop)
+    k = refraction.coefficient(frame.station(), point)
+    return (measured - camera.image_point(frame.to_camera(point), measured, k)) / sigma
+
+
+class ImagePoints(AbstractObservationGroup):
+    """Image coordinates of points, all taken with cameras of one model and images of one
+    pose model.
+
+    `camera`, `image`, `point` index the rows of `cameras[model]`, `images`, `points`;
+    `measured` and `stddev` are (n, 2) in the camera model's image units. `pose` names the
+    pose model (`POSE_MODELS`) that reads the `images` rows: "opk" (X0, omega, phi, kappa,
+    jaxba's project files) or "rodrigues" (BAL's r, t). It lives here, beside `model`,
+    because the group is what evaluates rows: every residual and Jacobian (the dense
+    rows, the Schur backend's blocks) reads both models from the group, and a row never
+    needs more than its group; consumers that hold only Parameters (the datum's similarity
+    transform) ask the problem (`BundleProblem.pose`), which holds one pose model for all
+    its image groups.
+    """
+
+    name: str = eqx.field(static=True)
+    model: str = eqx.field(static=True)
+    camera: Int[Array, " n"]
+    image: Int[Array, " n"]
+    point: Int[Array, " n"]
+    measured: Float[Array, "n 2"]
+    stddev: Float[Array, "n 2"]
+    pose: str = eqx.field(static=True, default="opk")
+
+    def local_values(self, params: Parameters) -> Float[Array, "n width"]:
+        """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
+        return jnp.concatenate([
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jnp.asarray(params.images)[self.image],
+            jnp.asarray(params.points)[self.point],
+        ], axis=1)
+
+    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
+        """Whitened residuals (n, 2), each image's frame (`AbstractPose.frame`) made once."""
+        frames = image_frames(POSE_MODELS[self.pose], jnp.asarray(params.images))
+        return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, None))(
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jax.tree.map(lambda x: x[self.image], frames),
+            jnp.asarray(params.points)[self.point], self.measured, self.stddev, refraction)
+
+    def row_jacobians(
+        self, params: Parameters, refraction: AbstractRefraction
+    ) -> tuple[Float[Array, "n 2"], Float[Array, "n 2 width"]]:
+        """The residuals and d residual row / d `local_values` row, in reverse mode as the
+        base class does, the image's pose through its model's `row_frame` (from
+        `row_inputs`, made once per image)."""
+        pose = POSE_MODELS[self.pose]
+        inputs = pose.row_inputs(jnp.asarray(params.images))
+
+        def row(iop, delta, point, pose_inputs, measured, sigma):
+            e = self._row_residual(iop, pose.row_frame(pose_inputs, delta), point, measured,
+                                   sigma, refraction)
+            return e, e
+
+        jacobian = jax.jacrev(row, argnums=(0, 1, 2), has_aux=True)
+        n = self.image.shape[0]
+        (d_iop, d_pose, d_point), residuals = jax.vmap(jacobian)(
+            jnp.asarray(params.cameras[self.model])[self.camera],
+            jnp.zeros((n, 6), jnp.asarray(params.images).dtype),
+            jnp.asarray(params.points)[self.point],
+            jax.tree.map(lambda x: x[self.image], inputs), self.measured, self.stddev)
+        return residuals, jnp.concatenate([d_iop, d_pose, d_point], axis=2)
+
+    def _row_residual(self, iop, frame, point, measured, sigma, refraction):
+        return _frame_collinearity_residual(
+            self.model, iop, frame, point, measured, sigma, refraction)
+
+
+class ParameterObservations(AbstractObservationGroup):
+    """Direct observations of parameters: control coordinates, GNSS/INS EOPs, IOP priors.
+
+    `rows` index the block `block` ("points", "images" or "cameras/<model>"); `observed`
+    and `stddev` have the block's width, with σ = inf where an entry is not observed.
+    """
+
+    name: str = eqx.field(static=True)
+    block: str = eqx.field(static=True)
+    rows: Int[Array, " n"]
+    observed: Float[Array, "n k"]
+    stddev: Float[Array, "n k"]
+
+    def local_values(self, params: Parameters) -> Float[Array, "n k"]:
+        """The observed block row of every row."""
+        return jnp.asarray(params.block(self.block))[self.rows]
+
+    def row_residual(self, values, row, refraction) -> Float[Array, " k"]:
+        del refraction
+        return (self.observed[row] - values) / self.stddev[row]
+
+
+class Distances(AbstractObservationGroup):
+    """Measured distances between object points `a` and `b` (object units)."""
+
+    name: str = eqx.field(static=True)
+    a: Int[Array, " n"]
+    b: Int[Array, " n"]
+    observed: Float[Array, "n 1"]
+    stddev: Float[Array, "n 1"]
+
+    def local_values(self, params: Parameters) -> Float[Array, "n 6"]:
+        """XYZ of both end points of every distance."""
+        points = jnp.asarray(params.points)
+        return jnp.concatenate([points[self.a], points[self.b]], axis=1)
+
+    def row_residual(self, values, row, refraction) -> Float[Array, " 1"]:
+        del refraction
+        computed = jnp.sqrt(jnp.sum((values[:3] - values[3:]) ** 2, keepdims=True))
+        return (self.observed[row] - computed) / self.stddev[row]

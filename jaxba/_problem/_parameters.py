@@ -1,0 +1,87 @@
+"""The unknowns of a bundle: camera (IOP), image (EOP) and object-point blocks."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._models._cameras import CAMERA_MODELS
+from .._models._poses import OpkPose
+
+IMAGE_PARAMETER_NAMES = OpkPose.parameter_names  # the images columns of project files
+POINT_PARAMETER_NAMES = ("X", "Y", "Z")
+ANGLE_NAMES = ("omega", "phi", "kappa")
+
+
+class Parameters(eqx.Module):
+    """One value per scalar unknown; the same structure also holds masks and σ.
+
+    - `cameras`: camera model name -> (n_cameras_of_model, n_model_parameters), the
+      model's `parameter_names` order, mm-based units.
+    - `images`: (n_images, 6): the pose model's parameters (`BundleProblem.pose`): X0, Y0,
+      Z0 (object units), omega, phi, kappa (radians) for "opk", r, t for "rodrigues".
+    - `points`: (n_points, 3): X, Y, Z (object units).
+    """
+
+    cameras: dict[str, Float[Array, "n_cameras n_iop"]]
+    images: Float[Array, "n_images 6"]
+    points: Float[Array, "n_points 3"]
+
+    def block(self, name: str) -> Array:
+        """The block called "images", "points" or "cameras/<model>"."""
+        if name.startswith("cameras/"):
+            return self.cameras[name.removeprefix("cameras/")]
+        return getattr(self, name)
+
+
+def where_free(free: Parameters, values: Parameters, fixed: Parameters) -> Parameters:
+    """`values` where `free` is True, else `fixed` (elementwise over the blocks)."""
+    return jax.tree.map(jnp.where, free, values, fixed)
+
+
+def flatten(tree: Parameters) -> np.ndarray:
+    """All entries of a Parameters tree as one NumPy vector (jax.tree leaf order)."""
+    return np.concatenate([np.ravel(np.asarray(leaf)) for leaf in jax.tree.leaves(tree)])
+
+
+def unflatten(like: Parameters, vector) -> Parameters:
+    """Inverse of `flatten`, shaped like `like`: NumPy leaves from a NumPy `vector` (no jax
+    operations, nothing to compile), jax arrays from a jax one (also under tracing)."""
+    numpy = isinstance(vector, np.ndarray)
+    leaves, treedef = jax.tree.flatten(like)
+    out, start = [], 0
+    for leaf in leaves:
+        size = int(np.size(leaf))
+        piece = vector[start:start + size]
+        out.append(np.reshape(piece, np.shape(leaf)) if numpy
+                   else jnp.reshape(jnp.asarray(piece), jnp.shape(leaf)))
+        start += size
+    return jax.tree.unflatten(treedef, out)
+
+
+def parameter_labels(
+    params: Parameters,
+    camera_ids: dict[str, list[str]] | None = None,
+    image_ids: list[str] | None = None,
+    point_ids: list[str] | None = None,
+) -> list[str]:
+    """A readable name for every scalar unknown, in `flatten` order.
+
+    E.g. "camera C1 c", "image img03 omega", "point 12 Z"; row numbers stand in for
+    missing IDs.
+    """
+    def ids(given, n):
+        return list(given) if given is not None else [str(i) for i in range(n)]
+
+    def block(prefix: str, row_ids: list[str], names) -> list[str]:
+        return [f"{prefix} {i} {n}" for i in row_ids for n in names]
+
+    # The blocks in `flatten` order: cameras by sorted model name, images, points.
+    labels = []
+    for model in sorted(params.cameras):
+        rows = ids((camera_ids or {}).get(model), params.cameras[model].shape[0])
+        labels += block("camera", rows, CAMERA_MODELS[model].parameter_names)
+    labels += block("image", ids(image_ids, params.images.shape[0]), IMAGE_PARAMETER_NAMES)
+    labels += block("point", ids(point_ids, params.points.shape[0]), POINT_PARAMETER_NAMES)
+    return labels

@@ -1,0 +1,823 @@
+"""Schur-complement Levenberg-Marquardt for photogrammetric bundles (`BundleProblem`).
+
+The unknowns split into a reduced ("camera") side and an eliminated point side:
+
+- reduced side, r: all IOPs of all camera models (shared by the images that use them), all
+  EOPs, and the object points touched by `Distances` (a distance couples two points, so they
+  cannot be eliminated one by one), in that order;
+- point side, e: every other object point, 3 unknowns each.
+
+Image observation i touches one IOP row, one EOP row and one point, so its Jacobian splits
+into J_r,i (2 x m: the model's free IOPs + 6 EOPs, plus 3 for a reduced-side point) and
+J_e,i (2 x 3). With U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i +
+control (3 x 3 per point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations
+reduce to
+
+    S x_r = g_r - Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p,   S = U + λD_r - Σ_p Y_pᵀ V_λ,p⁻¹ Y_p,
+
+Y_p = Σ_{i∈p} W_iᵀ (3 x n_r, the coupling of point p with the reduced side), then
+x_e,p = V_λ,p⁻¹ (g_e,p - Y_p x_r) (Triggs et al., "Bundle adjustment - a modern synthesis",
+2000, section 6.1). S is assembled pair-wise, as BAL's reduced camera matrix
+(`_normal.py`): Y_pᵀ V⁻¹ Y_p = Σ_{i,j∈p} W_i V⁻¹ W_jᵀ over the pairs of observations of
+each point, the pairs of one key pair (same reduced columns: for one camera, one pair of
+images) summed first and scattered once into the dense S. Work O(n_pairs m²) per trial step
+(n_pairs = Σ_p n_obs,p²/2), memory O(n_obs m + n_r²); U is summed per key the same way.
+
+Fixed unknowns (False in `problem.free`) get zero Jacobian columns and a unit diagonal:
+their step is exactly 0. Control points / GNSS-INS / IOP priors (`ParameterObservations`)
+add 1/σ² to the diagonal of V (eliminated points) or U (everything else).
+"""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, Int, Scalar
+
+from ..._models._poses import POSE_MODELS
+from ..._problem._bundle import BundleProblem
+from ..._problem._observations import (
+    Distances,
+    ImagePoints,
+    ParameterObservations,
+    _frame_collinearity_residual,
+)
+from ..._problem._parameters import Parameters, flatten, unflatten
+from .._cholesky import cholesky_solve
+from .._solution import Solution
+from .._steps import StepInfo, least_squares_stepwise
+from .._trust_region import (
+    STEP_TOLERANCE,
+    AbstractNormalDescent,
+    LevenbergMarquardt,
+    normal_equations_result,
+)
+from ._normal import (
+    _add_diagonal,
+    _matmul,
+    _matvec,
+    _small_inverse,
+    marquardt_diagonal,
+    pair_block_sums,
+)
+from ._pairs import block_rows, same_point_pairs
+
+# Observation pairs per row of the S assembly: a row's product is a sum of 24 broadcast
+# products, which on the CPU ran ~7 % faster than rows of 16 and ~25 % faster than 32 (BAL).
+PAIR_ROW_SIZE = 8
+
+
+class BundleStructure(eqx.Module):
+    """Index arrays of the Schur split of one `BundleProblem` (built by `bundle_structure`).
+
+    Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
+    then the reduced points); column n_reduced is a dummy that absorbs padding.
+    - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
+      (all ImagePoints groups concatenated; the last row is a padding observation): the
+      model's IOPs in `iop_columns`, the 6 EOPs, padding, and the 3 columns of a reduced
+      point (`point_width` 3 where some points are reduced, else 0: no such columns);
+    - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
+      point or the padding row;
+    - `key`, `key_columns`: observations with equal reduced columns share a key; U sums the
+      per-key blocks (n_keys, m) before one dense scatter; `key_rows` (n_key_chunks, rows,
+      PAIR_ROW_SIZE), `key_row_block` (n_key_chunks, rows): the image observations in rows
+      of one key each (`_pairs.block_rows`, padding as for the pairs below);
+    - `pair_first`, `pair_second` (n_pair_chunks, rows, PAIR_ROW_SIZE), `pair_block`
+      (n_pair_chunks, rows): the ordered pairs (i, j) of image observations of one
+      eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
+      (`_pairs.block_rows`; padding: observation n_image_obs, block n_key_pairs);
+      `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
+    - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
+      (n_points,) first reduced column of a reduced point, -1 otherwise;
+    - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
+    - `iop_columns`: per model (in `models` order), the IOPs free in some camera of it: the
+      only IOP columns an observation carries (fixed ones would be zero).
+    """
+
+    image_columns: Int[Array, "n_obs1 m"]
+    image_point: Int[Array, " n_obs1"]
+    key: Int[Array, " n_obs1"]
+    key_columns: Int[Array, "n_keys m"]
+    key_rows: Int[Array, "n_key_chunks rows row_size"]
+    key_row_block: Int[Array, "n_key_chunks rows"]
+    pair_first: Int[Array, "n_pair_chunks rows row_size"]
+    pair_second: Int[Array, "n_pair_chunks rows row_size"]
+    pair_block: Int[Array, "n_pair_chunks rows"]
+    key_pairs: Int[Array, "n_key_pairs 2"]
+    reduced_points: Int[Array, " n_reduced_points"]
+    eliminated_points: Int[Array, " n_eliminated"]
+    point_column: Int[Array, " n_points"]
+    eliminated_index: Int[Array, " n_points"]
+    models: tuple[str, ...] = eqx.field(static=True)
+    iop_columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    camera_offsets: tuple[int, ...] = eqx.field(static=True)
+    image_offset: int = eqx.field(static=True)
+    n_reduced: int = eqx.field(static=True)
+    m: int = eqx.field(static=True)
+    point_width: int = eqx.field(static=True)
+    jacobian_batch: int = eqx.field(static=True)
+
+
+def bundle_structure(
+    problem: BundleProblem,
+    *,
+    jacobian_batch: int = 4096,
+    pair_batch: int = 4096,
+) -> BundleStructure:
+    """The Schur split of `problem` (NumPy, before any tracing).
+
+    `jacobian_batch` is the number of image observations differentiated at once,
+    `pair_batch` the number of observation pairs multiplied at once in S and in the
+    cofactors (`_precision._observation_cofactors`). The split depends on `problem.free`
+    (`iop_columns`): rebuild it when the free mask changes. Raises `ValueError` for
+    observation groups other than ImagePoints, ParameterObservations and Distances.
+    """
+    initial = problem.initial
+    models = tuple(sorted(initial.cameras))
+    offsets, column = [], 0
+    for model in models:
+        offsets.append(column)
+        column += int(np.size(initial.cameras[model]))
+    image_offset = column
+    column += int(np.size(initial.images))
+    n_points = int(initial.points.shape[0])
+    coupled = []
+    for group in problem.groups:
+        if isinstance(group, Distances):
+            coupled += [np.asarray(group.a), np.asarray(group.b)]
+        elif not isinstance(group, ImagePoints | ParameterObservations):
+            raise ValueError(
+                f"solve_schur cannot split observation group {group.name!r} of type"
+                f" {type(group).__name__}: only ImagePoints, ParameterObservations, Distances"
+            )
+    reduced_points = np.unique(np.concatenate(coupled)) if coupled else np.zeros(0, int)
+    point_column = np.full(n_points, -1, dtype=np.int64)
+    point_column[reduced_points] = column + 3 * np.arange(reduced_points.size)
+    n_reduced = column + 3 * reduced_points.size
+    is_eliminated = point_column < 0
+    eliminated_points = np.flatnonzero(is_eliminated)
+    n_eliminated = eliminated_points.size
+    eliminated_index = np.full(n_points, n_eliminated, dtype=np.int64)
+    eliminated_index[eliminated_points] = np.arange(n_eliminated)
+
+    iop_columns = tuple(
+        tuple(int(c) for c in np.flatnonzero(np.any(np.asarray(problem.free.cameras[model]), 0)))
+        for model in models
+    )
+    images = [g for g in problem.groups if isinstance(g, ImagePoints)]
+    point_width = 3 if reduced_points.size else 0
+    m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 6
+    m += point_width
+    columns, point_rows = [], []
+    for group in images:
+        model_index = models.index(group.model)
+        n_iop = int(initial.cameras[group.model].shape[1])
+        free_iop = np.asarray(iop_columns[model_index], dtype=np.int64)
+        camera, image, point = (np.asarray(a) for a in (group.camera, group.image, group.point))
+        block = np.full((camera.size, m), n_reduced, dtype=np.int64)
+        block[:, : free_iop.size] = offsets[model_index] + camera[:, None] * n_iop + free_iop
+        block[:, free_iop.size : free_iop.size + 6] = (
+            image_offset + image[:, None] * 6 + np.arange(6)
+        )
+        reduced = point_column[point] >= 0
+        block[reduced, m - 3 :] = point_column[point[reduced], None] + np.arange(3)
+        columns.append(block)
+        point_rows.append(eliminated_index[point])
+    columns.append(np.full((1, m), n_reduced, dtype=np.int64))
+    point_rows.append(np.array([n_eliminated]))
+    columns, point_rows = np.concatenate(columns), np.concatenate(point_rows)
+    key_columns, key = np.unique(columns, axis=0, return_inverse=True)
+    key = np.ravel(key)
+    n_obs = columns.shape[0] - 1
+    *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
+                                           pair_batch)
+    observations = np.arange(n_obs)
+    key_rows, _, key_row_block = block_rows(
+        observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
+
+    return BundleStructure(
+        image_columns=jnp.asarray(columns),
+        image_point=jnp.asarray(point_rows),
+        key=jnp.asarray(key),
+        key_columns=jnp.asarray(key_columns),
+        key_rows=jnp.asarray(key_rows),
+        key_row_block=jnp.asarray(key_row_block),
+        pair_first=jnp.asarray(pairs[0]),
+        pair_second=jnp.asarray(pairs[1]),
+        pair_block=jnp.asarray(pairs[2]),
+        key_pairs=jnp.asarray(key_pairs),
+        reduced_points=jnp.asarray(reduced_points),
+        eliminated_points=jnp.asarray(eliminated_points),
+        point_column=jnp.asarray(point_column),
+        eliminated_index=jnp.asarray(eliminated_index),
+        models=models,
+        iop_columns=iop_columns,
+        camera_offsets=tuple(offsets),
+        image_offset=image_offset,
+        n_reduced=int(n_reduced),
+        m=int(m),
+        point_width=point_width,
+        jacobian_batch=int(jacobian_batch),
+    )
+
+
+def _observation_pairs(
+    point_rows: np.ndarray, key: np.ndarray, n_eliminated: int, pair_batch: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of image observations of one eliminated point that S needs (NumPy).
+
+    `point_rows`, `key`: (n_image_obs,) eliminated-point row (n_eliminated: none) and key
+    of every observation. Returns first, second, block as `_pairs.block_rows` lays them
+    out (pairs with key_i >= key_j, rows of `PAIR_ROW_SIZE` pairs of one key pair, padded
+    with observation n_image_obs) and the key pairs (n_key_pairs, 2).
+    """
+    observed = np.flatnonzero(point_rows < n_eliminated)
+    first, second = same_point_pairs(point_rows[observed], n_eliminated)
+    first, second = observed[first], observed[second]
+    lower = key[first] >= key[second]
+    first, second = first[lower], second[lower]
+    n_keys = int(key.max()) + 1 if key.size else 1
+    codes, block = np.unique(key[first] * n_keys + key[second], return_inverse=True)
+    key_pairs = np.stack([codes // n_keys, codes % n_keys], axis=1)  # (row-major) sorted
+    rows = block_rows(
+        first, second, np.ravel(block), key_pairs.shape[0], fill=point_rows.size,
+        row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
+    )
+    return *rows, key_pairs
+
+
+class BundleNormalEquations(eqx.Module):
+    """Jacobian-dependent blocks (once per accepted iterate); see the module docstring.
+
+    `reduced_hessian` U (n_r, n_r) with unit diagonal on fixed unknowns; `point_hessian` V
+    (n_e, 3, 3) likewise; `coupling` W_iᵀ (n_image_obs + 1, 3, m) (last row zero; stored
+    transposed, the layout the products of S read without copies);
+    gradients g_r (n_r,), g_e (n_e, 3); Marquardt damping D_r (n_r,), D_e (n_e, 3).
+    """
+
+    reduced_hessian: Float[Array, "n_r n_r"]
+    point_hessian: Float[Array, "n_e 3 3"]
+    coupling: Float[Array, "n_obs1 3 m"]
+    reduced_gradient: Float[Array, " n_r"]
+    point_gradient: Float[Array, "n_e 3"]
+    reduced_damping: Float[Array, " n_r"]
+    point_damping: Float[Array, "n_e 3"]
+
+
+def _reduced_vector(structure: BundleStructure, params: Parameters) -> Float[Array, " n_r"]:
+    """The reduced-side entries of a Parameters tree (values, masks) as one vector."""
+    parts = [jnp.ravel(params.cameras[model]) for model in structure.models]
+    parts += [jnp.ravel(params.images), jnp.ravel(params.points[structure.reduced_points])]
+    return jnp.concatenate(parts).astype(params.images.dtype)
+
+
+def _to_parameters(
+    structure: BundleStructure, like: Parameters, reduced: Array, eliminated: Array
+) -> Parameters:
+    """Inverse of the split: reduced (n_r,) and eliminated (n_e, 3) into a Parameters tree."""
+    cameras = {}
+    for model, offset in zip(structure.models, structure.camera_offsets):
+        shape = like.cameras[model].shape
+        cameras[model] = reduced[offset : offset + int(np.prod(shape))].reshape(shape)
+    n_images = like.images.shape[0]
+    images = reduced[structure.image_offset : structure.image_offset + 6 * n_images]
+    points = jnp.zeros_like(like.points)
+    points = points.at[structure.eliminated_points].set(eliminated)
+    start = structure.image_offset + 6 * n_images
+    points = points.at[structure.reduced_points].set(reduced[start:].reshape(-1, 3))
+    return Parameters(cameras=cameras, images=images.reshape(n_images, 6), points=points)
+
+
+def _free_masks(problem: BundleProblem, structure: BundleStructure, dtype) -> tuple[Array, Array]:
+    """1.0 on free unknowns: reduced columns (n_r + 1,) and eliminated points (n_e + 1, 3),
+    each with a padding entry 0."""
+    free_r = jnp.append(_reduced_vector(structure, problem.free), 0.0).astype(dtype)
+    free_e = problem.free.points.astype(dtype)[structure.eliminated_points]
+    return free_r, jnp.concatenate([free_e, jnp.zeros((1, 3), dtype)])
+
+
+def bundle_normal_equations(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    params: Parameters,
+    min_diagonal: float = 1e-6,
+    max_diagonal: float = 1e32,
+) -> BundleNormalEquations:
+    """U, V, W, g and the Marquardt damping of `problem` at `params` (all unknowns' values)."""
+    n_r = structure.n_reduced
+    n_e = structure.eliminated_points.shape[0]
+    dtype = params.images.dtype
+    free_r, free_e = _free_masks(problem, structure, dtype)
+    free_points = problem.free.points.astype(dtype)
+
+    jr, je, e = _image_blocks(problem, structure, params, free_r, free_e)
+    per_key = pair_block_sums(
+        jr, jr, structure.key_rows, structure.key_rows, structure.key_row_block,
+        structure.key_columns.shape[0],
+    )
+    key_columns = structure.key_columns
+    hessian = _dense_from_blocks(n_r, key_columns, key_columns, per_key)
+    gradient = _add_at_columns(structure, _transposed_product(jr, e))
+    point_hessian = jnp.zeros((n_e + 1, 3, 3), dtype).at[structure.image_point].add(_gram(je, je))
+    point_gradient = jnp.zeros((n_e + 1, 3), dtype).at[structure.image_point].add(
+        _transposed_product(je, e)
+    )
+    coupling = _gram(je, jr)
+
+    residuals = problem.residuals(problem.with_free(params))
+    for group, residual in zip(problem.groups, residuals):
+        if isinstance(group, ParameterObservations):
+            # e = (observed - x) / σ: ∂e/∂x = -1/σ on the observed entries.
+            derivative = jnp.where(group.mask(), -1.0 / group.stddev, 0.0).astype(dtype)
+            rows = jnp.asarray(group.rows)
+            if group.block == "points":
+                point_row_p = structure.eliminated_index[rows]
+                column = jnp.where(
+                    structure.point_column[rows] >= 0, structure.point_column[rows], n_r
+                )
+                sub = free_points[rows] * derivative
+                eliminated = (point_row_p < n_e)[:, None]
+                point_hessian = point_hessian.at[point_row_p].add(
+                    jnp.where(eliminated, sub, 0.0)[:, :, None] ** 2 * jnp.eye(3, dtype=dtype)
+                )
+                point_gradient = point_gradient.at[point_row_p].add(
+                    jnp.where(eliminated, sub * residual, 0.0)
+                )
+                reduced_sub = jnp.where(eliminated, 0.0, sub)
+                reduced_columns = column[:, None] + jnp.arange(3)
+                reduced_columns = jnp.where(eliminated, n_r, reduced_columns)
+            else:
+                reduced_columns = _block_columns(structure, group)
+                reduced_sub = free_r[reduced_columns] * derivative
+            hessian = hessian.at[reduced_columns, reduced_columns].add(reduced_sub**2)
+            gradient = gradient.at[reduced_columns].add(reduced_sub * residual)
+        elif isinstance(group, Distances):
+            jd, e_d = _distance_jacobians(problem, group, params)
+            cols = _distance_columns(structure, group)
+            jd = jd * free_r[cols][:, None, :]
+            hessian = hessian.at[cols[:, :, None], cols[:, None, :]].add(_gram(jd, jd))
+            gradient = gradient.at[cols].add(jnp.sum(jd * e_d[:, :, None], axis=1))
+
+    hessian, gradient = hessian[:n_r, :n_r], gradient[:n_r]
+    point_hessian, point_gradient = point_hessian[:n_e], point_gradient[:n_e]
+    fixed_r = 1.0 - free_r[:n_r]
+    fixed_e = 1.0 - free_e[:n_e]
+    hessian = hessian + jnp.diag(fixed_r)
+    point_hessian = _add_diagonal(point_hessian, fixed_e)
+    return BundleNormalEquations(
+        reduced_hessian=hessian,
+        point_hessian=point_hessian,
+        coupling=coupling,
+        reduced_gradient=gradient,
+        point_gradient=point_gradient,
+        reduced_damping=marquardt_diagonal(jnp.diagonal(hessian), min_diagonal, max_diagonal),
+        point_damping=marquardt_diagonal(
+            jnp.diagonal(point_hessian, axis1=1, axis2=2), min_diagonal, max_diagonal
+        ),
+    )
+
+
+def _block_columns(structure: BundleStructure, group: ParameterObservations) -> Array:
+    """(n, width) reduced columns of the observed rows of a camera or image block."""
+    width = group.observed.shape[1]
+    if group.block == "images":
+        start = structure.image_offset
+    else:
+        model = group.block.removeprefix("cameras/")
+        start = structure.camera_offsets[structure.models.index(model)]
+    return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
+
+
+def _distance_columns(structure: BundleStructure, group: Distances) -> Array:
+    """(n, 6) reduced columns of the two end points of every distance (reduced points)."""
+    return jnp.concatenate([
+        structure.point_column[group.a][:, None] + jnp.arange(3),
+        structure.point_column[group.b][:, None] + jnp.arange(3),
+    ], axis=1)
+
+
+def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np.ndarray:
+    """(n_r,) `flatten` positions of the reduced columns."""
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    return np.asarray(_reduced_vector(structure, positions)).astype(int)
+
+
+def _add_at_columns(
+    structure: BundleStructure, per_observation: Float[Array, "n_obs1 w"]
+) -> Float[Array, " n_r1"]:
+    """Σ_i per_observation_i added at observation i's first w reduced columns, (n_r + 1,)
+    (last: padding): summed per key first (observations of one key share their columns),
+    then n_keys rows scattered, not n_obs (a scatter-add of every observation's entries
+    into a short vector runs serially on the CPU)."""
+    width = per_observation.shape[1]
+    per_key = jax.ops.segment_sum(per_observation, structure.key, structure.key_columns.shape[0])
+    zero = jnp.zeros(structure.n_reduced + 1, per_observation.dtype)
+    return zero.at[structure.key_columns[:, :width]].add(per_key)
+
+
+def _at_columns(structure: BundleStructure, x_padded: Float[Array, " n_r1"]) -> Array:
+    """(n_obs1, m) the entries of `x_padded` (n_r + 1,) at every image observation's
+    reduced columns, gathered per key, then a row per observation."""
+    return x_padded[structure.key_columns][structure.key]
+
+
+def _gram(a: Float[Array, "n k i"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
+    """aᵀb per observation, the short sum over the residual entries k written out."""
+    return sum(a[:, k, :, None] * b[:, k, None, :] for k in range(a.shape[1]))
+
+
+def _transposed_product(a: Float[Array, "n k i"], e: Float[Array, "n k"]) -> Float[Array, "n i"]:
+    """aᵀe per observation (a Jacobian block times its residual: the gradient part)."""
+    return jnp.sum(a * e[:, :, None], axis=1)
+
+
+def _image_blocks(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    params: Parameters,
+    free_r: Array,
+    free_e: Array,
+) -> tuple[Float[Array, "n_obs1 2 m"], Float[Array, "n_obs1 2 3"], Float[Array, "n_obs1 2"]]:
+    """jr, je and e (`_image_jacobian_blocks`) of all image observations in the structure's
+    order, with a zero padding row last; `structure.jacobian_batch` observations are
+    differentiated at a time (`jax.lax.scan`). Memory O(n_obs m), as W's."""
+    params = problem.with_free(params)
+    dtype = params.images.dtype
+    parts, start = [], 0
+    for group in problem.groups:
+        if not isinstance(group, ImagePoints):
+            continue
+        stop = start + group.point.shape[0]
+
+        def blocks(_, chunk, group=group):
+            observations = list(chunk[:-1])  # less the key
+            return None, _image_jacobian_blocks(
+                problem, structure, group, params, free_r, free_e, observations)
+
+        _, out = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start, stop))
+        parts.append([x.reshape(-1, *x.shape[2:])[: stop - start] for x in out])
+        start = stop
+    padding = [jnp.zeros((1, 2, structure.m), dtype), jnp.zeros((1, 2, 3), dtype),
+               jnp.zeros((1, 2), dtype)]
+    return tuple(jnp.concatenate([*(p[i] for p in parts), padding[i]]) for i in range(3))
+
+
+def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
+    """One ImagePoints group's observations (camera, image, point, measured, σ, mask,
+    reduced columns, eliminated-point row, key), in chunks of `structure.jacobian_batch`
+    (n_chunks, batch, ...); padding repeats the last observation, masked out, with
+    out-of-range columns, point row and key."""
+    n = stop - start
+    batch = max(1, min(structure.jacobian_batch, n))
+    pad = -n % batch
+
+    def chunked(x, fill=None):
+        widths = [(0, pad)] + [(0, 0)] * (x.ndim - 1)
+        if fill is None:
+            x = jnp.pad(x, widths, mode="edge")
+        else:
+            x = jnp.pad(x, widths, constant_values=fill)
+        return x.reshape(-1, batch, *x.shape[1:])
+
+    return (
+        chunked(group.camera),
+        chunked(group.image),
+        chunked(group.point),
+        chunked(group.measured),
+        chunked(group.stddev),
+        chunked(group.mask(), False),
+        chunked(structure.image_columns[start:stop], structure.n_reduced),
+        chunked(structure.image_point[start:stop], structure.eliminated_points.shape[0]),
+        chunked(structure.key[start:stop], structure.key_columns.shape[0]),
+    )
+
+
+def _image_jacobian_blocks(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    group: ImagePoints,
+    params: Parameters,
+    free_r: Array,
+    free_e: Array,
+    observations: list[Array],
+) -> tuple[Float[Array, "n 2 m"], Float[Array, "n 2 3"], Float[Array, "n 2"]]:
+    """Jacobian blocks of a batch of one group's observations (`_image_group_chunks`
+    rows, less the key) at `params` (all values set): jr over the observation's reduced
+    columns (a reduced point's columns included), je over its eliminated point (0 for a
+    reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
+    the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
+    Only the IOPs in `structure.iop_columns` are differentiated. The image's pose enters
+    through its pose model's `row_frame` (from `row_inputs`, made once per image),
+    differentiated by the parameter offset δ at δ = 0."""
+    camera, image, point, measured, sigma, mask, columns, point_row = observations
+    iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
+    m, n_iop = structure.m, iop_columns.size
+    all_iops = n_iop == params.cameras[group.model].shape[1]
+    dtype = params.images.dtype
+    pose = POSE_MODELS[group.pose]
+
+    def residual(free_iop, delta, point, iop, pose_inputs, data):
+        iop = free_iop if all_iops else iop.at[iop_columns].set(free_iop)
+        e = _frame_collinearity_residual(
+            group.model, iop, pose.row_frame(pose_inputs, delta), point, *data[:2],
+            problem.refraction,
+        )
+        e = jnp.where(data[2], e, 0.0)
+        e = e if problem.robust is None else problem.robust(e)
+        return e, e
+
+    def one(iop, pose_inputs, point, *data):
+        arguments = (iop[iop_columns], jnp.zeros(6, dtype), point, iop, pose_inputs, data)
+        (j_iop, j_pose, j_point), e = jax.jacrev(residual, argnums=(0, 1, 2), has_aux=True)(
+            *arguments)
+        return jnp.concatenate([j_iop, j_pose], axis=1), j_point, e
+
+    pose_inputs = pose.row_inputs(params.images)
+    jc, jp, e = jax.vmap(one)(
+        params.cameras[group.model].at[camera].get(mode="clip"),
+        jax.tree.map(lambda x: x.at[image].get(mode="clip"), pose_inputs),
+        params.points.at[point].get(mode="clip"),
+        measured,
+        sigma,
+        mask,
+    )
+    mask = mask.astype(dtype)[:, :, None]
+    jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
+    reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
+    padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - 6), dtype)
+    point_part = [jnp.where(reduced_point, jp, 0.0)] if structure.point_width else []
+    jr = jnp.concatenate([jc, padding, *point_part], axis=-1)
+    jr = jr * free_r[columns][:, None, :]
+    je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
+    return jr, je, e
+
+
+def _distance_jacobians(
+    problem: BundleProblem, group: Distances, params: Parameters
+) -> tuple[Array, Array]:
+    """∂e/∂(point a, point b) (n, 1, 6) and e (n, 1) of every distance."""
+    params = problem.with_free(params)
+
+    def residual(pair, observed, sigma, mask):
+        distance = jnp.sqrt(jnp.sum((pair[:3] - pair[3:]) ** 2))
+        return jnp.where(mask, (observed - distance) / sigma, 0.0)
+
+    def one(pair, observed, sigma, mask):
+        j = jax.jacfwd(residual)(pair, observed, sigma, mask)
+        return jnp.where(mask[:, None], j, 0.0), residual(pair, observed, sigma, mask)
+
+    pairs = jnp.concatenate([params.points[group.a], params.points[group.b]], axis=1)
+    return jax.vmap(one)(pairs, group.observed, group.stddev, group.mask())
+
+
+def solve_bundle_damped(
+    structure: BundleStructure, normal: BundleNormalEquations, damping: Scalar
+) -> tuple[Float[Array, " n_r"], Float[Array, "n_e 3"]]:
+    """x = (JᵀJ + λD)⁻¹ Jᵀe as (x_r, x_e) by the Schur complement on the eliminated points."""
+    dtype = normal.reduced_gradient.dtype
+    point_inverse = _small_inverse(
+        _add_diagonal(normal.point_hessian, damping * normal.point_damping)
+    )
+    reduced, rhs = _schur_complement(structure, normal, point_inverse)
+    reduced = reduced + normal.reduced_hessian + jnp.diag(damping * normal.reduced_damping)
+    x_r = cholesky_solve(reduced, normal.reduced_gradient - rhs)
+    x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
+    n_e = normal.point_gradient.shape[0]
+    coupled = jnp.sum(normal.coupling * _at_columns(structure, x_r_padded)[:, None, :], axis=2)
+    coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
+    x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
+    return x_r, x_e
+
+
+def schur_solve(
+    problem: BundleProblem,
+    params: Parameters,
+    rhs: Float[np.ndarray, "m n_all"],
+    *,
+    structure: BundleStructure | None = None,
+) -> Float[np.ndarray, "m n_all"]:
+    """(JᵀJ)⁻¹ r for each right-hand side r (a row of `rhs`, `flatten` positions) of the
+    whitened bundle at `params`, by the Schur split: no dense n x n matrix. Entries of fixed
+    unknowns are ignored in `rhs` and 0 in the result."""
+    structure = structure or bundle_structure(problem)
+    rhs = np.asarray(rhs)
+    positions = unflatten(problem.initial, np.arange(rhs.shape[1]))
+    reduced = _reduced_positions(problem, structure)
+    points = np.asarray(positions.points)[np.asarray(structure.eliminated_points)]
+    x_r, x_e = _schur_solve(problem, structure, params, jnp.asarray(rhs[:, reduced]),
+                            jnp.asarray(rhs[:, points]))
+    out = np.zeros_like(rhs)
+    out[:, reduced] = np.asarray(x_r)
+    out[:, points] = np.asarray(x_e)
+    return out
+
+
+@eqx.filter_jit
+def _schur_solve(problem, structure, params, rhs_r, rhs_e):
+    normal = bundle_normal_equations(problem, structure, params)
+    free_r, free_e = _free_masks(problem, structure, rhs_r.dtype)
+
+    def one(r, e):  # vmapped over the right-hand sides; S is assembled once
+        system = eqx.tree_at(lambda n: (n.reduced_gradient, n.point_gradient), normal,
+                             (r * free_r[:-1], e * free_e[:-1]))
+        return solve_bundle_damped(structure, system, 0.0)
+
+    return jax.vmap(one)(rhs_r, rhs_e)
+
+
+def _dense_from_blocks(
+    n_r: int, rows: Int[Array, "n a"], columns: Int[Array, "n b"], blocks: Float[Array, "n a b"]
+) -> Float[Array, "n_r1 n_r1"]:
+    """Σ_k blocks[k] added at (rows[k], columns[k]) of a dense (n_r + 1, n_r + 1) matrix
+    (row and column n_r: padding)."""
+    flat = rows[:, :, None] * (n_r + 1) + columns[:, None, :]
+    dense = jnp.zeros(((n_r + 1) ** 2,), blocks.dtype).at[flat].add(blocks)
+    return dense.reshape(n_r + 1, n_r + 1)
+
+
+def _schur_complement(
+    structure: BundleStructure, normal: BundleNormalEquations, point_inverse: Array
+) -> tuple[Float[Array, "n_r n_r"], Float[Array, " n_r"]]:
+    """-Σ_p Y_pᵀ V_λ,p⁻¹ Y_p and Σ_p Y_pᵀ V_λ,p⁻¹ g_e,p (`point_inverse`: V_λ⁻¹, (n_e, 3, 3)).
+
+    Pair-wise: Y_pᵀ V⁻¹ Y_p = Σ_{i,j ∈ p} W_i V⁻¹ W_jᵀ, and the blocks of the pairs of one
+    key pair (equal reduced columns; for one camera, one image pair) are summed first
+    (`pair_block_sums`, lower key triangle), then mirrored and scattered once. Only the
+    first m - point_width columns of W_i are nonzero for an eliminated point.
+    """
+    n_r, k = structure.n_reduced, structure.m - structure.point_width
+    dtype = normal.reduced_gradient.dtype
+    inverse = jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])[structure.image_point]
+    coupling_t = normal.coupling[:, :, :k]  # W_iᵀ (n_obs1, 3, k)
+    blocks = pair_block_sums(
+        _matmul(inverse, coupling_t), coupling_t, structure.pair_first, structure.pair_second,
+        structure.pair_block, structure.key_pairs.shape[0],
+    )
+    first = structure.key_columns[structure.key_pairs[:, 0], :k]
+    second = structure.key_columns[structure.key_pairs[:, 1], :k]
+    mirrored = jnp.where(
+        (structure.key_pairs[:, 0] != structure.key_pairs[:, 1])[:, None, None],
+        blocks.transpose(0, 2, 1), 0.0,
+    )
+    product = _dense_from_blocks(
+        n_r, jnp.concatenate([first, second]), jnp.concatenate([second, first]),
+        jnp.concatenate([blocks, mirrored]),
+    )
+    eliminated_gradient = jnp.concatenate(
+        [_matvec(point_inverse, normal.point_gradient), jnp.zeros((1, 3), dtype)]
+    )
+    per_observation = jnp.sum(coupling_t * eliminated_gradient[structure.image_point][:, :, None],
+                              axis=1)
+    rhs = _add_at_columns(structure, per_observation)
+    return -product[:n_r, :n_r], rhs[:n_r]
+
+
+def bundle_predicted_reduction(
+    structure: BundleStructure, normal: BundleNormalEquations, step: Parameters
+) -> Scalar:
+    """δᵀJᵀe + ½ δᵀJᵀJδ for the step δ (a Parameters tree): the Gauss-Newton model's change
+    of ½|e|², with δᵀJᵀJδ = δ_rᵀUδ_r + Σ δ_eᵀVδ_e + 2 Σ_i δ_r,iᵀ W_i δ_e,i."""
+    x_r = _reduced_vector(structure, step)
+    x_e = step.points[structure.eliminated_points]
+    x_r_padded = jnp.append(x_r, jnp.zeros((), x_r.dtype))
+    x_e_padded = jnp.concatenate([x_e, jnp.zeros((1, 3), x_e.dtype)])
+    # One einsum (as in `_normal.predicted_reduction`: gathered products summed run slowly).
+    coupled = jnp.einsum("ncm,nm,nc->", normal.coupling, _at_columns(structure, x_r_padded),
+                         x_e_padded[structure.image_point])
+    quadratic = (
+        x_r @ (normal.reduced_hessian @ x_r)
+        + jnp.sum(x_e * jnp.sum(normal.point_hessian * x_e[:, None, :], axis=2))
+        + 2.0 * coupled
+    )
+    linear = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
+    return linear + 0.5 * quadratic
+
+
+class BundleSchurDescent(
+    AbstractNormalDescent[Parameters, tuple[BundleNormalEquations, optx.RESULTS]]
+):
+    """Damped Newton step -(JᵀJ + λD)⁻¹ Jᵀe, λ = 1/radius, of a `BundleProblem` by the
+    Schur complement (see the module docstring). y is the full Parameters tree; fixed
+    unknowns get a zero step."""
+
+    problem: BundleProblem
+    structure: BundleStructure
+    min_diagonal: float = 1e-6
+    max_diagonal: float = 1e32
+
+    def init(self, y: Parameters, residual) -> tuple[BundleNormalEquations, optx.RESULTS]:
+        shapes = jax.eval_shape(self._normal, y)
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
+
+    def query(self, y: Parameters, residual, state):
+        """The normal equations at `y` and whether they are finite (checked once here)."""
+        del residual, state
+        normal = self._normal(y)
+        return normal, normal_equations_result(normal)
+
+    def step(self, radius: Scalar, state):
+        normal, result = state
+        x_r, x_e = solve_bundle_damped(self.structure, normal, 1.0 / radius)
+        return self._parameters(-x_r, -x_e), result
+
+    def _parameters(self, x_r, x_e) -> Parameters:
+        step = _to_parameters(self.structure, self.problem.initial, x_r, x_e)
+        return jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
+
+    def predicted_reduction(self, y_diff: Parameters, state) -> Scalar:
+        return bundle_predicted_reduction(self.structure, state[0], y_diff)
+
+    def gauss_newton(self, state) -> tuple[Parameters, Scalar]:
+        """The undamped Schur solve x = N⁻¹g: the step -x and gᵀx (fixed unknowns have zero
+        gradient and step)."""
+        normal = state[0]
+        x_r, x_e = solve_bundle_damped(self.structure, normal, 0.0)
+        decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
+        return self._parameters(-x_r, -x_e), decrement
+
+    def _normal(self, y: Parameters) -> BundleNormalEquations:
+        return bundle_normal_equations(
+            self.problem, self.structure, y, self.min_diagonal, self.max_diagonal
+        )
+
+
+def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]:
+    """`fn(y, args)` for `optx.least_squares`: the residuals the solver minimises."""
+    return problem.residuals(problem.with_free(y))
+
+
+def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance, function_tolerance):
+    return LevenbergMarquardt(
+        rtol, atol, BundleSchurDescent(problem, structure), step_tolerance=step_tolerance,
+        function_tolerance=function_tolerance)
+
+
+def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
+    return Solution(
+        parameters=problem.with_free(solution.value),
+        converged=solution.result == optx.RESULTS.successful,
+        steps=solution.stats["num_steps"],
+        accepted_steps=solution.state.num_accepted_steps,
+        cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
+        result=solution.result,
+    )
+
+
+_schur_solution = eqx.filter_jit(_make_schur_solution)
+
+
+@eqx.filter_jit
+def _solve_schur(problem, structure, *, max_steps, **settings):
+    solver = _make_schur_solver(problem, structure, **settings)
+    solution = optx.least_squares(
+        bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
+    )
+    return _make_schur_solution(problem, solution)
+
+
+def solve_schur(
+    problem: BundleProblem,
+    free_index: Int[Array, " n_free"] | None = None,
+    *,
+    max_steps: int = 50,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    step_tolerance: float = STEP_TOLERANCE,
+    function_tolerance: float = 0.0,
+    structure: BundleStructure | None = None,
+    on_step: Callable[[StepInfo], None] | None = None,
+) -> Solution:
+    """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
+    Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
+    every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ²,
+    `jaxba._solvers._trust_region`, with its Gauss-Newton end game; 0: both off), where an
+    accepted step lowered the cost by at most `function_tolerance` of it (0: off; BAL's
+    gauge-free problems, whose N is singular, stop this way as Ceres does), or where
+    optimistix's Cauchy test (`rtol`, `atol`) passes.
+
+    Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
+    result). `free_index` is accepted for signature compatibility with `solve` and not
+    used: the free unknowns are `problem.free`. Not vmappable (the split is computed in
+    NumPy from the problem's indices; pass `structure=bundle_structure(problem)` to reuse
+    it). As for `solve`: without `on_step` one compiled `optx.least_squares`; with it, one
+    compiled step at a time, `on_step(StepInfo)` hearing every step.
+    Memory O(n_obs m + n_r²), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
+    distance points.
+    """
+    del free_index
+    if structure is None:
+        structure = bundle_structure(problem)
+    settings = dict(rtol=rtol, atol=atol, step_tolerance=step_tolerance,
+                    function_tolerance=function_tolerance)
+    if on_step is None:
+        return _solve_schur(problem, structure, max_steps=max_steps, **settings)
+    solver = _make_schur_solver(problem, structure, **settings)
+    solution = least_squares_stepwise(
+        bundle_residuals, solver, problem.initial, problem, max_steps=max_steps,
+        on_step=on_step)
+    return _schur_solution(problem, solution)

@@ -1,0 +1,37 @@
+"""Which solver adjusts a bundle: the dense normal equations or the Schur split."""
+
+from ..._problem._bundle import BundleProblem
+from ..._problem._observations import Distances, ImagePoints, ParameterObservations
+
+# Above this many unknowns, or this many entries of the whitened Jacobian (observations x
+# unknowns), `adjust` eliminates the object points: the dense path's datum check and
+# statistics form that Jacobian and n x n matrices; the Schur split forms neither. Measured
+# (benchmarks/block_vs_ceres.py, 115-image free network, 1148 unknowns x 19509
+# observations, warm): dense 11.9 s, Schur 3.2 s; the lab (350 x 2794) stays dense.
+SCHUR_MIN_UNKNOWNS = 2000
+SCHUR_MIN_JACOBIAN_ENTRIES = 4_000_000
+SOLVERS = ("auto", "dense", "schur")
+
+
+def use_schur(problem: BundleProblem, solver: str = "auto") -> bool:
+    """Whether to adjust `problem` with its object points eliminated.
+
+    `solver`: "dense" never, "schur" always, "auto" for a bundle of more than
+    `SCHUR_MIN_UNKNOWNS` unknowns or `SCHUR_MIN_JACOBIAN_ENTRIES` Jacobian entries whose
+    observations the Schur split supports (image points, direct observations of unknowns,
+    distances; a free network's inner constraints through
+    `jaxba._statistics._free_network.minimal_constraints`).
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
+    supported = all(
+        isinstance(g, ImagePoints | ParameterObservations | Distances) or g.constraint
+        for g in problem.groups)
+    if solver == "schur" and not supported:
+        raise ValueError(
+            "solver 'schur' handles image points, direct observations of unknowns, "
+            "distances and a free network's inner constraints only")
+    n_unknowns = problem.n_unknowns()
+    large = (n_unknowns > SCHUR_MIN_UNKNOWNS
+             or n_unknowns * problem.n_observations() > SCHUR_MIN_JACOBIAN_ENTRIES)
+    return solver == "schur" or (solver == "auto" and supported and large)

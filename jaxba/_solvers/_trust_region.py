@@ -1,0 +1,330 @@
+"""The trust-region loop shared by jaxba's Levenberg-Marquardt solvers, as an optimistix solver.
+
+`optx.AbstractGaussNewton` linearises the residual function (`jax.linearize`) at every trial
+point and carries the linearisation in its state, only to predict the trust region's
+reduction with one Jacobian-vector product. jaxba's descents already hold the Gauss-Newton
+model in their normal equations (JᵀJ and Jᵀr, from per-row Jacobian blocks), so
+`LevenbergMarquardt` evaluates nothing but the residuals at a trial point and asks the
+descent for the predicted reduction: for Zhang-size calibrations the linearisation was a
+third of every step. It is an `optx.AbstractLeastSquaresSolver`, driven by
+`optx.least_squares` (and so differentiable by its implicit adjoint).
+
+Per step: evaluate the residuals at the trial point y + δ; accept it when the actual
+reduction is at least `low_cutoff` of the predicted one (a trial point with non-finite cost
+is rejected), grow the radius x`high_constant` above `high_cutoff`, divide it on rejection by
+a factor that starts at 1/`low_constant` and doubles with every consecutive rejection
+(`TrustRegionUpdate`; Ceres' rejection rule and min_relative_decrease, with a fixed growth
+x3 for a good model where Ceres grows by a ratio-dependent factor); at an accepted point the
+descent linearises (`query`: the Jacobian-dependent work), then proposes the damped step
+for the current radius (`step`: the damping-dependent work), or with `step_tolerance` the
+Gauss-Newton step near the optimum (below).
+
+Stops as converged at an accepted point from which the Gauss-Newton step would move every
+unknown by less than `step_tolerance` of its standard deviation (the statistical test below;
+or where that step would lower the cost by less than its rounding, `COST_RESOLUTION`),
+where optimistix's Cauchy test passes (the step and the residual change within rtol/atol
+elementwise), where the step to it lowered the cost by at most `function_tolerance` times the
+cost before it (Ceres' function tolerance), or when the radius falls below `MIN_RADIUS`
+(every step, however short, is rejected: Ceres' `min_trust_region_radius`, also a
+convergence). A non-finite cost or damped step, or `max_steps`, ends the solve unconverged.
+
+The statistical test. With e the whitened residuals (σ0 = 1), N = JᵀJ and g = Jᵀe at the
+accepted point, the unknowns' cofactors are Q = N⁻¹ (Cxx = σ0² Q) and the Gauss-Newton step
+Δ = -N⁻¹g has the Mahalanobis length ΔᵀNΔ = gᵀN⁻¹g (the descent's `gauss_newton`). By
+Cauchy-Schwarz in the metric of N, |Δ_i| ≤ √((N⁻¹)_ii) √(ΔᵀNΔ) for every unknown i, so
+
+    gᵀN⁻¹g ≤ τ²   implies   |Δ_i| ≤ τ σ0 √Q_ii   for all i at once,
+
+without forming any diagonal of N⁻¹ (which the Schur backend cannot afford per iterate). It
+is a decrement test with an absolute threshold: invariant to the scaling of the unknowns
+(the dense backend's Jacobi-scaled z, the Schur backend's raw units), the same for both
+backends, and it needs no redundancy, so padded batches stop as their members would alone.
+σ is the a priori σ0 √Q_ii; the reported σ̂0 √Q_ii differ by σ̂0/σ0 (about 1 for a
+well-weighted adjustment; 0.24 for Zhang's calibration at σ = 1 px, where the test then
+holds to τ/0.24 of the reported σ). The bound is near tight where the remaining error lies
+along one weak direction: on the 60-image close-range block of benchmarks/blocks.py, at an
+iterate with √(gᵀN⁻¹g)/σ̂0 = 3.844e-4, max_i |Δ_i|/σ̂_i = 3.840e-4. It looks ahead: the
+solve ends at the iterate whose next step would be negligible, not after taking that step.
+
+The Gauss-Newton end game. Near the optimum Levenberg-Marquardt's damping only slows the
+weak directions down (on that block the error fell ~10x per step from 0.24 σ, from a
+damping that shrinks 3x per step), so where the Gauss-Newton step is at most
+`GAUSS_NEWTON_REGION` long (gᵀN⁻¹g ≤ 1: within 1 σ0 in every unknown, where the linear
+model is excellent) the loop proposes it undamped; the trust region still judges it, and a
+rejected one is followed by damped steps from the same point. The undamped solve that gives
+Δ and gᵀN⁻¹g is skipped while a lower bound from the damped step (`_end_game`) shows that
+the point is farther out.
+
+`STEP_TOLERANCE` τ = 1e-5, measured (benchmarks/README.md): on the block above the solve
+ends after 6 steps for τ = 1e-4 and 1e-5 alike (the last Gauss-Newton step lands far
+inside), 9 with the former cost-change rule; τ = 1e-6 reaches the cost's rounding floor
+there (14 steps, most rejected). On Zhang's calibration τ = 1e-3 would stop 1.2e-3 σ̂ from
+the maximum-likelihood optimum and move a printed digit that the optimum reproduces
+(tests/test_zhang.py); τ = 1e-5 stops within 2e-6 σ̂.
+"""
+
+import abc
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int, PyTree, Scalar
+
+Y = TypeVar("Y")
+DescentState = TypeVar("DescentState")
+
+# Ceres' first radius (initial_trust_region_radius): λ = 1e-4 on unit-norm columns.
+CERES_INITIAL_RADIUS = 1e4
+# Below this radius, stop (Ceres' min_trust_region_radius).
+MIN_RADIUS = 1e-32
+# τ of the statistical test (module docstring): stop where the Gauss-Newton step would move
+# every unknown by at most 1e-5 of its (a priori) σ, far below anything a report prints.
+STEP_TOLERANCE = 1e-5
+# Below this fraction of the cost, the Gauss-Newton step's predicted reduction ½gᵀN⁻¹g is
+# rounding: the cost sums n squares, so it carries a relative error of ~√n ε (3e-14 for
+# n = 2e4). On the 115-image free network of benchmarks/blocks.py, solved with a minimal
+# datum, the cost (9748.29, 19,502 residuals) stopped changing at gᵀN⁻¹g = 1.12e-10 > τ²
+# (½gᵀN⁻¹g = 5.8e-15 of the cost), and 17 rejected steps followed until the radius floor.
+# It binds only where cost > τ²/(2e-14) = 5000, i.e. r > ~1e4 observations, and then at
+# gᵀN⁻¹g ≈ 1e-14 r σ̂0²: every unknown within 1e-7 √r of its σ (3e-5 σ for the 60-image
+# block's r = 101,576).
+COST_RESOLUTION = 1e-14
+# Where the Gauss-Newton step is at most this long (gᵀN⁻¹g, whitened: 1 σ0 in every
+# unknown), propose it undamped (module docstring: the end game).
+GAUSS_NEWTON_REGION = 1.0
+
+
+class TrustRegionUpdate(eqx.Module):
+    """Accept a step whose actual/predicted reduction ratio is at least `low_cutoff`, grow
+    the radius x`high_constant` above `high_cutoff`; on rejection multiply it by
+    `low_constant`, squared after two consecutive rejections, cubed... (Ceres doubles its
+    decrease factor with each one, so that a hopeless point gives up in ~16 steps instead of
+    ~120). Defaults: Ceres' min_relative_decrease 1e-3, x3 for a good model, halving.
+    optimistix's defaults (0.99, 0.01, 3.5, 0.25, from radius 1) grow the radius only when
+    the model predicts the decrease to 1 %: on BAL's Ladybug-49 λ then stalls (200 steps
+    end at cost 13345.07; with these, 25 steps reach 13344.27); see benchmarks/README.md."""
+
+    high_cutoff: float = 0.75
+    low_cutoff: float = 1e-3
+    high_constant: float = 3.0
+    low_constant: float = 0.5
+
+
+class AbstractNormalDescent(eqx.Module, Generic[Y, DescentState]):
+    """The linear algebra of a Levenberg-Marquardt solver: a Gauss-Newton model of ½|r|²
+    held as normal equations, and its damped steps."""
+
+    @abc.abstractmethod
+    def init(self, y: Y, residual: PyTree[Array]) -> DescentState:
+        """A state of the right structure (`residual`: zeros of the residuals' shape)."""
+
+    @abc.abstractmethod
+    def query(self, y: Y, residual: PyTree[Array], state: DescentState) -> DescentState:
+        """Linearise at the accepted point `y`, where the residuals are `residual`."""
+
+    @abc.abstractmethod
+    def step(self, radius: Scalar, state: DescentState) -> tuple[Y, optx.RESULTS]:
+        """The damped step for trust-region radius `radius` (damping λ = 1 / radius)."""
+
+    @abc.abstractmethod
+    def predicted_reduction(self, y_diff: Y, state: DescentState) -> Scalar:
+        """The model's change of the cost for the step `y_diff`, ½|r + Jδ|² - ½|r|² =
+        δᵀJᵀr + ½ δᵀJᵀJδ (negative for a descent step)."""
+
+    def gauss_newton(self, state: DescentState) -> tuple[Y, Scalar]:
+        """The undamped step -N⁻¹g at the accepted point of the last `query` (N = JᵀJ,
+        g = Jᵀr) and its squared Mahalanobis length gᵀN⁻¹g (the Gauss-Newton decrement),
+        for `step_tolerance`. A descent that cannot compute them serves only solvers with
+        `step_tolerance=0`."""
+        del state
+        raise NotImplementedError(
+            f"{type(self).__name__} has no Gauss-Newton step: use step_tolerance=0")
+
+
+def _all_finite(tree) -> Bool[Array, ""]:
+    return jnp.all(jnp.array([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree.leaves(tree)]))
+
+
+def finite_step(step: Y) -> tuple[Y, optx.RESULTS]:
+    """A descent's step and its result: `singular` (and a zero step) where the damped
+    system gave non-finite values (a dense Cholesky of JᵀJ + λI fails only on NaNs)."""
+    finite = _all_finite(step)
+    result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.singular)
+    return jax.tree.map(lambda leaf: jnp.where(finite, leaf, 0.0), step), result
+
+
+def normal_equations_result(normal) -> optx.RESULTS:
+    """`singular` where the normal equations hold non-finite values (a non-finite Jacobian
+    at an accepted point: no step can help), else successful. A Schur step that is not
+    finite for finite normal equations (S barely positive definite at a tiny damping) is
+    left to the trust region, which rejects it and shrinks the radius."""
+    return optx.RESULTS.where(
+        _all_finite(normal), optx.RESULTS.successful, optx.RESULTS.singular)
+
+
+def _cost(residual: PyTree[Array]) -> Scalar:
+    return 0.5 * sum(jnp.sum(r**2) for r in jax.tree.leaves(residual))
+
+
+def _tree_sub(a, b):
+    return jax.tree.map(lambda x, y: x - y, a, b)
+
+
+class _LevenbergMarquardtState(eqx.Module, Generic[Y, DescentState]):
+    first_step: Bool[Array, ""]
+    y_eval: Y  # the trial point of the next step
+    residual: PyTree[Array]  # at the accepted point
+    cost: Float[Array, ""]  # ½|residual|²
+    aux: Any
+    radius: Float[Array, ""]
+    shrink: Float[Array, ""]  # factor of the next rejection: low_constant^(k+1) after k in a row
+    descent_state: DescentState
+    terminate: Bool[Array, ""]
+    result: optx.RESULTS
+    num_steps: Int[Array, ""]
+    num_accepted_steps: Int[Array, ""]
+
+
+class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
+    """Levenberg-Marquardt with an `AbstractNormalDescent`; see the module docstring.
+
+    `rtol`, `atol`, `norm`: optimistix's Cauchy termination; `step_tolerance`: τ of the
+    statistical test, stop where the descent's Gauss-Newton decrement gᵀN⁻¹g is at most τ²,
+    with the Gauss-Newton end game (0: both off, as for BAL; jaxba's bundle solvers use
+    `STEP_TOLERANCE`); `function_tolerance`: stop once an accepted step lowers the cost by
+    at most this fraction (0: off);
+    `initial_radius`: the first trust-region radius (1/λ in the descent's units); `update`:
+    the radius rule. No callback inside: `jaxba._solvers._steps.least_squares_stepwise` runs the
+    loop from Python where each step should be reported.
+    """
+
+    rtol: float
+    atol: float
+    descent: AbstractNormalDescent
+    norm: Callable[[PyTree], Scalar] = optx.max_norm
+    step_tolerance: float = 0.0
+    function_tolerance: float = 0.0
+    initial_radius: float = CERES_INITIAL_RADIUS
+    update: TrustRegionUpdate = TrustRegionUpdate()
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LevenbergMarquardtState:
+        del fn, args, options, tags
+        residual = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), f_struct)
+        dtype = jax.tree.leaves(f_struct)[0].dtype
+        return _LevenbergMarquardtState(
+            first_step=jnp.array(True),
+            y_eval=y,
+            residual=residual,
+            cost=jnp.array(jnp.inf, dtype),
+            aux=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), aux_struct),
+            radius=jnp.array(self.initial_radius, dtype),
+            shrink=jnp.array(self.update.low_constant, dtype),
+            descent_state=self.descent.init(y, residual),
+            terminate=jnp.array(False),
+            result=optx.RESULTS.successful,
+            num_steps=jnp.array(0),
+            num_accepted_steps=jnp.array(0),
+        )
+
+    def step(self, fn, y, args, options, state: _LevenbergMarquardtState, tags):
+        del options, tags
+        residual_eval, aux_eval = fn(state.y_eval, args)
+        cost_eval = _cost(residual_eval)
+        y_diff = _tree_sub(state.y_eval, y)
+        predicted = self.descent.predicted_reduction(y_diff, state.descent_state)
+        actual = cost_eval - state.cost
+        update = self.update
+        accept = state.first_step | ((predicted < 0) & (actual <= update.low_cutoff * predicted))
+        good = ~state.first_step & (predicted < 0) & (actual < update.high_cutoff * predicted)
+        factor = jnp.where(accept, jnp.where(good, update.high_constant, 1.0), state.shrink)
+        radius = jnp.where(state.first_step, state.radius, factor * state.radius)
+        shrink = jnp.where(accept, update.low_constant, state.shrink * update.low_constant)
+
+        def accepted(descent_state):
+            descent_state = self.descent.query(state.y_eval, residual_eval, descent_state)
+            cauchy = self._cauchy_test(
+                state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
+            small_change = state.cost - cost_eval <= self.function_tolerance * state.cost
+            terminate = (cauchy | small_change) & ~state.first_step
+            return state.y_eval, residual_eval, cost_eval, aux_eval, descent_state, terminate
+
+        def rejected(descent_state):
+            return y, state.residual, state.cost, state.aux, descent_state, radius < MIN_RADIUS
+
+        y, residual, cost, aux, descent_state, terminate = jax.lax.cond(
+            accept, accepted, rejected, state.descent_state)
+        result = optx.RESULTS.where(
+            jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
+        y_descent, descent_result = self.descent.step(radius, descent_state)
+        if self.step_tolerance > 0:
+            y_descent, converged = self._end_game(accept, y_descent, descent_state, cost)
+            terminate = terminate | converged
+        # The step for the next trial; it does not matter once the solve has ended.
+        proposing = (result == optx.RESULTS.successful) & ~terminate
+        result = optx.RESULTS.where(proposing, descent_result, result)
+        state = _LevenbergMarquardtState(
+            first_step=jnp.array(False),
+            y_eval=jax.tree.map(lambda a, b: a + b, y, y_descent),
+            residual=residual,
+            cost=cost,
+            aux=aux,
+            radius=radius,
+            shrink=shrink,
+            descent_state=descent_state,
+            terminate=terminate | (result != optx.RESULTS.successful),
+            result=result,
+            num_steps=state.num_steps + 1,
+            num_accepted_steps=state.num_accepted_steps + jnp.where(accept, 1, 0),
+        )
+        return y, state, aux
+
+    def _end_game(self, accept, damped: Y, descent_state, cost) -> tuple[Y, Bool[Array, ""]]:
+        """At a point just linearised (`accept`) with `cost`: whether gᵀN⁻¹g ≤ τ² or the
+        step's predicted reduction is below the cost's resolution, ½gᵀN⁻¹g ≤
+        `COST_RESOLUTION` cost (converged), and the next trial step, the Gauss-Newton step
+        where gᵀN⁻¹g ≤ `GAUSS_NEWTON_REGION`, else the `damped` one.
+
+        Any δ bounds the decrement from below, gᵀN⁻¹g ≥ (gᵀδ)² / δᵀNδ (Cauchy-Schwarz in
+        the metric of N); gᵀδ and δᵀNδ of the damped step follow from the predicted
+        reductions of ±δ. Where that bound exceeds the region the descent's undamped solve
+        (`gauss_newton`) is skipped (under vmap both branches run).
+        """
+        ahead = self.descent.predicted_reduction(damped, descent_state)  # gᵀδ + ½ δᵀNδ
+        back = self.descent.predicted_reduction(
+            jax.tree.map(jnp.negative, damped), descent_state)  # -gᵀδ + ½ δᵀNδ
+        curvature = ahead + back
+        bound = jnp.where(curvature > 0, 0.25 * (ahead - back) ** 2 / curvature, 0.0)
+        tolerance = jnp.maximum(self.step_tolerance**2, 2 * COST_RESOLUTION * cost)
+        region = jnp.maximum(GAUSS_NEWTON_REGION, tolerance)
+
+        def undamped():
+            return self.descent.gauss_newton(descent_state)
+
+        def skipped():
+            return jax.tree.map(jnp.zeros_like, damped), jnp.array(jnp.inf, bound.dtype)
+
+        step, decrement = jax.lax.cond(accept & (bound <= region), undamped, skipped)
+        converged = accept & (decrement <= tolerance)
+        near = accept & (decrement <= region) & _all_finite(step)
+        return jax.tree.map(lambda a, b: jnp.where(near, a, b), step, damped), converged
+
+    def _cauchy_test(self, y, y_diff, residual, residual_diff) -> Bool[Array, ""]:
+        """optimistix's Cauchy termination: |Δy| < atol + rtol |y| and |Δr| < atol + rtol
+        |r|, elementwise in `norm`."""
+
+        def small(x, dx):
+            return self.norm(jax.tree.map(
+                lambda a, da: jnp.abs(da) / (self.atol + self.rtol * jnp.abs(a)), x, dx)) < 1
+
+        return small(y, y_diff) & small(residual, residual_diff)
+
+    def terminate(self, fn, y, args, options, state: _LevenbergMarquardtState, tags):
+        del fn, y, args, options, tags
+        return state.terminate, state.result
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        del fn, args, options, state, tags, result
+        return y, aux, {}

@@ -1,0 +1,1 @@
+"""Statistics of an adjusted bundle: covariance, datum, reliability, free networks, derivatives."""

@@ -1,0 +1,224 @@
+"""Refuse rank-deficient bundles before solving, naming what cannot be determined."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._models._poses import POSE_MODELS
+from .._models._rotation import rodrigues_to_matrix
+from .._problem._bundle import BundleProblem, free_indices
+from .._problem._linearisation import dense_jacobian
+from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from ._causes import intersection_cause, nonfinite_observations
+
+SIMILARITY_NAMES = (
+    "translation in X", "translation in Y", "translation in Z",
+    "rotation about X", "rotation about Y", "rotation about Z", "scale",
+)
+
+
+class DatumError(ValueError):
+    """The observations and constraints do not determine all unknowns."""
+
+
+def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk") -> Parameters:
+    """Apply X -> centre + (1 + s) R(a) (X - centre) + t to all points and stations.
+
+    theta = (t, a, s) (7,): translation (object units), Rodrigues rotation vector (rad),
+    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay. `pose`:
+    the pose model of the images rows (`BundleProblem.pose`), which converts them to and
+    from M and X0.
+    """
+    t, a, s = theta[:3], theta[3:6], theta[6]
+    rotation = rodrigues_to_matrix(a)
+    model = POSE_MODELS[pose]
+
+    def move(xyz):
+        return centre + (1 + s) * (xyz - centre) @ rotation.T + t
+
+    poses = jax.vmap(model.from_parameters)(params.images)
+    stations = move(jax.vmap(model.station)(poses))
+    turned = jax.vmap(model.rotation)(poses) @ rotation.T
+
+    def pose(m, station):
+        return model.from_rotation(m, station).parameters()
+
+    images = jax.vmap(pose)(turned, stations)
+    return Parameters(params.cameras, images, move(params.points))
+
+
+def similarity_directions(params: Parameters, centre, *, pose: str = "opk") -> np.ndarray:
+    """(7, n_all): how every unknown (`flatten` order) changes under each similarity
+    direction of `similarity_transform` about `centre` (3,), at `params` (images rows of
+    the pose model `pose`)."""
+
+    def flat(theta):
+        moved = similarity_transform(params, theta, centre, pose=pose)
+        return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(moved)])
+
+    return np.asarray(jax.jacfwd(flat)(jnp.zeros(7))).T
+
+
+def network_centre(problem: BundleProblem) -> np.ndarray:
+    """(3,) the centroid of the object points' approximations: the similarity's fixed point."""
+    return np.mean(np.asarray(problem.initial.points), axis=0)
+
+
+def _describe_similarity(null_basis, directions, index) -> str | None:
+    """Name the similarity components spanned by the null space, or None if it is not one.
+
+    Null vectors move free unknowns only: extended with zeros on the fixed ones, a fit
+    by similarity directions that would move a fixed unknown leaves a residual there.
+    """
+    n_total = directions.shape[1]
+    names = set()
+    for vector in null_basis:
+        full = np.zeros(n_total)
+        full[index] = vector
+        norms = np.linalg.norm(directions, axis=1)
+        unit = directions / norms[:, None]
+        theta, *_ = np.linalg.lstsq(unit.T, full, rcond=None)
+        if np.linalg.norm(unit.T @ theta - full) > 1e-3 * np.linalg.norm(full):
+            return None
+        significant = np.abs(theta) >= 0.2 * np.max(np.abs(theta))
+        names.update(SIMILARITY_NAMES[k] for k in np.flatnonzero(significant))
+    return ", ".join(name for name in SIMILARITY_NAMES if name in names)
+
+
+def null_space(
+    problem: BundleProblem, *, rtol: float = 1e-9, jacobian: np.ndarray | None = None
+) -> np.ndarray | None:
+    """Basis (d, n_free) of the unknowns' directions no observation sees, or None.
+
+    From the singular values of the column-equilibrated whitened Jacobian at the
+    approximations (smallest / largest < `rtol`); rows in unscaled units. `jacobian`:
+    that Jacobian if already computed.
+    """
+    if jacobian is None:
+        jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
+    column_norms = np.linalg.norm(jacobian, axis=0)
+    scaled = jacobian / column_norms
+    if scaled.shape[0] > scaled.shape[1]:  # J = QR: R has J's singular values and V
+        scaled = np.linalg.qr(scaled, mode="r")
+    _, singular, vt = np.linalg.svd(scaled, full_matrices=False)
+    null_rows = singular < rtol * singular[0]
+    return vt[null_rows] / column_norms if null_rows.any() else None
+
+
+def describe_defect(problem, null_basis, index, labels, *, column_norms=None) -> None:
+    """Raise `DatumError` naming the defect spanned by `null_basis` (d, n_free).
+
+    `column_norms` (n_free,): the norms of the whitened Jacobian's columns (default: from
+    the dense Jacobian).
+    """
+    rank_defect = null_basis.shape[0]
+    directions = similarity_directions(problem.initial, network_centre(problem), pose=problem.pose)
+    similarity = _describe_similarity(null_basis, directions, index)
+    if similarity is not None:
+        hint = (
+            " The scale is not defined: add distance observations or control coordinates "
+            "that fix the scale."
+            if "scale" in similarity
+            else " Fix or weight more control coordinates, or choose datum = \"free\"."
+        )
+        raise DatumError(
+            f"datum defect (rank deficiency {rank_defect}): the observations do not "
+            f"determine a similarity transformation of the network involving {similarity}."
+            + hint
+        )
+    # Rank the unknowns in Jacobi-scaled units (as the observations see them).
+    if column_norms is None:
+        column_norms = np.linalg.norm(
+            np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
+    scaled = null_basis * column_norms
+    magnitude = np.max(np.abs(scaled / np.linalg.norm(scaled, axis=1, keepdims=True)), axis=0)
+    significant = magnitude > 0.1 * magnitude.max()
+    # Not a datum matter where the geometry says why: points that no two rays intersect.
+    cause = intersection_cause(problem, labels, _involved_points(problem, index, significant))
+    if cause is not None:
+        raise DatumError(f"rank deficiency {rank_defect}: {cause}")
+    involved = np.argsort(-magnitude)[: min(10, int(np.sum(significant)))]
+    names = ", ".join(labels[index[k]] for k in involved)
+    raise DatumError(
+        f"rank deficiency {rank_defect}: these unknowns can change together without "
+        f"changing any observation: {names}"
+    )
+
+
+def _involved_points(problem: BundleProblem, index, significant) -> np.ndarray:
+    """(n_points,) True for the points with a coordinate among the `significant` free
+    unknowns (positions `index`) of a null space."""
+    marked = np.zeros(flatten(problem.initial).size, bool)
+    marked[index[significant]] = True
+    return unflatten(problem.initial, marked).points.any(axis=1)
+
+
+def check_datum(
+    problem: BundleProblem, *, labels: list[str] | None = None, rtol: float = 1e-9
+) -> None:
+    """Raise `DatumError` if the bundle is rank deficient at its approximations.
+
+    The message names the defect: a similarity transformation of the network (which of
+    translation, rotation, scale) or the unknowns that can change together without
+    changing any observation.
+    """
+    jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
+    check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
+
+
+def nonfinite_start_error(problem: BundleProblem, labels: list[str]) -> DatumError | None:
+    """A `DatumError` naming the observations whose residuals are not finite at the
+    approximations (None if all are finite)."""
+    observations = nonfinite_observations(problem, problem.whitened(problem.initial), labels)
+    if observations is None:
+        return None
+    return DatumError(
+        f"the residuals are not finite at the approximations of {observations} (a point at"
+        " or beside an image's projection centre?): check these approximations")
+
+
+def check_columns(
+    problem: BundleProblem, finite: np.ndarray, column_norms: np.ndarray, labels: list[str]
+) -> None:
+    """The checks before any decomposition: a positive redundancy, a finite model and an
+    observation for every free unknown (`finite`, `column_norms`: (n_free,) per column of
+    the whitened Jacobian at the approximations)."""
+    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
+    if n_observations <= n_unknowns:
+        raise DatumError(
+            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
+            "(redundancy must be positive)"
+        )
+    index = free_indices(problem)
+    if not np.all(finite):
+        error = nonfinite_start_error(problem, labels)
+        if error is not None:
+            raise error
+        bad = sorted({labels[index[k]] for k in np.flatnonzero(~finite)})
+        raise DatumError(f"the model is not finite at the approximations of: {', '.join(bad[:8])}")
+    unobserved = np.flatnonzero(column_norms == 0)
+    if unobserved.size:
+        names = ", ".join(labels[index[k]] for k in unobserved[:8])
+        it, acts = ("it", "it acts") if unobserved.size == 1 else ("them", "they act")
+        raise DatumError(
+            f"no observation depends on {names} at the approximations (not a datum matter:"
+            " an unknown with no effect there, such as P3 while P1 = P2 = 0): fix"
+            f" {it}, or start from approximations where {acts}")
+
+
+def check_datum_with_jacobian(
+    problem: BundleProblem,
+    jacobian: np.ndarray,
+    *,
+    labels: list[str] | None = None,
+    rtol: float = 1e-9,
+) -> None:
+    """`check_datum`, given the whitened Jacobian (real observations x free unknowns) at
+    the approximations (e.g. from a batched computation)."""
+    labels = labels or parameter_labels(problem.initial)
+    index = free_indices(problem)
+    check_columns(problem, np.all(np.isfinite(jacobian), axis=0),
+                  np.linalg.norm(jacobian, axis=0), labels)
+    null_basis = null_space(problem, rtol=rtol, jacobian=jacobian)
+    if null_basis is not None:
+        describe_defect(problem, null_basis, index, labels)

@@ -1,0 +1,98 @@
+"""Derived precision: correlations, object-point ellipsoids, propagation to functions.
+
+All work on an `Adjustment` through `precision.covariance_of` (Cxx among unknowns given by
+their `flatten` positions; fixed unknowns have zero variance), so they serve bundles
+adjusted densely and with their points eliminated alike (`full_covariance` excepted).
+"""
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._models._cameras import CAMERA_MODELS
+from .._problem._parameters import Parameters, flatten, unflatten
+from ._adjustment import Adjustment
+
+
+def full_covariance(result: Adjustment) -> np.ndarray:
+    """Cxx over *all* unknowns in `flatten` order, zero rows/columns for fixed ones (dense
+    adjustments only: n x n)."""
+    return result.precision.covariance_of(np.arange(flatten(result.parameters).size))
+
+
+def correlation(covariance: np.ndarray) -> np.ndarray:
+    """Correlation matrix ρ_ij = C_ij / (σ_i σ_j); 0 where a σ is 0."""
+    std = np.sqrt(np.diag(covariance))
+    scale = np.where(std > 0, 1.0 / np.where(std > 0, std, 1.0), 0.0)
+    return covariance * scale[:, None] * scale[None, :]
+
+
+def _positions(result: Adjustment) -> Parameters:
+    """A Parameters tree holding each scalar's position in `flatten` order."""
+    return unflatten(result.parameters, np.arange(flatten(result.parameters).size))
+
+
+def camera_correlation(result: Adjustment, model: str, row: int) -> tuple[list[str], np.ndarray]:
+    """(names, ρ) of the estimated IOPs of camera `row` of `model`."""
+    names = CAMERA_MODELS[model].parameter_names
+    positions = np.asarray(_positions(result).cameras[model][row])
+    free = np.asarray(result.problem.free.cameras[model][row])
+    chosen = positions[free]
+    return [n for n, f in zip(names, free) if f], correlation(
+        result.precision.covariance_of(chosen))
+
+
+def point_covariances(result: Adjustment) -> Float[np.ndarray, "n_points 3 3"]:
+    """3x3 covariance of every object point (object units²), zeros for fixed coordinates."""
+    precision = result.precision
+    if precision.schur is not None:
+        return precision.schur.points
+    rows = precision.covariance_rows(np.asarray(_positions(result).points))  # (n_points, 3)
+    free = rows >= 0
+    safe = np.where(free, rows, 0)
+    blocks = precision.covariance[safe[:, :, None], safe[:, None, :]]
+    return np.where(free[:, :, None] & free[:, None, :], blocks, 0.0)
+
+
+def error_ellipsoids(
+    covariances: Float[np.ndarray, "n 3 3"], *, scale: float = 1.0
+) -> tuple[Float[np.ndarray, "n 3"], Float[np.ndarray, "n 3 3"]]:
+    """Semi-axes (descending, object units) and axis directions (columns) of each ellipsoid.
+
+    `scale` multiplies the standard (1σ) ellipsoid, e.g. 2.7955 for 95 % in 3D. A
+    covariance with a non-finite entry (statistics unavailable) gives NaN axes and directions.
+    """
+    finite = np.all(np.isfinite(covariances), axis=(-2, -1))
+    eigenvalues, eigenvectors = np.linalg.eigh(np.where(finite[:, None, None], covariances, 0.0))
+    order = np.argsort(-eigenvalues, axis=-1)
+    axes = scale * np.sqrt(np.clip(np.take_along_axis(eigenvalues, order, -1), 0, None))
+    directions = np.take_along_axis(eigenvectors, order[:, None, :], -1)
+    return (np.where(finite[:, None], axes, np.nan),
+            np.where(finite[:, None, None], directions, np.nan))
+
+
+def propagate(
+    result: Adjustment, function: Callable[[Parameters], Float[Array, "..."]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Value and covariance of y = f(x) by linear propagation, C_yy = F Cxx Fᵀ.
+
+    `function` maps the adjusted Parameters to an array (a distance, a projected point,
+    a derived camera constant...); F = ∂y/∂x_free by `jax.jacfwd`; only the unknowns y
+    depends on enter (after points-eliminated adjustments: reduced unknowns or one point).
+    The covariance has the flattened shape (y.size, y.size).
+    """
+    index = np.asarray(result.precision.free_index)
+    base = jnp.asarray(flatten(result.parameters))
+
+    def of_free(x_free):
+        values = unflatten(result.parameters, base.at[index].set(x_free))
+        return jnp.ravel(function(values))
+
+    value = np.asarray(function(result.parameters))
+    jacobian = np.asarray(jax.jacfwd(of_free)(base[index]))
+    used = np.flatnonzero(np.any(jacobian != 0, axis=0))
+    covariance = result.precision.covariance_of(index[used])
+    return value, jacobian[:, used] @ covariance @ jacobian[:, used].T

@@ -1,0 +1,271 @@
+"""Free-network datum: inner constraints over all or chosen object points, at any size.
+
+A free network is rank deficient by a similarity transformation (translation, rotation
+and, without distances, scale). The datum is fixed by the inner constraints
+Bᵀ (x - x₀) = 0, where the columns of B span the unobservable directions restricted to
+the coordinates of the datum points (x₀: the approximations). Which similarity motions
+are unobservable is found without a Jacobian matrix: each of the seven motions is pushed
+through the residuals (a Jacobian-vector product) and compared with how far it moves the
+unknowns in the observations' own scale (the whitened Jacobian's column norms).
+
+The dense backend adjusts the constraints as an observation group (`InnerConstraints`)
+whose residuals vanish at the solution: Levenberg-Marquardt sees a full-rank problem, the
+redundancy counts them as constraints, r = n - u + d, and `jaxba.precision` returns the
+inner-constraint cofactor, the top-left block of [[N, B], [Bᵀ, 0]]⁻¹.
+
+The Schur backend cannot hold a row that couples every point. It solves the network with
+a minimal datum instead (`minimal_constraints`: d coordinates of the datum points held),
+moves the solution by the similarity that satisfies the inner constraints
+(`to_inner_datum`: the residuals are invariant, so this is the inner-constraint solution)
+and carries the covariance over by Baarda's S-transformation (`free_network_precision`):
+Q_i = S Q_m Sᵀ, S = I - G (C G)⁻¹ C, G the null space at the solution, C the constraints.
+Gauge-invariant quantities (residuals, σ̂0, redundancy numbers) need no transformation.
+"""
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float
+
+from .._models._cameras import AbstractRefraction
+from .._problem._bundle import BundleProblem, free_indices
+from .._problem._linearisation import column_norms
+from .._problem._observations import AbstractObservationGroup
+from .._problem._parameters import Parameters, flatten, unflatten
+from .._solvers._schur._bundle import BundleStructure, bundle_structure, schur_solve
+from ._covariance import Precision, SchurCovariance
+from ._datum import DatumError, network_centre, similarity_directions, similarity_transform
+from ._schur_precision import schur_precision
+from ._schur_reliability import schur_redundancy_numbers
+
+STIFFNESS = 100.0
+# A similarity motion is unobservable when the observations see less than this fraction
+# of it (‖J b‖ / ‖diag(column norms) b‖): rounding gives ~1e-13, the weakest observed
+# motion of a real network (scale from one scale bar in 180k image observations) ~1e-2.
+UNOBSERVABLE_RTOL = 1e-7
+NEWTON_STEPS = 8
+
+
+class InnerConstraints(AbstractObservationGroup):
+    """d constraints Bᵀ (x - x₀) = 0 on the flattened unknowns (`flatten` order).
+
+    `directions` (d, n_all) holds the rows of Bᵀ, `reference` (n_all,) x₀; `similarity`
+    (7, d) the unobservable similarity motions (their coefficients in
+    `similarity_transform`'s (t, a, s)), `centre` (3,) the similarity's fixed point, `pose`
+    the images' pose model (how the similarity turns them).
+    """
+
+    directions: Float[Array, "d n_all"]
+    reference: Float[Array, " n_all"]
+    stddev: Float[Array, "d 1"]
+    similarity: Float[Array, "7 d"]
+    centre: Float[Array, " 3"]
+    name: str = eqx.field(static=True, default="inner_constraints")
+    pose: str = eqx.field(static=True, default="opk")
+    constraint: ClassVar[bool] = True
+
+    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
+        del refraction
+        flat = ravel_pytree(params)[0]
+        return -(self.directions @ (flat - self.reference))[:, None] / self.stddev
+
+    def null_space(self, params: Parameters, free: Parameters) -> Float[np.ndarray, "d n_all"]:
+        """The unobservable directions at `params` (rows, `flatten` positions), 0 on the
+        fixed unknowns of `free`."""
+        motions = similarity_directions(params, self.centre, pose=self.pose)
+        return np.asarray(self.similarity).T @ motions * flatten(free)
+
+
+@eqx.filter_jit
+def _residual_changes(problem: BundleProblem, moves: Array) -> Array:
+    """J m for every row m of `moves` (k, n_all): how the whitened residuals change."""
+    flat, unravel = ravel_pytree(problem.initial)
+
+    def whitened(x):
+        return jnp.concatenate([jnp.ravel(e) for e in problem.whitened(unravel(x))])
+
+    return jax.vmap(lambda move: jax.jvp(whitened, (flat,), (move,))[1])(moves)
+
+
+def _unobservable_similarity(
+    problem: BundleProblem, motions: np.ndarray, norms: np.ndarray
+) -> Float[np.ndarray, "7 d"]:
+    """The similarity motions (coefficients of the rows of `motions`, (7, n_all)) the
+    observations do not see: the generalised eigenvectors of (J B)ᵀ(J B) against
+    (D B)ᵀ(D B) (D: column norms `norms` of the free unknowns) whose eigenvalue is below
+    `UNOBSERVABLE_RTOL`²."""
+    index = free_indices(problem)
+    moves = np.zeros_like(motions)
+    moves[:, index] = motions[:, index]
+    seen = np.asarray(_residual_changes(problem, jnp.asarray(moves)))
+    extent = motions[:, index] * norms
+    moving = np.flatnonzero(np.linalg.norm(extent, axis=1) > 0)
+    scale = 1.0 / np.linalg.norm(extent[moving], axis=1)
+    seen, extent = seen[moving] * scale[:, None], extent[moving] * scale[:, None]
+    values, vectors = scipy.linalg.eigh(seen @ seen.T, extent @ extent.T)
+    unobservable = vectors[:, values < UNOBSERVABLE_RTOL**2] * scale[:, None]
+    coefficients = np.zeros((7, unobservable.shape[1]))
+    coefficients[moving] = unobservable
+    return coefficients
+
+
+def inner_constraints(
+    problem: BundleProblem, *, datum_points: list[int] | None = None
+) -> BundleProblem:
+    """The problem with inner constraints over `datum_points` (point rows; None: all).
+
+    The unobservable similarity motions are found at the approximations (module
+    docstring); if there are none, `DatumError`. A defect of any other kind is named by
+    the datum check before the solve. The datum points must fix the defect (`DatumError`
+    otherwise).
+    """
+    norms = np.asarray(column_norms(problem, problem.initial))
+    centre = network_centre(problem)
+    motions = similarity_directions(problem.initial, centre, pose=problem.pose)
+    similarity = _unobservable_similarity(problem, motions, norms)
+    if similarity.shape[1] == 0:
+        raise DatumError("the network has no datum defect: it needs no inner constraints")
+    index = free_indices(problem)
+    null = similarity.T @ motions[:, index]
+    positions = np.asarray(unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+                           .points)
+    rows = np.arange(positions.shape[0]) if datum_points is None else np.asarray(datum_points)
+    selected = np.zeros(flatten(problem.initial).size, dtype=bool)
+    selected[positions[rows].ravel()] = True
+    directions = np.zeros((null.shape[0], selected.size))
+    directions[:, index] = null
+    directions[:, ~selected] = 0.0
+    if np.linalg.matrix_rank(directions[:, index] @ null.T) < null.shape[0]:
+        raise DatumError("the datum points do not fix the network's datum defect: choose "
+                         "points with free coordinates spread over the network")
+    # Any scaling of the rows gives the same constraints (their residuals vanish at the
+    # solution). In the solver's Jacobi-scaled unknowns the rows get norm STIFFNESS: weak
+    # rows leave the datum directions nearly flat and LM crawls along them (80 steps
+    # without convergence for 4 datum points at norm 1; 27 steps at 100).
+    weight = np.linalg.norm(directions[:, index] / norms, axis=1) / STIFFNESS
+    group = InnerConstraints(
+        directions=jnp.asarray(directions / weight[:, None]),
+        reference=jnp.asarray(flatten(problem.initial)),
+        stddev=jnp.ones((null.shape[0], 1)),
+        similarity=jnp.asarray(similarity),
+        centre=jnp.asarray(centre),
+        pose=problem.pose,
+    )
+    return eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, group))
+
+
+def inner_constraint_group(problem: BundleProblem) -> InnerConstraints | None:
+    """The free network's inner constraints (the last group), or None for a bundle with a
+    datum."""
+    found = [k for k, group in enumerate(problem.groups) if isinstance(group, InnerConstraints)]
+    if not found:
+        return None
+    if found != [len(problem.groups) - 1]:
+        raise ValueError("a free network has one group of inner constraints, the last")
+    return problem.groups[-1]
+
+
+def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundleProblem:
+    """The free network `problem` with a minimal datum instead of its inner constraints:
+    the constraints dropped and d coordinates of the datum points held at their values in
+    `params` (the best-conditioned ones: pivoted QR of the constraints' columns). Its
+    solutions are the free network's up to the similarity `to_inner_datum` removes."""
+    group = inner_constraint_group(problem)
+    free = flatten(problem.free).copy()
+    directions = np.asarray(group.directions)
+    candidates = np.flatnonzero(np.any(directions != 0, axis=0) & free)
+    _, pivots = scipy.linalg.qr(directions[:, candidates], mode="r", pivoting=True)
+    free[candidates[pivots[: directions.shape[0]]]] = False
+    return eqx.tree_at(
+        lambda p: (p.initial, p.free, p.groups), problem,
+        (params, jax.tree.map(jnp.asarray, unflatten(problem.free, free)), problem.groups[:-1]))
+
+
+@eqx.filter_jit
+def _inner_datum(group: InnerConstraints, refraction, params: Parameters) -> Parameters:
+    def moved(phi):
+        return similarity_transform(params, group.similarity @ phi, group.centre,
+                                    pose=group.pose)
+
+    def violation(phi):
+        return group.residuals(moved(phi), refraction)[:, 0]
+
+    def newton(_, phi):
+        return phi - jnp.linalg.solve(jax.jacfwd(violation)(phi), violation(phi))
+
+    phi = jax.lax.fori_loop(0, NEWTON_STEPS, newton, jnp.zeros(group.similarity.shape[1]))
+    return moved(phi)
+
+
+def to_inner_datum(problem: BundleProblem, params: Parameters) -> Parameters:
+    """A solution `params` of the free network in any datum, moved by the unobservable
+    similarity that makes it satisfy the inner constraints (Newton on the d similarity
+    parameters, `NEWTON_STEPS`): the same residuals, the inner-constraint datum."""
+    return _inner_datum(inner_constraint_group(problem), problem.refraction, params)
+
+
+def free_network_precision(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> Precision:
+    """`schur_precision` of a free network at its inner-constraint solution `params`, in
+    the inner-constraint datum: the minimal-datum covariance Q_m carried over by the
+    S-transformation Q_i = S Q_m Sᵀ (module docstring) for the blocks a `SchurCovariance`
+    holds. With P = (C G)⁻¹ C and K = Q_m Pᵀ (d Schur solves), a block is
+    Q_i[a, b] = Q_m[a, b] - G_a K_bᵀ - K_a G_bᵀ + G_a (P K) G_bᵀ. `structure`: the
+    minimal-datum problem's `bundle_structure`, if already computed."""
+    group = inner_constraint_group(problem)
+    minimal = minimal_constraints(problem, params)
+    structure = structure or bundle_structure(minimal)
+    base = schur_precision(minimal, params, sigma0=sigma0, structure=structure)
+    variance_factor = base.sigma0_squared / sigma0**2
+    null = group.null_space(params, problem.free)  # G (d, n_all)
+    constraint = np.asarray(group.directions)  # C
+    projector = np.linalg.solve(constraint @ null.T, constraint)  # P (d, n_all)
+    k = variance_factor * schur_solve(minimal, params, projector, structure=structure)
+    middle = projector @ k.T  # P K (d, d)
+
+    def transformed(block, g, k_block):  # (..., m, m) and (..., m, d) -> Q_i blocks
+        return (block - g @ np.swapaxes(k_block, -1, -2) - k_block @ np.swapaxes(g, -1, -2)
+                + g @ middle @ np.swapaxes(g, -1, -2))
+
+    reduced_positions = base.schur.reduced_positions
+    reduced = transformed(base.schur.reduced, null[:, reduced_positions].T,
+                          k[:, reduced_positions].T)
+    point_positions = np.asarray(unflatten(params, np.arange(null.shape[1])).points)
+    points = transformed(base.schur.points, np.moveaxis(null[:, point_positions], 0, -1),
+                         np.moveaxis(k[:, point_positions], 0, -1))
+    std = np.zeros(null.shape[1])
+    std[reduced_positions] = np.sqrt(np.clip(np.diag(reduced), 0.0, None))
+    std[point_positions] = np.sqrt(np.clip(np.diagonal(points, axis1=1, axis2=2), 0.0, None))
+    index = free_indices(problem)
+    return Precision(
+        sigma0_squared=base.sigma0_squared,
+        redundancy=base.redundancy,
+        n_observations=problem.n_observations(),
+        n_unknowns=index.size,
+        free_index=index,
+        covariance=None,
+        std=unflatten(jax.tree.map(np.asarray, params), std * flatten(problem.free)),
+        schur=SchurCovariance(reduced_positions, reduced, points),
+    )
+
+
+def free_network_redundancy_numbers(
+    problem: BundleProblem, params: Parameters
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of a free network's real observations at `params`, as
+    `schur_redundancy_numbers` (gauge invariant: from the minimal datum); the inner
+    constraints' rows have r = 0."""
+    group = inner_constraint_group(problem)
+    r, e = schur_redundancy_numbers(minimal_constraints(problem, params), params)
+    constraint_e = np.ravel(np.asarray(group.residuals(params, problem.refraction)))
+    return np.concatenate([r, np.zeros(constraint_e.size)]), np.concatenate([e, constraint_e])

@@ -1,0 +1,116 @@
+"""Internal reliability: redundancy numbers, normalised residuals, MDB.
+
+With the whitened Jacobian J (real observations) the redundancy matrix in whitened
+space is R = I - J (JᵀJ)⁻¹ Jᵀ; its diagonal equals that of R = I - A N⁻¹ AᵀP, so the
+redundancy numbers r_i = R_ii sum to the redundancy n - u. Normalised residuals
+w_i = v_i / (σ0 sqrt(q_vv,i)) = e_i / sqrt(r_i) (Baarda); the minimal detectable bias
+∇_i = δ0 σ_i / sqrt(r_i) with δ0 = z(1 - α/2) + z(power).
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.stats
+
+from .._problem._bundle import BundleProblem, observation_mask
+from .._problem._linearisation import dense_jacobian
+from ._adjustment import Adjustment
+from ._free_network import free_network_redundancy_numbers, inner_constraint_group
+from ._schur_reliability import schur_redundancy_numbers
+
+
+@dataclasses.dataclass(frozen=True)
+class Reliability:
+    """Per observation group, arrays shaped like the group's residuals (NaN where masked).
+
+    - `redundancy_numbers`: r_i in [0, 1];
+    - `normalised_residuals`: w_i (Baarda's w-test statistic);
+    - `mdb`: minimal detectable bias, units of the observation;
+    - `critical_value`: |w| above which an observation is rejected at `alpha`.
+    """
+
+    redundancy_numbers: tuple[np.ndarray, ...]
+    normalised_residuals: tuple[np.ndarray, ...]
+    mdb: tuple[np.ndarray, ...]
+    alpha: float
+    critical_value: float
+
+
+def _split(problem: BundleProblem, flat_real: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Scatter values of the real observations back into group-shaped arrays (NaN elsewhere)."""
+    mask = observation_mask(problem)
+    full = np.full(mask.shape, np.nan)
+    full[mask] = flat_real
+    parts, start = [], 0
+    for group in problem.groups:
+        shape = np.shape(group.stddev)
+        parts.append(full[start:start + int(np.prod(shape))].reshape(shape))
+        start += int(np.prod(shape))
+    return tuple(parts)
+
+
+def redundancy_numbers(
+    problem: BundleProblem, params, *, schur: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations, flat, at `params`: dense, or with `schur` from
+    the Schur split (`schur_redundancy_numbers`, for bundles adjusted that way; free
+    networks through their minimal datum)."""
+    if schur and inner_constraint_group(problem) is not None:
+        return free_network_redundancy_numbers(problem, params)
+    if schur:
+        return schur_redundancy_numbers(problem, params)
+    jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
+    column_scale = 1.0 / np.linalg.norm(jacobian, axis=0)
+    scaled = jacobian * column_scale
+    factor = scipy.linalg.cho_factor(scaled.T @ scaled)
+    leverage = np.sum(scaled * scipy.linalg.cho_solve(factor, scaled.T).T, axis=1)
+    return 1.0 - leverage, whitened
+
+
+def per_test_alpha(alpha: float, n_tests: int, *, familywise: bool) -> float:
+    """Significance of one w-test: `alpha` itself, or for a family-wise `alpha` over
+    `n_tests` tests Šidák's α0 = 1 - (1 - α)^(1/n)."""
+    return -math.expm1(math.log1p(-alpha) / n_tests) if familywise else alpha
+
+
+def reliability(
+    result: Adjustment, *, alpha: float = 0.001, power: float = 0.8, familywise: bool = False
+) -> Reliability:
+    """Redundancy numbers, w-test statistics and MDBs at the adjusted solution.
+
+    `alpha` is the significance of each w-test, or with `familywise=True` that of the
+    whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
+    """
+    r, whitened = redundancy_numbers(result.problem, result.parameters,
+                                     schur=result.precision.schur is not None)
+    return reliability_from_redundancy(
+        result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
+    )
+
+
+def reliability_from_redundancy(
+    problem: BundleProblem,
+    r: np.ndarray,
+    whitened: np.ndarray,
+    *,
+    alpha: float = 0.001,
+    power: float = 0.8,
+    familywise: bool = False,
+) -> Reliability:
+    """`reliability` from the redundancy numbers r_i and whitened residuals e_i of the real
+    observations (flat, `observation_mask` order), e.g. from a batched computation."""
+    alpha = per_test_alpha(alpha, problem.n_observations(), familywise=familywise)
+    safe_r = np.where(r > 1e-12, r, np.nan)
+    critical = float(scipy.stats.norm.ppf(1 - alpha / 2))
+    delta0 = critical + float(scipy.stats.norm.ppf(power))
+    sigma = np.concatenate([np.ravel(np.asarray(g.stddev)) for g in problem.groups])
+    sigma = sigma[observation_mask(problem)]
+    return Reliability(
+        redundancy_numbers=_split(problem, r),
+        normalised_residuals=_split(problem, whitened / np.sqrt(safe_r)),
+        mdb=_split(problem, delta0 * sigma / np.sqrt(safe_r)),
+        alpha=alpha,
+        critical_value=critical,
+    )

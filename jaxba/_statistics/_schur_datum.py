@@ -1,0 +1,121 @@
+"""`check_datum` for bundles too large for a dense Jacobian: from the Schur split.
+
+The normal matrix N = JᵀJ at the approximations is formed in blocks (`bundle_normal_equations`)
+and its null space found in two parts: an eliminated point whose 3 x 3 block V_p is singular
+(seen along a single ray) is a defect of its own; with every V_p regular, N x = 0 exactly
+when S x_r = 0 (S = U - W V⁻¹ Wᵀ, the reduced camera matrix, n_r x n_r) and
+x_p = -V_p⁻¹ Y_pᵀ x_r, so S's null vectors, extended to the points, span the defect. Both
+are then named as `check_datum` names them (`describe_defect`).
+
+Eigenvalues of the normal matrices rather than singular values of the Jacobian: the
+condition number is squared, so a defect shows as an eigenvalue ratio at rounding level
+(~1e-15) and the threshold is `EIGENVALUE_RTOL` (a Jacobian condition number of 1e6).
+"""
+
+import equinox as eqx
+import jax
+import numpy as np
+
+from .._problem._bundle import BundleProblem, free_indices
+from .._problem._parameters import flatten, parameter_labels, unflatten
+from .._solvers._schur._bundle import (
+    BundleStructure,
+    _reduced_positions,
+    _schur_complement,
+    _small_inverse,
+    bundle_normal_equations,
+    bundle_structure,
+)
+from ._datum import check_columns, describe_defect
+
+EIGENVALUE_RTOL = 1e-12
+
+
+def check_datum_schur(
+    problem: BundleProblem,
+    *,
+    labels: list[str] | None = None,
+    structure: BundleStructure | None = None,
+) -> None:
+    """Raise `DatumError` if the bundle is rank deficient at its approximations, naming the
+    defect as `check_datum` does, without a dense Jacobian (see the module docstring)."""
+    labels = labels or parameter_labels(problem.initial)
+    structure = structure or bundle_structure(problem)
+    normal = jax.jit(bundle_normal_equations)(problem, structure, problem.initial)
+    index = free_indices(problem)
+    n_all = flatten(problem.initial).size
+    row_of = np.full(n_all, -1)
+    row_of[index] = np.arange(index.size)
+    positions = unflatten(problem.initial, np.arange(n_all))
+    reduced_rows = row_of[_reduced_positions(problem, structure)]
+    point_rows = row_of[np.asarray(positions.points)[np.asarray(structure.eliminated_points)]]
+    reduced_free, point_free = reduced_rows >= 0, point_rows >= 0
+
+    hessian = np.asarray(normal.reduced_hessian)
+    point_hessian = np.asarray(normal.point_hessian)
+    diagonal = np.zeros(index.size)
+    diagonal[reduced_rows[reduced_free]] = np.diag(hessian)[reduced_free]
+    diagonal[point_rows[point_free]] = np.diagonal(point_hessian, axis1=1, axis2=2)[point_free]
+    finite = np.isfinite(diagonal)
+    column_norms = np.sqrt(np.where(finite, diagonal, 0.0))
+    check_columns(problem, finite, column_norms, labels)
+
+    basis = _single_ray_points(point_hessian, point_rows, index.size)
+    if basis is None:
+        basis = _reduced_null_space(structure, normal, reduced_rows, point_rows, index.size)
+    if basis is not None:
+        describe_defect(problem, basis, index, labels, column_norms=column_norms)
+
+
+def _equilibrated_null_space(matrix: np.ndarray) -> np.ndarray:
+    """Null vectors (columns) of a symmetric positive semi-definite matrix, found on its
+    diagonally equilibrated form and returned in the original units."""
+    if matrix.size == 0:
+        return np.zeros((0, 0))
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(matrix), np.finfo(float).tiny))
+    values, vectors = np.linalg.eigh(matrix * scale[:, None] * scale[None, :])
+    null = values < EIGENVALUE_RTOL * values[-1]
+    return vectors[:, null] * scale[:, None]
+
+
+def _single_ray_points(point_hessian, point_rows, n_free) -> np.ndarray | None:
+    """(d, n_free) null vectors of the points whose 3 x 3 block is singular (fixed
+    coordinates have a unit row there, so they never are)."""
+    diagonal = np.diagonal(point_hessian, axis1=1, axis2=2)
+    scale = 1.0 / np.sqrt(np.maximum(diagonal, np.finfo(float).tiny))
+    values, vectors = np.linalg.eigh(point_hessian * scale[:, :, None] * scale[:, None, :])
+    point, k = np.nonzero(values < EIGENVALUE_RTOL * values[:, -1:])
+    if point.size == 0:
+        return None
+    null = vectors[point, :, k] * scale[point]  # (d, 3)
+    rows = point_rows[point]
+    d, coordinate = np.nonzero(rows >= 0)
+    basis = np.zeros((point.size, n_free))
+    basis[d, rows[d, coordinate]] = null[d, coordinate]
+    return basis
+
+
+def _reduced_null_space(structure, normal, reduced_rows, point_rows, n_free) -> np.ndarray | None:
+    """(d, n_free) null vectors of S on the free reduced unknowns, extended to the points
+    by x_p = -V_p⁻¹ Y_pᵀ x_r; None if S is regular."""
+    point_inverse = _small_inverse(normal.point_hessian)
+    product, _ = eqx.filter_jit(_schur_complement)(structure, normal, point_inverse)
+    reduced = np.asarray(normal.reduced_hessian + product)
+    free = reduced_rows >= 0
+    null = _equilibrated_null_space(reduced[np.ix_(free, free)])
+    if null.shape[1] == 0:
+        return None
+    x_r = np.zeros((reduced.shape[0] + 1, null.shape[1]))  # + the padding column
+    x_r[np.flatnonzero(free)] = null
+    coupling = np.asarray(normal.coupling)  # W_iᵀ (n_obs + 1, 3, m)
+    columns = np.asarray(structure.image_columns)
+    n_e = point_rows.shape[0]
+    coupled = np.einsum("ocm,omd->odc", coupling, x_r[columns])  # (n_obs + 1, d, 3)
+    per_point = np.zeros((n_e + 1, null.shape[1], 3))
+    np.add.at(per_point, np.asarray(structure.image_point), coupled)
+    x_e = -np.einsum("pij,pdj->pdi", np.asarray(point_inverse), per_point[:n_e])
+    basis = np.zeros((null.shape[1], n_free))
+    basis[:, reduced_rows[free]] = null.T
+    point_free = point_rows >= 0
+    basis[:, point_rows[point_free]] = x_e.transpose(1, 0, 2)[:, point_free]
+    return basis

@@ -1,0 +1,115 @@
+"""Redundancy numbers of a bundle from the Schur split, without a dense Jacobian or N⁻¹.
+
+The redundancy number of a whitened residual entry with Jacobian row j is r = 1 - j N⁻¹ jᵀ.
+A row depends on few unknowns, so j N⁻¹ jᵀ needs only the cofactor blocks among them: for an
+image observation with blocks a (its reduced columns: IOPs, EOPs, a reduced point) and b (its
+eliminated point p),
+
+    j N⁻¹ jᵀ = a Q_rr aᵀ - 2 a G_p bᵀ + b Q_pp bᵀ,
+
+Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
+observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
+3 x 3 cofactor block; a needs only G_p's rows at its own columns, which, as Q_pp, are sums
+over the pairs of observations of the point (`_precision._observation_cofactors`). Direct
+observations of unknowns (control, GNSS/INS, IOP priors) need one diagonal cofactor each;
+distances the 6 x 6 block of their two (reduced) points.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._problem._bundle import BundleProblem, observation_mask
+from .._problem._observations import Distances, ImagePoints, ParameterObservations
+from .._problem._parameters import Parameters
+from .._solvers._schur._bundle import (
+    BundleStructure,
+    _block_columns,
+    _distance_columns,
+    _distance_jacobians,
+    _free_masks,
+    _image_blocks,
+    bundle_normal_equations,
+    bundle_structure,
+)
+from ._schur_precision import _observation_cofactors, _point_cofactors, _reduced_cofactor
+
+
+def schur_redundancy_numbers(
+    problem: BundleProblem, params: Parameters, *, structure: BundleStructure | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations, flat in `observation_mask` order, at `params`:
+    the same as `jaxba._statistics._reliability.redundancy_numbers` (dense), from the Schur split.
+    For bundles with a datum (S positive definite); not for free networks."""
+    if structure is None:
+        structure = bundle_structure(problem)
+    leverages, residuals = _leverages(problem, structure, params)
+    leverage = np.concatenate([np.ravel(np.asarray(h)) for h in leverages])
+    whitened = np.concatenate([np.ravel(np.asarray(e)) for e in residuals])
+    real = observation_mask(problem)
+    return 1.0 - leverage[real], whitened[real]
+
+
+@eqx.filter_jit
+def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
+    """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k), and the residuals."""
+    normal = bundle_normal_equations(problem, structure, params)
+    dtype = normal.reduced_gradient.dtype
+    cofactor, inverse = _reduced_cofactor(problem, structure, normal)
+    jr, je, _ = _image_blocks(problem, structure, params,
+                              *_free_masks(problem, structure, dtype))
+    image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
+    point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
+
+    full = problem.with_free(params)
+    residuals = problem.residuals(full)
+    free_r, _ = _free_masks(problem, structure, dtype)
+    leverages, start = [], 0
+    for group in problem.groups:
+        if isinstance(group, ImagePoints):
+            stop = start + group.point.shape[0]
+            leverages.append(image[start:stop])
+            start = stop
+        elif isinstance(group, ParameterObservations):
+            leverages.append(_direct_leverages(structure, group, cofactor, point_cofactors))
+        elif isinstance(group, Distances):
+            jd, _ = _distance_jacobians(problem, group, full)
+            columns = _distance_columns(structure, group)
+            jd = jd * free_r[columns][:, None, :]
+            block = cofactor[columns[:, :, None], columns[:, None, :]]
+            leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
+    return leverages, residuals
+
+
+def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:
+    """j N⁻¹ jᵀ (n_image_obs, 2) of the image observations (see the module docstring), and
+    the eliminated points' 3 x 3 cofactor blocks (n_e + 1, 3, 3) that it needs on the way."""
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+    per_key = padded[structure.key_columns[:, :, None], structure.key_columns[:, None, :]]
+
+    def reduced_part(jr_i, key_i):
+        return jnp.einsum("ka,ab,kb->k", jr_i, per_key[key_i], jr_i)
+
+    # One observation's m x m block at a time, vmapped over batches: never all at once.
+    leverage = jax.lax.map(lambda x: reduced_part(*x), (jr, structure.key),
+                           batch_size=structure.jacobian_batch)
+    g, point_blocks = _observation_cofactors(structure, normal, cofactor, inverse)
+    k = g.shape[-1]
+    # a G_p[c_i] bᵀ per residual entry: (a g_i) is (2, 3), dotted with b row by row.
+    a_g = sum(jr[:, :, a, None] * g[:, None, :, a] for a in range(k))
+    b_q = sum(je[:, :, c, None] * point_blocks[structure.image_point][:, None, c, :]
+              for c in range(3))
+    leverage = leverage + jnp.sum((b_q - 2.0 * a_g) * je, axis=2)
+    return leverage[:-1], point_blocks
+
+
+def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Array, "n k"]:
+    """Q_jj / σ² of direct observations of unknowns (whitened row -1/σ on one unknown)."""
+    rows = jnp.asarray(group.rows)
+    if group.block == "points":
+        variance = jnp.diagonal(point_cofactors[rows], axis1=1, axis2=2)
+    else:
+        variance = jnp.diagonal(cofactor)[_block_columns(structure, group)]
+    return jnp.where(group.mask(), variance / group.stddev**2, 0.0)
