@@ -1,15 +1,20 @@
 """The "metrology" camera model (forward distortion at the computed point, balanced radial term
 zero at the constant r0): its formula in NumPy, finite differences, the exact and approximate
-relations to SMAC and their conversions."""
+relations to SMAC and their conversions, a synthetic block adjusted with it (and, biased, with
+SMAC), its r0 in the reports."""
+
+import json
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 from helpers import FD_ATOL, FD_RTOL, FORMULA_RTOL, assert_jacobian_matches_fd
 
 import jaxba
 from jaxba._camera._metrology import metrology_image, smac_correction
+from jaxba._synthetic import PIXEL_SIZE, rotation_matrix
 
 MetrologyCamera = jaxba.CAMERA_MODELS["metrology"]
 NAMES = ("xh", "yh", "c", "A1", "A2", "A3", "B1", "B2", "C1", "C2")
@@ -217,4 +222,106 @@ def test_conversion_arguments_are_checked():
     with pytest.raises(ValueError, match="expected a smac camera"):
         camera = MetrologyCamera.from_parameters(jnp.asarray([CAMERA[n] for n in NAMES]), r0=R0)
         jaxba.smac_to_metrology(camera, R0, format_mm=FORMAT)
+
+
+# --- a synthetic block through cameras.toml -------------------------------------------------
+
+# The synthetic lab's wide-angle geometry (c 8.5 mm, 22 x 15 mm format) with a metrology lens,
+# balanced at r0 = 6 mm; 0.1 px of noise (0.37 µm), as the project's image σ says. Adjusted as
+# SMAC, σ̂0 comes out 1.087 (the issue's "8 % high"): SMAC cannot reproduce the lens to that
+# precision.
+BLOCK_R0 = 6.0
+BLOCK_CAMERA = dict(xh=0.012, yh=-0.008, c=8.52, A1=-6e-4, A2=2e-6, A3=-5e-9, B1=2e-5,
+                    B2=-1.5e-5, C1=1e-4, C2=-5e-5)
+NOISE_PX = 0.1
+SMAC_FREE = ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2", "A1", "A2")
+
+
+def _cameras_toml(model: str) -> str:
+    """cameras.toml of camera C1 with approximations c = 8.5, everything else 0, all free."""
+    names = NAMES if model == "metrology" else SMAC_FREE
+    lines = ["[C1]", f'model = "{model}"', "pixel_size = [0.00369, 0.00369]",
+             "sensor = [6000, 4000]", "c = 8.5", f"free = {json.dumps(list(names))}"]
+    if model == "metrology":
+        lines.insert(2, f"r0 = {BLOCK_R0}")
+    return "\n".join(lines) + "\n"
+
+
+def _write_metrology_block(directory):
+    """The synthetic lab (12 images, 60 targets, datum and distances) with its image points
+    made by the metrology camera BLOCK_CAMERA, plus noise; cameras.toml for "metrology"."""
+    truth = jaxba.write_synthetic_project(directory, seed=11, n_images=12, n_targets=60,
+                                          noise_px=0.0, image_sigma_px=NOISE_PX)
+    rng = np.random.default_rng(12)
+    table = directory / "image_coordinates.txt"
+    header, *rows = table.read_text().splitlines()
+    lines = [header]
+    for row in rows:
+        image, point = row.split()[:2]
+        x0, y0, z0, *opk = truth.images[image]
+        m = rotation_matrix(*np.radians(opk))
+        p_camera = m @ (np.array(truth.points[point]) - [x0, y0, z0])
+        xy = _metrology_numpy(BLOCK_CAMERA, BLOCK_R0, p_camera[None])[0]
+        xy = xy + rng.normal(0.0, NOISE_PX * PIXEL_SIZE[0], 2)
+        lines.append(f"{image} {point} {xy[0]:.8f} {xy[1]:.8f}")
+    table.write_text("\n".join(lines) + "\n")
+    (directory / "cameras.toml").write_text(_cameras_toml("metrology"))
+    return truth.project_file
+
+
+@pytest.fixture(scope="module")
+def metrology_block(tmp_path_factory):
+    """(project file, project, result): the metrology block adjusted with its own model."""
+    project_file = _write_metrology_block(tmp_path_factory.mktemp("metrology"))
+    project = jaxba.build_project(jaxba.read_project(project_file))
+    return project_file, project, jaxba.adjust_project(project)
+
+
+def test_block_recovers_its_camera_and_sigma0(metrology_block):
+    _, project, result = metrology_block
+    assert result.converged, result.message
+    model, row = project.camera_rows["C1"]
+    assert model == "metrology"
+    values = np.asarray(result.parameters.cameras[model][row])
+    stds = np.asarray(result.precision.std.cameras[model][row])
+    deviation = (values - [BLOCK_CAMERA[n] for n in NAMES]) / stds
+    assert np.all(np.abs(deviation) < 3), dict(zip(NAMES, deviation.round(2)))
+    assert 0.9 < result.sigma0 < 1.1
+
+
+def test_block_adjusted_as_smac_is_biased(metrology_block, tmp_path):
+    """The same data with a SMAC camera: corrections at the (noisy) measured point cannot
+    reproduce the metrology lens, σ̂0 comes out clearly higher (the issue's 8 %)."""
+    project_file, _, metrology = metrology_block
+    folder = tmp_path / "smac"
+    folder.mkdir()
+    for path in project_file.parent.iterdir():
+        (folder / path.name).write_bytes(path.read_bytes())
+    (folder / "cameras.toml").write_text(_cameras_toml("smac"))
+    result = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(folder /
+                                                                          project_file.name)))
+    assert result.converged, result.message
+    redundancy = result.precision.redundancy
+    upper = np.sqrt(scipy.stats.chi2.ppf(0.975, redundancy) / redundancy)  # σ0 = 1
+    assert metrology.sigma0 < upper < 1.05 < result.sigma0
+
+
+def test_block_on_the_schur_backend_agrees(metrology_block):
+    """The constant r0 reaches the Schur backend's Jacobian blocks too."""
+    _, project, dense = metrology_block
+    schur = jaxba.solve_schur(project.problem)
+    assert schur.converged
+    np.testing.assert_allclose(schur.parameters.cameras["metrology"],
+                               dense.parameters.cameras["metrology"], rtol=1e-7, atol=1e-12)
+
+
+def test_reports_list_r0_as_a_constant(metrology_block, tmp_path):
+    _, project, result = metrology_block
+    jaxba.write_reports(project, result, tmp_path)
+    camera = json.loads((tmp_path / "results.json").read_text())["cameras"]["C1"]
+    assert camera["r0"] == {"value": BLOCK_R0, "std": 0.0, "status": "constant"}
+    assert camera["A1"]["status"] == "free"
+    out = (tmp_path / f"{project.spec.name}.out").read_text()
+    row = next(line for line in out.splitlines() if line.split()[:1] == ["r0"])
+    assert row.split()[-1] == "constant" and float(row.split()[1]) == BLOCK_R0
 
