@@ -1,7 +1,7 @@
 """The "metrology" camera model (forward distortion at the computed point, balanced radial term
 zero at the constant r0): its formula in NumPy, finite differences, the exact and approximate
 relations to SMAC and their conversions, a synthetic block adjusted with it (and, biased, with
-SMAC), its r0 in the reports."""
+SMAC), its r0 in the reports; and the datum check that refuses SMAC's K0 freed with c."""
 
 import json
 
@@ -325,3 +325,32 @@ def test_reports_list_r0_as_a_constant(metrology_block, tmp_path):
     row = next(line for line in out.splitlines() if line.split()[:1] == ["r0"])
     assert row.split()[-1] == "constant" and float(row.split()[1]) == BLOCK_R0
 
+
+# --- the datum: SMAC's K0 freed with c ------------------------------------------------------
+
+
+def _k0_project(directory, sigma_k0=None):
+    """A small SMAC block with K0 free beside c (or weighted with σ `sigma_k0`)."""
+    free = ("xp", "yp", "c", "K1", "K2", "P1", "P2") + (("K0",) if sigma_k0 is None else ())
+    truth = jaxba.write_synthetic_project(directory, seed=3, n_images=6, n_targets=20, free=free)
+    if sigma_k0 is not None:
+        cameras = directory / "cameras.toml"
+        cameras.write_text(cameras.read_text() + f"\n[C1.sigma]\nK0 = {sigma_k0}\n")
+    return jaxba.build_project(jaxba.read_project(truth.project_file))
+
+
+@pytest.mark.parametrize("solver", ["dense", "schur"])
+def test_k0_freed_with_c_is_refused_before_solving(tmp_path, solver):
+    """Not separable: the solve would collapse to c = 0, K0 = 1 (every residual 0)."""
+    project = _k0_project(tmp_path)
+    with pytest.raises(jaxba.DatumError, match="K0 and c of camera C1 are not separable"):
+        jaxba.adjust(project.problem, labels=project.labels, solver=solver)
+
+
+def test_k0_with_a_prior_beside_c_is_separable(tmp_path):
+    from jaxba._datum import check_separable
+
+    project = _k0_project(tmp_path, sigma_k0=1e-4)
+    check_separable(project.problem, project.labels)  # no DatumError
+    names = jaxba.SmacCamera.parameter_names
+    assert bool(project.problem.free.cameras["smac"][0, names.index("K0")])

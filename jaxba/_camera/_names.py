@@ -26,3 +26,9 @@ PRINCIPAL_DISTANCES: dict[str, tuple[str, ...]] = {
 }
 """Per model, the parameters that are a principal distance (focal length): > 0, or the
 model divides by 0 or mirrors the image (`read_project` refuses others)."""
+
+INSEPARABLE_PARAMETERS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    "smac": (("K0", "c", "K0 x̄ scales the image as c does"),),
+}
+"""Per model, pairs of parameters that the observations cannot separate (a datum defect
+when both are free without a prior), with the reason: `check_datum` refuses them."""
