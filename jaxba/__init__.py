@@ -29,8 +29,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._io._project._batch_run": ("run_batch",),
     "._models._cameras": (
         "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
-        "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera", "NoRefraction",
-        "OpenCVCamera", "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera",
+        "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
+        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "PhotoModelerCamera", "PixelGrid",
+        "RadialSmac", "SmacCamera", "metrology_to_smac", "smac_to_metrology",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),
     "._solvers._dense": ("solve",),

@@ -308,10 +308,12 @@ def test_adjust_refuses_float32():
 
 @pytest.mark.slow  # a cold compilation of its own shapes
 def test_singular_normal_matrix_writes_reports_exit_1(tmp_path, capsys):
-    """K0 freed with c: the solve collapses (c → 0) and N is singular at its end. Exit 1,
+    """K0 weighted with a vague prior (σ 1000) beside a free c (both free is refused by the
+    datum check): the solve collapses (c → 0, K0 → 1) and N is singular at its end. Exit 1,
     reports written with σ unavailable (null in results.json), no traceback."""
     truth = jaxba.write_synthetic_project(tmp_path / "k0", seed=3, n_images=6, n_targets=20)
-    _edit(truth.project_file.parent / "cameras.toml", 'free = ["xp"', 'free = ["K0", "xp"')
+    cameras = truth.project_file.parent / "cameras.toml"
+    cameras.write_text(cameras.read_text() + "\n[C1.sigma]\nK0 = 1000.0\n")
     code, out, err = _run("adjust", truth.project_file, "--out", tmp_path / "out",
                           capsys=capsys)
     assert code == 1, err

@@ -350,6 +350,11 @@ def test_missing_project_file(tmp_path):
         ("K2 = 1e-6", "K2 = 0.0", ["cameras.toml", "[C1.sigma] K2", "> 0"]),
         ("K2 = 1e-6", "K2 = -1e-6", ["cameras.toml", "[C1.sigma] K2", "> 0"]),
         ("c = 8.5", 'c = "8.5"', ["cameras.toml", "[C1] c", "number"]),
+        (
+            "c = 8.5",
+            "c = 8.5\nr0 = 12.5",
+            ["cameras.toml", "[C1] r0", "constant of model 'metrology'", "model 'smac' has no r0"],
+        ),
         ("c = 8.5", "c = inf", ["cameras.toml", "[C1] c", "number"]),
         (
             "pixel_size = [0.00369, 0.00369]",
@@ -372,6 +377,45 @@ def test_missing_project_file(tmp_path):
 )
 def test_camera_errors(tmp_path, old, new, parts):
     assert_error(write_project(tmp_path, cameras_toml=(old, new)), *parts)
+
+
+METROLOGY_CAMERAS = """\
+[C1]
+model = "metrology"
+r0 = 12.5
+c = 24.5
+A1 = -1e-4
+free = ["xh", "yh", "c", "A1"]
+[C1.sigma]
+C1 = 1e-4
+"""
+
+
+def test_metrology_camera_and_its_constant_r0(tmp_path):
+    spec = read_project(write_project(tmp_path, cameras_toml=(CAMERAS, METROLOGY_CAMERAS)))
+    camera = spec.cameras["C1"]
+    assert camera.model == "metrology"
+    assert camera.constants == {"r0": 12.5}
+    assert camera.values == {"xh": 0.0, "yh": 0.0, "c": 24.5, "A1": -1e-4, "A2": 0.0, "A3": 0.0,
+                             "B1": 0.0, "B2": 0.0, "C1": 0.0, "C2": 0.0}
+    assert camera.free == frozenset({"xh", "yh", "c", "A1"}) and camera.sigma == {"C1": 1e-4}
+    assert read_project(write_project(tmp_path)).cameras["C1"].constants == {}
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "parts"),
+    [
+        ("r0 = 12.5\n", "", ["cameras.toml", "[C1] r0", "missing", "'metrology'"]),
+        ("r0 = 12.5", "r0 = -1.0", ["cameras.toml", "[C1] r0", "≥ 0"]),
+        ("r0 = 12.5", 'r0 = "12.5"', ["cameras.toml", "[C1] r0", "number"]),
+        ('"A1"]', '"A1", "r0"]', ["cameras.toml", "[C1] free", "'r0'", "constant", "cannot"]),
+        ("C1 = 1e-4", "r0 = 0.1", ["cameras.toml", "[C1.sigma] r0", "constant", "no prior"]),
+        ("c = 24.5", "c = 0.0", ["cameras.toml", "[C1] c", "> 0"]),
+    ],
+)
+def test_metrology_camera_errors(tmp_path, old, new, parts):
+    cameras = METROLOGY_CAMERAS.replace(old, new, 1)
+    assert_error(write_project(tmp_path, cameras_toml=(CAMERAS, cameras)), *parts)
 
 
 @pytest.mark.parametrize("key", ["pixel_size", "sensor"])

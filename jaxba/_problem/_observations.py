@@ -89,11 +89,14 @@ def collinearity_residual(
     sigma: Vector2,
     refraction: AbstractRefraction,
     pose: str = "opk",
+    constants: tuple[tuple[str, float], ...] = (),
 ) -> Vector2:
     """Whitened image residual (x_obs - x, y_obs - y) / σ of one measured image point; `eop`
-    is the image's row of the pose model `pose` (`POSE_MODELS`)."""
+    is the image's row of the pose model `pose` (`POSE_MODELS`); `constants` the camera
+    model's constants as (name, value) pairs (`AbstractCamera.constant_names`)."""
     return _frame_collinearity_residual(
-        model, iop, POSE_MODELS[pose].from_parameters(eop), point, measured, sigma, refraction)
+        model, iop, POSE_MODELS[pose].from_parameters(eop), point, measured, sigma, refraction,
+        constants)
 
 
 def _frame_collinearity_residual(
@@ -104,10 +107,11 @@ def _frame_collinearity_residual(
     measured: Vector2,
     sigma: Vector2,
     refraction: AbstractRefraction,
+    constants: tuple[tuple[str, float], ...] = (),
 ) -> Vector2:
     """`collinearity_residual` with the image's pose given as a frame (a pose's `frame()`:
     `to_camera`, `station`)."""
-    camera = CAMERA_MODELS[model].from_parameters(iop)
+    camera = CAMERA_MODELS[model].from_parameters(iop, **dict(constants))
     k = refraction.coefficient(frame.station(), point)
     return (measured - camera.image_point(frame.to_camera(point), measured, k)) / sigma
 
@@ -125,6 +129,10 @@ class ImagePoints(AbstractObservationGroup):
     needs more than its group; consumers that hold only Parameters (the datum's similarity
     transform) ask the problem (`BundleProblem.pose`), which holds one pose model for all
     its image groups.
+
+    `constants`: the values of the camera model's constants (`AbstractCamera.constant_names`,
+    e.g. (("r0", 12.5),) for "metrology") as (name, value) pairs, shared by all the group's
+    cameras (project files make one group per camera); () for models without constants.
     """
 
     name: str = eqx.field(static=True)
@@ -135,6 +143,7 @@ class ImagePoints(AbstractObservationGroup):
     measured: Float[Array, "n 2"]
     stddev: Float[Array, "n 2"]
     pose: str = eqx.field(static=True, default="opk")
+    constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
 
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
         """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
@@ -177,7 +186,7 @@ class ImagePoints(AbstractObservationGroup):
 
     def _row_residual(self, iop, frame, point, measured, sigma, refraction):
         return _frame_collinearity_residual(
-            self.model, iop, frame, point, measured, sigma, refraction)
+            self.model, iop, frame, point, measured, sigma, refraction, self.constants)
 
 
 class ParameterObservations(AbstractObservationGroup):

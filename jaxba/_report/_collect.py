@@ -31,6 +31,7 @@ from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
+CONSTANT = "constant"  # a constant of the camera model (e.g. the metrology model's r0), σ 0
 MM, PIXEL = "mm", "pixel"  # image units of a camera model (CAMERA_MODELS[model].image_units)
 # One character per coordinate, as the σ columns of the input tables: - free, 0 fixed, w weighted.
 STATUS_CODE = {FREE: "-", FIXED: "0", WEIGHTED: "w"}
@@ -187,18 +188,23 @@ def _status_table(estimated, sigma: list[tuple]) -> np.ndarray:
 
 @_shared
 def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTable]:
-    """One single-row table per camera: every parameter of its model, value and σ."""
+    """One single-row table per camera: every parameter of its model, value and σ, then
+    the model's constants (status "constant", σ 0)."""
     tables = {}
     for cid, (model, row) in project.camera_rows.items():
         names = CAMERA_MODELS[model].parameter_names
         camera = project.spec.cameras[cid]
         estimated = np.asarray(project.problem.free.cameras[model])[row]
+        constants = [camera.constants[n] for n in CAMERA_MODELS[model].constant_names]
+        values = np.asarray(result.parameters.cameras[model])[row]
+        stds = np.asarray(result.precision.std.cameras[model])[row]
         tables[cid] = ParameterTable(
-            names=tuple(names),
+            names=tuple(names) + CAMERA_MODELS[model].constant_names,
             ids=[cid],
-            values=np.asarray(result.parameters.cameras[model])[row][None, :],
-            stds=np.asarray(result.precision.std.cameras[model])[row][None, :],
-            status=[[_status(bool(e), n in camera.sigma) for n, e in zip(names, estimated)]],
+            values=np.r_[values, constants][None, :],
+            stds=np.r_[stds, np.zeros(len(constants))][None, :],
+            status=[[_status(bool(e), n in camera.sigma) for n, e in zip(names, estimated)]
+                    + [CONSTANT] * len(constants)],
         )
     return tables
 

@@ -10,7 +10,15 @@ from .._io._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
 from .._timing import Timings
-from ._collect import FIXED, camera_tables, describe, group_statistics, observation_ids, rejections
+from ._collect import (
+    CONSTANT,
+    FIXED,
+    camera_tables,
+    describe,
+    group_statistics,
+    observation_ids,
+    rejections,
+)
 
 VARIANCE_TEST_ALPHA = 0.05  # two-sided χ² test of the variance factor
 LISTED = 5  # observations named in one warning, the largest |w| first
@@ -43,7 +51,7 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         width = max(len(name) for name in camera.names)
         for k, name in enumerate(camera.names):
             status = camera.status[0][k]
-            if status == FIXED:
+            if status in (FIXED, CONSTANT):
                 continue
             note = "  (weighted)" if status != "free" else ""
             lines.append(

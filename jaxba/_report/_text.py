@@ -307,7 +307,8 @@ def _optional(value: float, decimals: int = _PX_DECIMALS) -> str:
 def out_text(project: Project, result: Adjustment) -> str:
     """NAME.out: run summary, IOPs of every camera, EOPs of all images, object points, all with σ.
 
-    Status: free, fixed (σ 0) or weighted (a prior σ or a GNSS/INS/control observation); in the
+    Status: free, fixed (σ 0) or weighted (a prior σ or a GNSS/INS/control observation), and
+    "constant" for a camera model's constants (the metrology model's r0); in the
     EOP and point tables one character per coordinate as in the input files: - free, 0 fixed,
     w weighted.
     """

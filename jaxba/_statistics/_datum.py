@@ -4,10 +4,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._models._cameras import CAMERA_MODELS
+from .._models._cameras._names import INSEPARABLE_PARAMETERS
 from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices
 from .._problem._linearisation import dense_jacobian
+from .._problem._observations import ParameterObservations
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from ._causes import intersection_cause, nonfinite_observations
 
@@ -180,8 +183,9 @@ def nonfinite_start_error(problem: BundleProblem, labels: list[str]) -> DatumErr
 def check_columns(
     problem: BundleProblem, finite: np.ndarray, column_norms: np.ndarray, labels: list[str]
 ) -> None:
-    """The checks before any decomposition: a positive redundancy, a finite model and an
-    observation for every free unknown (`finite`, `column_norms`: (n_free,) per column of
+    """The checks before any decomposition: a positive redundancy, no inseparable camera
+    parameters free together (`check_separable`), a finite model and an observation for
+    every free unknown (`finite`, `column_norms`: (n_free,) per column of
     the whitened Jacobian at the approximations)."""
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
     if n_observations <= n_unknowns:
@@ -189,6 +193,7 @@ def check_columns(
             f"{n_observations} observations cannot determine {n_unknowns} unknowns "
             "(redundancy must be positive)"
         )
+    check_separable(problem, labels)
     index = free_indices(problem)
     if not np.all(finite):
         error = nonfinite_start_error(problem, labels)
@@ -204,6 +209,32 @@ def check_columns(
             f"no observation depends on {names} at the approximations (not a datum matter:"
             " an unknown with no effect there, such as P3 while P1 = P2 = 0): fix"
             f" {it}, or start from approximations where {acts}")
+
+
+def check_separable(problem: BundleProblem, labels: list[str]) -> None:
+    """Refuse a camera whose model's inseparable pair (`INSEPARABLE_PARAMETERS`, e.g. SMAC's
+    K0 and c) is free with no prior on either: the observations cannot tell them apart (a
+    solve from there collapses, e.g. to c = 0, K0 = 1)."""
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    for model, free in problem.free.cameras.items():
+        pairs = INSEPARABLE_PARAMETERS.get(model, ())
+        if not pairs:
+            continue
+        free = np.asarray(free, dtype=bool)
+        prior = np.zeros_like(free)
+        for group in problem.groups:
+            if isinstance(group, ParameterObservations) and group.block == f"cameras/{model}":
+                prior[np.asarray(group.rows)] |= np.isfinite(np.asarray(group.stddev))
+        names = CAMERA_MODELS[model].parameter_names
+        for a, b, reason in pairs:
+            ia, ib = names.index(a), names.index(b)
+            both = free[:, ia] & free[:, ib] & ~prior[:, ia] & ~prior[:, ib]
+            for row in np.flatnonzero(both):
+                camera = labels[int(np.asarray(positions.cameras[model])[row, ia])]
+                camera = camera.removesuffix(f" {a}")
+                raise DatumError(
+                    f"datum defect: {a} and {b} of {camera} are not separable ({reason}):"
+                    f" fix one of them, or give it a prior σ")
 
 
 def check_datum_with_jacobian(

@@ -148,6 +148,7 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
             grid = grids[camera_id]
             xy = np.asarray(grid.pixel_to_image(xy))
             sigma = sigma * np.asarray(grid.pixel_size)
+        constants = spec.cameras[camera_id].constants
         groups.append(ImagePoints(
             name=f"image_points:{camera_id}",
             model=model,
@@ -156,6 +157,7 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
             point=jnp.asarray(point[rows]),
             measured=jnp.asarray(xy),
             stddev=jnp.asarray(sigma),
+            constants=tuple((n, constants[n]) for n in CAMERA_MODELS[model].constant_names),
         ))
     return groups
 

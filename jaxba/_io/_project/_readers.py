@@ -21,7 +21,11 @@ from typing import Any
 import numpy as np
 
 from ..._gc import paused_gc
-from ..._models._cameras._names import CAMERA_PARAMETER_NAMES, PRINCIPAL_DISTANCES
+from ..._models._cameras._names import (
+    CAMERA_CONSTANT_NAMES,
+    CAMERA_PARAMETER_NAMES,
+    PRINCIPAL_DISTANCES,
+)
 from ._errors import ProjectError
 from ._spec import (
     AdjustmentSettings,
@@ -234,7 +238,8 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
             f"{where} model: unknown camera model {model!r}; known models: {', '.join(models)}"
         )
     names = models[model]
-    _check_keys(table, _CAMERA_KEYS + names, where)
+    constants = _read_constants(table, model, where)
+    _check_keys(table, _CAMERA_KEYS + names + tuple(constants), where)
     values = {name: _toml_float(table.get(name, 0.0), f"{where} {name}") for name in names}
     for name in PRINCIPAL_DISTANCES.get(model, ()):
         if values[name] <= 0:
@@ -248,6 +253,9 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
     if not isinstance(free, list) or not all(isinstance(name, str) for name in free):
         raise ProjectError(f"{where} free: expected a list of parameter names, got {free!r}")
     for name in free:
+        if name in constants:
+            raise ProjectError(f"{where} free: {name!r} is a constant of model {model!r}, "
+                               "not an unknown; it cannot be free")
         if name not in names:
             raise ProjectError(
                 f"{where} free: unknown parameter {name!r} for model {model!r}; "
@@ -258,6 +266,10 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
     sigma_table = table.get("sigma", {})
     if not isinstance(sigma_table, dict):
         raise ProjectError(f"{sigma_where}: expected a table of prior σ, got {sigma_table!r}")
+    for name in constants:
+        if name in sigma_table:
+            raise ProjectError(f"{sigma_where} {name}: {name!r} is a constant of model "
+                               f"{model!r}, not an unknown; it has no prior σ")
     _check_keys(sigma_table, names, sigma_where)
     sigma = {
         name: _toml_float(value, f"{sigma_where} {name}", positive=True)
@@ -278,7 +290,28 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
         sigma=sigma,
         pixel_size=_toml_pair(table.get("pixel_size"), f"{where} pixel_size", _toml_float),
         sensor=_toml_pair(table.get("sensor"), f"{where} sensor", _toml_int),
+        constants=constants,
     )
+
+
+def _read_constants(table: dict, model: str, where: str) -> dict[str, float]:
+    """The model's constants (CAMERA_CONSTANT_NAMES; each required, ≥ 0); a constant of
+    another model is refused by name."""
+    own = CAMERA_CONSTANT_NAMES.get(model, ())
+    for other, names in CAMERA_CONSTANT_NAMES.items():
+        for name in names:
+            if name in table and name not in own:
+                raise ProjectError(
+                    f"{where} {name}: {name} is a constant of model {other!r}; model "
+                    f'{model!r} has no {name} (remove it, or set model = "{other}")'
+                )
+    for name in own:
+        if name not in table:
+            raise ProjectError(
+                f"{where} {name}: missing; model {model!r} needs its constant {name} "
+                "(a value of the camera that is not estimated)"
+            )
+    return {name: _toml_float(table[name], f"{where} {name}", nonnegative=True) for name in own}
 
 
 # --- text tables ------------------------------------------------------------------------

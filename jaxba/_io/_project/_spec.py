@@ -56,6 +56,8 @@ class CameraSpec:
     sigma: dict[str, float]
     pixel_size: tuple[float, float] | None = None
     sensor: tuple[int, int] | None = None
+    # The model's constants (CAMERA_CONSTANT_NAMES), e.g. {"r0": 12.5} for "metrology".
+    constants: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,9 +20,10 @@ class _Parametrised(eqx.Module):
     parameter_names: ClassVar[tuple[str, ...]]
 
     @classmethod
-    def from_parameters(cls, values: Float[Array, " n"]) -> Self:
-        """Build the model from its parameter vector (order of `parameter_names`)."""
-        return cls(*(values[i] for i in range(len(cls.parameter_names))))
+    def from_parameters(cls, values: Float[Array, " n"], **constants: float) -> Self:
+        """Build the model from its parameter vector (order of `parameter_names`) and its
+        constants, if it has any (`AbstractCamera.constant_names`), by name."""
+        return cls(*(values[i] for i in range(len(cls.parameter_names))), **constants)
 
     def parameters(self) -> Float[Array, " n"]:
         """The parameter vector, in the order of `parameter_names`."""
@@ -50,9 +51,13 @@ class AbstractCamera(_Parametrised):
 
     `image_units` says what the model computes: "mm" (photogrammetric image frame; pixel
     observations are converted with the camera's pixel grid) or "pixel" (col, row directly).
+    `constant_names`: the model's constants, values of a camera that are never unknowns
+    (static fields, e.g. the metrology model's r0); `from_parameters` takes them by name,
+    and an `ImagePoints` group passes its `constants` there.
     """
 
     image_units: ClassVar[str]
+    constant_names: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:

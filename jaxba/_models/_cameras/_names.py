@@ -12,11 +12,23 @@ CAMERA_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
     "photomodeler": ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2", "aspect", "skew"),
     "bal": ("f", "k1", "k2"),
     "fisheye": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+    "metrology": ("xh", "yh", "c", "A1", "A2", "A3", "B1", "B2", "C1", "C2"),
 }
+
+CAMERA_CONSTANT_NAMES: dict[str, tuple[str, ...]] = {"metrology": ("r0",)}
+"""Per model, its constants: values of the camera that are never unknowns (cameras.toml
+keys, required for the model and refused for the others), e.g. the radius r0 (mm) where
+the metrology model's balanced radial distortion crosses zero."""
 
 PRINCIPAL_DISTANCES: dict[str, tuple[str, ...]] = {
     "smac": ("c",), "opencv": ("fx", "fy"), "photomodeler": ("c",), "bal": ("f",),
-    "fisheye": ("fx", "fy"),
+    "fisheye": ("fx", "fy"), "metrology": ("c",),
 }
 """Per model, the parameters that are a principal distance (focal length): > 0, or the
 model divides by 0 or mirrors the image (`read_project` refuses others)."""
+
+INSEPARABLE_PARAMETERS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    "smac": (("K0", "c", "K0 x̄ scales the image as c does"),),
+}
+"""Per model, pairs of parameters that the observations cannot separate (a datum defect
+when both are free without a prior), with the reason: `check_datum` refuses them."""

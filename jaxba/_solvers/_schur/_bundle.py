@@ -525,7 +525,7 @@ def _image_jacobian_blocks(
         iop = free_iop if all_iops else iop.at[iop_columns].set(free_iop)
         e = _frame_collinearity_residual(
             group.model, iop, pose.row_frame(pose_inputs, delta), point, *data[:2],
-            problem.refraction,
+            problem.refraction, group.constants,
         )
         e = jnp.where(data[2], e, 0.0)
         e = e if problem.robust is None else problem.robust(e)
