@@ -6,7 +6,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from jaxba import _synthetic as syn
+from jaxba._io import _synthetic as syn
 
 ROTATION_TOL = 1e-14
 IMPLICIT_TOL_MM = 1e-12

@@ -2,7 +2,7 @@
 space resection, forward intersection, relative and absolute orientation, stereo parallax.
 
 Each tool is a plain function of NumPy arrays, usable on its own, in jaxba's conventions
-(CONVENTIONS.md: image frame x right, y up, camera looking along -z; M = R3(kappa) R2(phi)
+(docs/conventions.md: image frame x right, y up, camera looking along -z; M = R3(kappa) R2(phi)
 R1(omega); angles in radians), so that its EOPs and points start a jaxba adjustment.
 """
 

@@ -3,7 +3,7 @@ chapter 8, "Absolute orientation: mathematical model")
 
     X_G = T + S R X_M,   R = M(Omega, Phi, Kappa)ᵀ
 
-with M jaxba's rotation (CONVENTIONS.md): (Omega, Phi, Kappa) rotate the ground frame into the
+with M jaxba's rotation (docs/conventions.md): (Omega, Phi, Kappa) rotate the ground frame into the
 model frame, as an image's (omega, phi, kappa) rotate the object frame into the image frame.
 Closed form by Umeyama's SVD (the least-squares similarity, "Least-squares estimation of
 transformation parameters between two point patterns", IEEE PAMI 13(4), 1991; Horn's

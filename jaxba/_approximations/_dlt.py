@@ -6,7 +6,7 @@ orientation (seed chapter 7/8: "Direct Linear Transformation"; Hartley & Zisserm
     y = (L5 X + L6 Y + L7 Z + L8) / (L9 X + L10 Y + L11 Z + 1)
 
 In homogeneous form (x, y, 1) ∝ P (X, Y, Z, 1) with the 3x4 matrix P, which in jaxba's
-convention (CONVENTIONS.md) is P ∝ K M [I | -X0] with
+convention (docs/conventions.md) is P ∝ K M [I | -X0] with
 
     K = [[-c / (1 + A1), -A2 c / ((1 + A1)(1 - A1)), xp],
          [0,              -c / (1 - A1),             yp],

@@ -1,7 +1,7 @@
 """Forward (space) intersection: an object point from its image points in n >= 2 oriented images
 (seed chapter 8, "Stereo photogrammetry": two rays, four equations, three unknowns).
 
-Each image point defines the ray X0_i + λ Mᵢᵀ (x̄, ȳ, -c) (λ > 0, CONVENTIONS.md). The closed
+Each image point defines the ray X0_i + λ Mᵢᵀ (x̄, ȳ, -c) (λ > 0, docs/conventions.md). The closed
 form is the point nearest to all rays in least squares; the refinement minimises the image
 residuals of the collinearity equations over the point's three coordinates.
 """

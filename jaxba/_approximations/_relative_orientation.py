@@ -3,7 +3,7 @@
 vision equivalent, for a start from nothing).
 
 With rays rₖ = (x̄ₖ, ȳₖ, -cₖ) in each image frame (positive multiples of Mₖ (X - X0ₖ),
-CONVENTIONS.md), conjugate rays and the base b = X02 - X01 are coplanar in the model frame:
+docs/conventions.md), conjugate rays and the base b = X02 - X01 are coplanar in the model frame:
 
     F = b · (M1ᵀ r1 × M2ᵀ r2) = 0.
 

@@ -2,7 +2,7 @@
 chapter 8 and the stereo lecture's "Exterior orientation by space resection").
 
 A closed-form start (the calibrated DLT for non-planar control, a plane-to-image homography
-for planar control) refined by least squares on the collinearity equations (CONVENTIONS.md)
+for planar control) refined by least squares on the collinearity equations (docs/conventions.md)
 
     x = xp - c U / W,   y = yp - c V / W,   (U, V, W) = M(omega, phi, kappa) (X - X0)
 
@@ -80,7 +80,7 @@ def collinearity(
     eop: np.ndarray, object_points: np.ndarray, c: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Computed reduced coordinates -c (U, V) / W (n, 2) and their Jacobian by the six EOPs
-    (n, 2, 6), CONVENTIONS.md with jaxba's rotation."""
+    (n, 2, 6), docs/conventions.md with jaxba's rotation."""
     m, dm = rotation(eop[3:]), rotation_derivatives(eop[3:])
     d = object_points - eop[:3]
     uvw = d @ m.T

@@ -1,4 +1,4 @@
-"""Converters from published data sets to jaxba project files (FORMATS.md)."""
+"""Converters from published data sets to jaxba project files (docs/project-files.md)."""
 
 from ._colmap import (
     ColmapModel,

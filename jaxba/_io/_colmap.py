@@ -7,7 +7,7 @@ COLMAP's formats (colmap.github.io/format.html, "Text format"):
   `POINTS2D[] as (X, Y, POINT3D_ID)` (POINT3D_ID -1: not triangulated);
 - points3D.txt: `POINT3D_ID X Y Z R G B ERROR TRACK[] as (IMAGE_ID, POINT2D_IDX)`.
 
-Conventions, and how they map onto jaxba's (CONVENTIONS.md):
+Conventions, and how they map onto jaxba's (docs/conventions.md):
 
 - **Poses.** (q, t) maps world to camera, x_cam = R(q) X + t, in COLMAP's camera frame: x
   right, y down, looking along +z (OpenCV's). jaxba's photogrammetric frame is
@@ -153,7 +153,7 @@ def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
 
 
 def _opk_to_matrix(opk: Sequence[float]) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega), radians (CONVENTIONS.md)."""
+    """M = R3(kappa) R2(phi) R1(omega), radians (docs/conventions.md)."""
     (so, sp, sk), (co, cp, ck) = np.sin(opk), np.cos(opk)
     return np.array([
         [cp * ck, co * sk + so * sp * ck, so * sk - co * sp * ck],
@@ -163,7 +163,7 @@ def _opk_to_matrix(opk: Sequence[float]) -> np.ndarray:
 
 
 def _matrix_to_opk(m: np.ndarray) -> np.ndarray:
-    """(omega, phi, kappa) in radians of M (CONVENTIONS.md), |phi| < 90°."""
+    """(omega, phi, kappa) in radians of M (docs/conventions.md), |phi| < 90°."""
     return np.array([
         math.atan2(-m[2, 1], m[2, 2]),
         math.atan2(m[2, 0], math.hypot(m[2, 1], m[2, 2])),
@@ -352,7 +352,7 @@ def write_colmap_project(
     image_sigma: float = 1.0,
     datum: str | None = "first_images",
 ) -> ColmapProject:
-    """Write a COLMAP text model as a jaxba project (FORMATS.md) into `out_dir`.
+    """Write a COLMAP text model as a jaxba project (docs/project-files.md) into `out_dir`.
 
     **Arguments:**
 

@@ -3,7 +3,7 @@
 A DBAT script (e.g. data/script/camcaldemo/camcaldemo.xml) names its control points
 (`id,label,x,y,z[,sxyz]`), images (`id,path`), mark points (`im,id,x,y,sxy`, pixels) and
 cameras; a DBAT camera file (c4040z.xml) holds the camera prior. `write_dbat_project` turns
-them into a project (FORMATS.md) with one "photomodeler" camera (DBAT's lens model 3,
+them into a project (docs/project-files.md) with one "photomodeler" camera (DBAT's lens model 3,
 `PhotoModelerCamera`).
 
 Conventions (docs/dbat.md): DBAT's pixel coordinates have their origin at the top-left
@@ -279,7 +279,7 @@ def planar_resection(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pose (M, X0) of an image from ≥ 4 coplanar points, distortion-free, principal point 0.
 
-    With the control plane X = o + s e1 + t e2 and (x, y, -c) ∝ M (X - X0) (CONVENTIONS.md),
+    With the control plane X = o + s e1 + t e2 and (x, y, -c) ∝ M (X - X0) (docs/conventions.md),
     (x/-c, y/-c, 1) ∝ H (s, t, 1) with H ∝ [M e1, M e2, M (o - X0)]; the scale of H makes its
     first two columns unit vectors and puts the points in front of the camera (W < 0).
     """
@@ -310,7 +310,7 @@ def intersect(stations: np.ndarray, directions: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_opk(m: np.ndarray) -> np.ndarray:
-    """(omega, phi, kappa) in radians of M = R3(kappa) R2(phi) R1(omega), CONVENTIONS.md."""
+    """(omega, phi, kappa) in radians of M = R3(kappa) R2(phi) R1(omega), docs/conventions.md."""
     return np.array([
         np.arctan2(-m[2, 1], m[2, 2]),
         np.arctan2(m[2, 0], np.hypot(m[2, 1], m[2, 2])),
@@ -339,7 +339,7 @@ def write_dbat_project(
     camera_file: str | os.PathLike | None = "c4040z.xml",
     control_file: str | os.PathLike | None = None,
 ) -> DbatProject:
-    """Write a DBAT script project as a jaxba project (FORMATS.md).
+    """Write a DBAT script project as a jaxba project (docs/project-files.md).
 
     **Arguments:**
 

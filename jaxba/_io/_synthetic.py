@@ -1,7 +1,7 @@
 """Synthetic self-calibration blocks written as project files (pure NumPy).
 
-An independent implementation of the forward model of CONVENTIONS.md that writes test projects
-in the FORMATS.md layout with a known truth: a replica of the BASC self-calibration lab (a 3D
+An independent implementation of the forward model of docs/conventions.md that writes test
+projects in the docs/project-files.md layout with a known truth: a replica of the BASC self-calibration lab (a 3D
 target field on a wall, convergent and rolled images, a datum of six fixed coordinates and
 measured distances for the scale). Nothing here imports jax or the rest of jaxba, so that the
 JAX model can be checked against it.
@@ -292,9 +292,9 @@ def write_synthetic_project(
     """Write a synthetic self-calibration block (BASC lab replica) into `directory`.
 
     Files: `{name}.toml`, `cameras.toml`, `orientation.txt`, `image_coordinates.txt`,
-    `ground_points.txt` and, when `n_distances` > 0, `distances.txt` (FORMATS.md).
+    `ground_points.txt` and, when `n_distances` > 0, `distances.txt` (docs/project-files.md).
 
-    Measurements solve x = xp - c U/W + dist(x - xp, y - yp) (SMAC, CONVENTIONS.md) plus
+    Measurements solve x = xp - c U/W + dist(x - xp, y - yp) (SMAC, docs/conventions.md) plus
     N(0, (noise_px ps)²) per coordinate (`camera_noise_px[k]` for camera k+1 if given). Images
     img01.. alternate between cameras C1..Cn. `image_sigma_px` (default `noise_px`, or 0.25 when
     `noise_px` is 0) is the prior σ written to the project, in mm or pixels per `image_units`.

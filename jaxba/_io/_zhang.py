@@ -112,7 +112,7 @@ def pose(k: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def eop_from_pose(rotation: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Photogrammetric EOPs of an OpenCV pose: M = diag(1, -1, -1) R, X0 = -Rᵀ t.
 
-    Returns X0 (3,) in target units and (omega, phi, kappa) in radians, CONVENTIONS.md:
+    Returns X0 (3,) in target units and (omega, phi, kappa) in radians, docs/conventions.md:
     omega = atan2(-m32, m33), phi = atan2(m31, hypot(m32, m33)), kappa = atan2(-m21, m11).
     """
     m = _CV_TO_PHOTOGRAMMETRIC @ rotation
@@ -135,7 +135,7 @@ def write_zhang_project(
     name: str = "zhang",
     initial: Mapping[str, float] = ROUNDED_START,
 ) -> ZhangProject:
-    """Write Zhang's data set as a project (FORMATS.md) into `out_dir`.
+    """Write Zhang's data set as a project (docs/project-files.md) into `out_dir`.
 
     **Arguments:**
 

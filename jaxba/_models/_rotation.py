@@ -1,7 +1,7 @@
 """Rotation parameterisations and exact conversions between them.
 
 Every function maps one rotation (no batch axis; `jax.vmap` for many). The matrix `M` is
-always R_m^c of CONVENTIONS.md: it rotates object-space vectors into the image (camera)
+always R_m^c of docs/conventions.md: it rotates object-space vectors into the image (camera)
 frame, `p_image = M @ (X - X0)`. Axis-angle vectors and quaternions describe that same `M`:
 `rodrigues_to_matrix(r)` is the matrix that rotates by |r| about r/|r|, as in BAL and
 OpenCV's `cv::Rodrigues`; quaternions are unit Hamilton quaternions `(w, x, y, z)`.
@@ -14,7 +14,7 @@ from .._custom_types import Matrix3, Vector3
 
 
 def opk_to_matrix(opk: Float[Array, "3"]) -> Matrix3:
-    """M = R3(kappa) R2(phi) R1(omega), element by element as in CONVENTIONS.md.
+    """M = R3(kappa) R2(phi) R1(omega), element by element as in docs/conventions.md.
 
     Arguments: `opk`, (omega, phi, kappa) in radians. Returns the 3x3 matrix R_m^c.
     """

@@ -1,4 +1,4 @@
-"""results.json: the machine-readable report (FORMATS.md "results.json")."""
+"""results.json: the machine-readable report (docs/outputs.md)."""
 
 import json
 import math
@@ -178,7 +178,7 @@ def results_dict(project: Project, result: Adjustment) -> dict:
 def _results_tree(project: Project, result: Adjustment, points) -> dict:
     """Everything of results.json as plain Python (no NaN: null instead).
 
-    Keys of FORMATS.md (converged, sigma0, redundancy, iterations, cameras, images, points;
+    Keys of docs/outputs.md (converged, sigma0, redundancy, iterations, cameras, images, points;
     angles and their σ in decimal degrees) plus: project, message, steps, n_observations,
     n_unknowns, sigma0_squared, sigma0_prior, units (image: "mm", "pixel" for pixel-unit
     camera models, or "mixed"; image_cameras: per camera), image_cameras, image_residuals (RMS

@@ -1,4 +1,4 @@
-"""Read a project file and its tables (FORMATS.md) into the records of `_spec.py`.
+"""Read a project file and its tables (docs/project-files.md) into the records of `_spec.py`.
 
 Plain Python, no jax. Every problem with the input raises `ProjectError` naming the file and,
 where there is one, the line and the column or key. Values are not converted: angles stay in

@@ -1,4 +1,4 @@
-"""Plain-Python description of a project as read from its files (FORMATS.md).
+"""Plain-Python description of a project as read from its files (docs/project-files.md).
 
 Nothing here touches jax: the readers fill these records, `_build.py` turns them into a
 `BundleProblem`. Angles are kept in decimal degrees, as in the files. A σ entry is

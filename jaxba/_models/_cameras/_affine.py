@@ -1,4 +1,4 @@
-"""Affine image deformation: non-uniform scale and non-orthogonality (CONVENTIONS.md)."""
+"""Affine image deformation: non-uniform scale and non-orthogonality (docs/conventions.md)."""
 
 import jax.numpy as jnp
 

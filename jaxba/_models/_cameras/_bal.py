@@ -9,7 +9,7 @@ class BalCamera(AbstractCamera):
     """Snavely's Bundler camera as used by the BAL data sets (f, k1, k2).
 
     BAL's camera frame is x right, y up, looking along -z: the photogrammetric camera frame of
-    CONVENTIONS.md. So p_camera = M (X - X0) is BAL's P = R X + t (with R = M, t = -M X0), and
+    docs/conventions.md. So p_camera = M (X - X0) is BAL's P = R X + t (with R = M, t = -M X0), and
 
         p = -P[:2] / P[2],   x = f (1 + k1 |p|² + k2 |p|⁴) p.
 

@@ -1,4 +1,4 @@
-"""SMAC decentering lens distortion (Brown-Conrady; BASC lab, CONVENTIONS.md)."""
+"""SMAC decentering lens distortion (Brown-Conrady; BASC lab, docs/conventions.md)."""
 
 import jax.numpy as jnp
 

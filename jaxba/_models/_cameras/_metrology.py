@@ -2,7 +2,7 @@
 with a balanced radial term that crosses zero at a constant radius r0; and its conversion to
 and from the SMAC model.
 
-The model (CONVENTIONS.md, "The metrology (forward) model"), in mm, with (U, V, W) = M (X - X0):
+The model (docs/conventions.md, "Camera models"), in mm, with (U, V, W) = M (X - X0):
 
     x' = -c U/W,  y' = -c V/W,  r² = x'² + y'²
     D  = A1 (r² - r0²) + A2 (r⁴ - r0⁴) + A3 (r⁶ - r0⁶)

@@ -10,7 +10,7 @@ from ._names import CAMERA_PARAMETER_NAMES
 class PhotoModelerCamera(AbstractCamera):
     """DBAT's "backward (photogrammetry) model 3": measured points are corrected, in mm.
 
-    In jaxba's image frame (x right, y up, mm; CONVENTIONS.md), with (U, V, W) = M (X - X0),
+    In jaxba's image frame (x right, y up, mm; docs/conventions.md), with (U, V, W) = M (X - X0),
     the measured point (x, y) is first reduced and scaled, then corrected for lens distortion:
 
         x̄ = x - xp,  ȳ = y - yp                              (measured, reduced)

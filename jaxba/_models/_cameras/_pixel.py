@@ -1,4 +1,4 @@
-"""Pixel <-> photogrammetric image coordinates (CONVENTIONS.md "Frames and units")."""
+"""Pixel <-> photogrammetric image coordinates (docs/conventions.md "Frames and units")."""
 
 import equinox as eqx
 import jax.numpy as jnp

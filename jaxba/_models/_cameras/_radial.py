@@ -1,4 +1,4 @@
-"""SMAC radial lens distortion (USGS SMAC; BASC lab, CONVENTIONS.md)."""
+"""SMAC radial lens distortion (USGS SMAC; BASC lab, docs/conventions.md)."""
 
 import jax.numpy as jnp
 

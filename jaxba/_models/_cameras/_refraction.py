@@ -1,4 +1,4 @@
-"""Atmospheric refraction for near-vertical imagery (seed: chapter 8 notes, CONVENTIONS.md)."""
+"""Atmospheric refraction for near-vertical imagery (seed: chapter 8 notes, docs/conventions.md)."""
 
 import jax.numpy as jnp
 

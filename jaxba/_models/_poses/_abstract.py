@@ -2,7 +2,7 @@
 differentiate them.
 
 A pose maps object points into an image's camera frame, p_camera = M (X - X0), with M = R_m^c
-of CONVENTIONS.md (object frame -> camera frame) and X0 the perspective centre. Its parameters
+of docs/conventions.md (object frame -> camera frame) and X0 the perspective centre. Its parameters
 are the dataclass fields, named in `parameter_names`: the columns of `Parameters.images`.
 """
 

@@ -13,7 +13,7 @@ from ._abstract import AbstractPose, MatrixPose
 
 class OpkPose(AbstractPose):
     """Images row (X0, Y0, Z0, omega, phi, kappa): object units and radians, with
-    M = R3(kappa) R2(phi) R1(omega) (CONVENTIONS.md) and p_camera = M (X - X0).
+    M = R3(kappa) R2(phi) R1(omega) (docs/conventions.md) and p_camera = M (X - X0).
 
     Rows use the matrix M made once per image (`frame`, a `MatrixPose`) and, to
     differentiate, its derivative by the angles, M + (dM/d(ω, φ, κ)) δ: three angles' sines
