@@ -3,8 +3,8 @@ Hartley normalisation, the nearest rotation and a small Levenberg-Marquardt.
 
 The closed-form tools are plain NumPy in float64 (they run once, before any adjustment, on
 small arrays). Rotations are jaxba's own (`jaxba._models._rotation`, docs/conventions.md), so
-that every orientation found here is exactly the one jaxba's projection uses; they are evaluated by jax,
-which must therefore compute in float64 (`require_float64`, the caller's choice).
+that every orientation found here is exactly the one jaxba's projection uses; they are evaluated
+by jax, which must therefore compute in float64 (`require_float64`, the caller's choice).
 """
 
 import dataclasses

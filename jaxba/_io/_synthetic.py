@@ -1,8 +1,8 @@
 """Synthetic self-calibration blocks written as project files (pure NumPy).
 
 An independent implementation of the forward model of docs/conventions.md that writes test
-projects in the docs/project-files.md layout with a known truth: a replica of the BASC self-calibration lab (a 3D
-target field on a wall, convergent and rolled images, a datum of six fixed coordinates and
+projects in the docs/project-files.md layout with a known truth: a replica of the BASC
+self-calibration lab (a 3D target field on a wall, convergent and rolled images, a datum of six fixed coordinates and
 measured distances for the scale). Nothing here imports jax or the rest of jaxba, so that the
 JAX model can be checked against it.
 
