@@ -2,9 +2,9 @@
 
 An independent implementation of the forward model of docs/conventions.md that writes test
 projects in the docs/project-files.md layout with a known truth: a replica of the BASC
-self-calibration lab (a 3D target field on a wall, convergent and rolled images, a datum of six fixed coordinates and
-measured distances for the scale). Nothing here imports jax or the rest of jaxba, so that the
-JAX model can be checked against it.
+self-calibration lab (a 3D target field on a wall, convergent and rolled images, a datum of six
+fixed coordinates and measured distances for the scale). Nothing here imports jax or the rest of
+jaxba, so that the JAX model can be checked against it.
 
 Frames and units: object space X right, Y up, Z towards the cameras, metres; image space x right,
 y up, mm, origin at the sensor centre; the camera looks along its -z axis; (U, V, W) = M (X - X0)

@@ -3,8 +3,8 @@
 A camera model maps a camera-frame point p = M (X - X0) to computed image coordinates,
 `image_point(p, measured, k)` (docs/conventions.md; photogrammetric models evaluate their
 corrections at the measured point, forward models such as OpenCV, fisheye and BAL distort the
-ideal point, some work in pixels). The ray of a measured point m is the direction p = (a, b, -1) (the camera
-looks along -z) that the model maps onto m:
+ideal point, some work in pixels). The ray of a measured point m is the direction p = (a, b, -1)
+(the camera looks along -z) that the model maps onto m:
 
     image_point((a, b, -1), m, 0) = m.
 
