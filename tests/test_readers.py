@@ -580,7 +580,7 @@ def test_images_without_eops_and_points_without_approximation(tmp_path):
     ("old", "new", "parts"),
     [
         ("img1 C1  0.0 0.0 10.0", "img1 C1  - - 10.0",
-         ["orientation.txt:2:", "column X0", "all six EOP columns"]),
+         ["orientation.txt:2:", "column Z0", "all six EOP columns"]),
         ("img1 C1  0.0 0.0 10.0  0.0 0.0  90.0", "img1 C1  0.0 0.0 10.0  - - -",
          ["orientation.txt:2:", "column omega", "or in none"]),
         ("img2 C1  5.0 0.0 10.0  1.5 -2.0 90.0", "img2 C1  - - - - - -",

@@ -13,4 +13,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._errors": ("ProjectError",),
     "._readers": ("read_project",),
     "._spec": ("AdjustmentSettings", "ProjectSpec"),
+    "._write": ("write_project",),
 })

@@ -35,7 +35,8 @@ _ANGLES = slice(3, 6)
 @dataclasses.dataclass(frozen=True)
 class Suspect:
     """An image point flagged as a blunder by the initialisation: its IDs, its line in the
-    image-points table and its residual at the approximations in robust σ of its camera."""
+    image-points table and its residual at the approximations in robust σ of its camera (the
+    flag also weighs the point's number of rays: a few are flagged below 4 σ)."""
 
     image: str
     point: str

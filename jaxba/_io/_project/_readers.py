@@ -485,7 +485,8 @@ def _read_eop(row: _Row, eop_sigma: tuple[float | None, ...]) -> tuple[float, ..
     if "-" not in tokens:
         return tuple(row.number(column) for column in range(2, 8))
     if tokens.count("-") != len(tokens):
-        column = 2 + tokens.index("-")
+        odd = next(k for k, token in enumerate(tokens) if (token == "-") != (tokens[0] == "-"))
+        column = 2 + odd  # the first column that breaks X0's pattern
         raise row.error(
             "'-' (no approximation) must stand in all six EOP columns X0 .. kappa or in none;"
             " give the six values, or '-' in all six to have them computed", column)
