@@ -184,16 +184,20 @@ def test_a_partial_eop_row_is_refused(tmp_path):
 
 
 def test_an_image_that_cannot_be_oriented_is_refused(tmp_path):
-    """An image with 2 image points cannot be resected: named, with the reason, exit 2."""
+    """An image with 3 image points cannot be resected, and a new tie point seen by it and
+    one other image cannot be intersected: both named, with the reason, exit 2."""
     project_file = _incomplete_lab(tmp_path / "lab")
     with (project_file.parent / "orientation.txt").open("a") as stream:
         stream.write("img19 C1 - - - - - -\n")
-    with (project_file.parent / "image_coordinates.txt").open("a") as stream:
-        stream.write("img19 2 -1.0 -1.0\nimg19 3 1.0 1.0\n")
+    image_points = project_file.parent / "image_coordinates.txt"
+    line = len(image_points.read_text().splitlines()) + 3
+    with image_points.open("a") as stream:
+        stream.write("img19 2 -1.0 -1.0\nimg19 3 1.0 1.0\nimg19 999 0.5 0.5\nimg01 999 0.3 0.3\n")
     code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "out"))
     assert code == 2, stderr
     assert stderr.startswith("jaxba: error: cannot compute the approximations of 1 image")
     assert "'img19' (orientation.txt:20)" in stderr and "a resection needs 6" in stderr
+    assert f"1 point: '999' (image_coordinates.txt:{line}): seen in 2 images, 1 of them" in stderr
     assert "Traceback" not in stderr and not (tmp_path / "out" / "results.json").exists()
 
 

@@ -228,19 +228,22 @@ def _distances(spec: ProjectSpec, point_ids) -> np.ndarray | None:
 
 
 def _named(text: str, image_ids, point_ids) -> str:
-    """The initialisation's text with image and point IDs for its indices."""
-    def ids(names, listed):
-        return ", ".join(names[int(k)] for k in re.findall(r"\d+", listed))
+    """The initialisation's text with image and point IDs for its indices (an index out of
+    range is left as it is)."""
+    def name(names, index: str) -> str:
+        return names[int(index)] if int(index) < len(names) else index
+
+    def ids(names, listed: str) -> str:
+        return ", ".join(name(names, k) for k in re.findall(r"\d+", listed))
 
     text = re.sub(r"\bimages \[([\d, ]*)\]",
                   lambda m: "images " + ids(image_ids, m.group(1)), text)
     text = re.sub(r"\bpoints \[([\d, ]*)\]",
                   lambda m: "points " + ids(point_ids, m.group(1)), text)
-    text = re.sub(r"\bpair (\d+)-(\d+)",
-                  lambda m: f"pair {image_ids[int(m.group(1))]}-{image_ids[int(m.group(2))]}",
-                  text)
-    text = re.sub(r"\bimage (\d+)\b", lambda m: f"image {image_ids[int(m.group(1))]}", text)
-    return re.sub(r"\bpoint (\d+)\b", lambda m: f"point {point_ids[int(m.group(1))]}", text)
+    text = re.sub(r"\bpair (\d+)-(\d+)", lambda m: (
+        f"pair {name(image_ids, m.group(1))}-{name(image_ids, m.group(2))}"), text)
+    text = re.sub(r"\bimage (\d+)\b", lambda m: f"image {name(image_ids, m.group(1))}", text)
+    return re.sub(r"\bpoint (\d+)\b", lambda m: f"point {name(point_ids, m.group(1))}", text)
 
 
 def _check(spec: ProjectSpec, result: BlockInitialisation, image_ids, point_ids) -> None:
