@@ -69,6 +69,8 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._io._project": ("AdjustmentSettings", "ProjectError", "ProjectSpec", "read_project"),
     "._io._project._adjust": ("adjust_project",),
     "._io._project._build": ("Project", "build_project"),
+    "._io._project._complete": ("Completion", "complete_project"),
+    "._io._project._write": ("write_project",),
     "._statistics._reliability": ("Reliability", "reliability"),
     "._report": ("OutputError", "read_observations", "write_reports"),
     "._models._robust": ("RobustLoss",),

@@ -121,6 +121,9 @@ def test_valid_project(tmp_path):
     assert spec.name == "lab1"
     assert spec.image_units == "mm"
     assert spec.path == (tmp_path / "lab1.toml").resolve()
+    assert spec.complete and not spec.missing_images and not spec.missing_points
+    assert spec.file_names["points"] == "ground_points.txt"
+    assert spec.files["points"] == (tmp_path / "ground_points.txt").resolve()
     assert spec.settings == AdjustmentSettings(sigma0=1.0, image_sigma=0.002, max_iterations=20)
 
     camera = spec.cameras["C1"]
@@ -498,11 +501,6 @@ def test_point_table_errors(tmp_path, old, new, parts):
             ["image_coordinates.txt:5:", "unknown image 'img9'", "orientation.txt"],
         ),
         (
-            "img1 T1",
-            "img1 P7",
-            ["image_coordinates.txt:5:", "no approximation for point 'P7'", "ground_points.txt"],
-        ),
-        (
             "img2 T2",
             "img2 T1",
             ["image_coordinates.txt:12:", "point 'T1'", "image 'img2'", "line 11"],
@@ -552,6 +550,60 @@ def test_free_point_only_in_a_distance(tmp_path):
         distances_txt=("\n", "\nP1 U9 3.7 0.001\n"),
     )
     assert_error(path, "ground_points.txt:7:", "point 'U9'", "no image", "distances.txt:2")
+
+
+# --- missing approximations -------------------------------------------------------------
+
+
+def test_images_without_eops_and_points_without_approximation(tmp_path):
+    """`-` in all six EOP columns, and tie points measured but absent from the points table,
+    are read as missing approximations (None), the points appended in order of first
+    measurement at that line; a distance may use such a point."""
+    path = write_project(
+        tmp_path,
+        orientation_txt=("img1 C1  0.0 0.0 10.0  0.0 0.0  90.0", "img1 C1  - - -  - - -"),
+        ground_points_txt=("T1   5.0   5.0   0.1\n", ""),
+        image_coordinates_txt=("img2 T2 -0.3  0.2", "img2 T2 -0.3  0.2\nimg1 U1 0 0\nimg2 U1 1 1"),
+        distances_txt=("\n", "\nU1 P1 3.0 0.01\n"),
+    )
+    spec = read_project(path)
+    assert spec.images["img1"].eop is None and spec.images["img2"].eop is not None
+    assert spec.missing_images == ["img1"]
+    assert spec.missing_points == ["T1", "U1"] and not spec.complete
+    assert list(spec.points)[-2:] == ["T1", "U1"]
+    assert spec.points["T1"].xyz is None and spec.points["T1"].sigma == (None, None, None)
+    assert (spec.points["T1"].line, spec.points["U1"].line) == (5, 13)
+    assert spec.distances[-1].a == "U1"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "parts"),
+    [
+        ("img1 C1  0.0 0.0 10.0", "img1 C1  - - 10.0",
+         ["orientation.txt:2:", "column Z0", "all six EOP columns"]),
+        ("img1 C1  0.0 0.0 10.0  0.0 0.0  90.0", "img1 C1  0.0 0.0 10.0  - - -",
+         ["orientation.txt:2:", "column omega", "or in none"]),
+        ("img2 C1  5.0 0.0 10.0  1.5 -2.0 90.0", "img2 C1  - - - - - -",
+         ["orientation.txt:3:", "column sX0", "weighted", "needs its value"]),
+        ("img2 C1  5.0 0.0 10.0  1.5 -2.0 90.0  0.05 0.05 0.1 - 0 -",
+         "img2 C1  - - - - - -  - - - - 0 -",
+         ["orientation.txt:3:", "column sphi", "fixed"]),
+    ],
+)
+def test_partial_or_constrained_missing_eops(tmp_path, old, new, parts):
+    assert_error(write_project(tmp_path, orientation_txt=(old, new)), *parts)
+
+
+def test_point_without_approximation_in_one_image(tmp_path):
+    path = write_project(tmp_path, image_coordinates_txt=(
+        "img1 T2  0.2  0.2\n", "img1 T2  0.2  0.2\nimg1 P7  0.3  0.3\n"))
+    assert_error(path, "image_coordinates.txt:7:", "point 'P7'", "only 1 image (img1)",
+                 "not in ground_points.txt")
+
+
+def test_distance_to_an_unmeasured_unknown_point(tmp_path):
+    path = write_project(tmp_path, distances_txt=("P1 P2", "P1 P7"))
+    assert_error(path, "distances.txt:1:", "unknown point 'P7'", "ground_points.txt")
 
 
 def test_image_without_measurements(tmp_path):

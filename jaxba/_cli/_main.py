@@ -1,4 +1,5 @@
-"""The `jaxba` command line: `jaxba adjust PROJECT.toml [--out DIR]`, `jaxba bal PROBLEM`.
+"""The `jaxba` command line: `jaxba adjust PROJECT.toml [--out DIR]`, `jaxba init PROJECT.toml
+--out DIR`, `jaxba batch ...`, `jaxba bal PROBLEM`.
 
 Thin: reading, adjusting and reporting live in the library and `jaxba._report`; this module
 parses arguments, sets up jax (float64, persistent compilation cache), holds the output
@@ -9,6 +10,7 @@ Each subcommand is an `_add_<name>` function that registers its parser and its `
 """
 
 import argparse
+import dataclasses
 import io
 import os
 import pathlib
@@ -162,6 +164,31 @@ def _plots_possible() -> bool:
     return False
 
 
+def _plural(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def _complete(spec, timings=None):
+    """Compute the approximations `spec` misses (`complete_project`), saying so and printing
+    the initialisation's log (its summary lines) and its suspects (a warning). jax is set
+    up. Returns the completed spec and the `Completion`."""
+    import contextlib
+
+    import jaxba
+
+    _say(f"computing approximations for {_plural(len(spec.missing_images), 'image')} and"
+         f" {_plural(len(spec.missing_points), 'point')} ...")
+    phase = timings.phase("initialisation") if timings else contextlib.nullcontext()
+    with phase:
+        completed, completion = jaxba.complete_project(spec)
+    for line in completion.console_lines():
+        _say(f"  {line}")
+    suspects = completion.suspect_line()
+    if suspects:
+        _error(suspects, "warning")
+    return completed, completion
+
+
 def _adjust(args: argparse.Namespace) -> int:
     from jaxba._report import output_lock
 
@@ -183,8 +210,13 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
     timings.add(Phase("read", read_seconds, 0.0, 0, 0))
     timings.add(Phase("start-up", time.perf_counter() - start, 0.0, 0, 0))
     try:
+        completion = None
+        if not spec.complete:
+            spec, completion = _complete(spec, timings)
         with timings.phase("read"):
             project = jaxba.build_project(spec)
+        if completion is not None:
+            project = dataclasses.replace(project, initialisation=completion.summary())
         _say(_report.start_line(project))
         result = jaxba.adjust_project(
             project, on_iteration=lambda it: _say(_report.iteration_line(it)),
@@ -216,6 +248,69 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
         _error(result.message if said else f"the adjustment did not converge: {result.message}",
                "warning")
         return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+# --- jaxba init -----------------------------------------------------------------------------
+
+
+def _add_init(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "init",
+        help="compute a project's missing approximations and write the completed project",
+        description=(
+            "Compute the approximations PROJECT.toml leaves out ('-' EOPs, tie points absent"
+            " from the points table) and write the completed project, its TOML file and every"
+            " table, into DIR; never over an input. Exit codes: 0 written, 2 bad input (or an"
+            " output folder that cannot be used), 3 internal error, 130 interrupted."
+        ),
+        parents=[_common_options()],
+    )
+    parser.add_argument("project", type=pathlib.Path, help="the project file (TOML)")
+    parser.add_argument(
+        "--out", type=pathlib.Path, required=True, metavar="DIR",
+        help="folder for the completed project (created if needed; not the input's folder)",
+    )
+    parser.set_defaults(run=_init)
+
+
+def _init(args: argparse.Namespace) -> int:
+    from jaxba._io._project import ProjectError, read_project
+    from jaxba._io._project._write import project_paths
+    from jaxba._report import OutputError, output_lock
+
+    try:  # before jax: bad input and an unusable folder are reported at once
+        spec = read_project(args.project)
+        project_paths(spec, args.out)
+    except (ProjectError, OutputError) as error:
+        raise _UsageError(str(error)) from None
+    with output_lock(args.out):
+        return _init_locked(args, spec)
+
+
+def _init_locked(args: argparse.Namespace, spec) -> int:
+    from jaxba._io._project import ProjectError
+    from jaxba._io._project._write import write_project
+
+    completed, image_methods, point_methods = spec, None, None
+    if spec.complete:
+        _say(f"{spec.path.name}: every image and point has its approximation; nothing to"
+             " compute, the project is copied")
+    else:
+        _setup_jax()
+        try:
+            completed, completion = _complete(spec)
+        except ProjectError as error:
+            raise _UsageError(str(error)) from None
+        image_methods, point_methods = completion.image_methods, completion.point_methods
+    try:
+        written = write_project(completed, args.out, source=spec, image_methods=image_methods,
+                                point_methods=point_methods)
+    except OSError as error:
+        raise _UsageError(str(error)) from None
+    _say("wrote")
+    for path in written:
+        _say(f"  {path}")
     return EXIT_OK
 
 
@@ -354,6 +449,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"jaxba {_version()}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_adjust(subparsers)
+    _add_init(subparsers)
     _add_bal(subparsers)
     _add_batch(subparsers)
     return parser

@@ -191,13 +191,15 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     removal), reliability (alpha, critical_value, redundancy_sum, ...; null when not computed)
     and per point with a free coordinate its 1σ "ellipsoid"; solver (the normal-equation
     backend that ran: "dense" or "schur") and timings (seconds per phase up to the reports,
-    compilation apart; see `_timings`). Iteration 0 is the approximations.
+    compilation apart; see `_timings`); initialisation (what `complete_project` computed,
+    `Completion.summary()`), only when the approximations were computed. Iteration 0 is the
+    approximations.
     Every parameter carries "status": free, fixed or weighted.
     """
     precision = result.precision
     cameras = camera_tables(project, result)
     images = image_table(project, result)
-    return {
+    tree = {
         "project": project.spec.name,
         "converged": bool(result.converged),
         "message": result.message,
@@ -239,6 +241,9 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "rejections": _nulls(rejections(project, result)),
         "reliability": _reliability(project, result),
     }
+    if project.initialisation is not None:
+        tree["initialisation"] = _nulls(project.initialisation)
+    return tree
 
 
 def _layout(value, depth: int, indent: str = "") -> str:

@@ -1,7 +1,7 @@
 """Project files in, BundleProblem out; plain Python around the jitted core.
 
-Reading (`read_project`, the specs, `ProjectError`) needs no jax; building and adjusting are
-imported when first used.
+Reading (`read_project`, the specs, `ProjectError`) needs no jax; building, completing
+(missing approximations computed) and adjusting are imported when first used.
 """
 
 from ..._lazy import lazy_exports
@@ -9,7 +9,9 @@ from ..._lazy import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._adjust": ("adjust_project",),
     "._build": ("Project", "build_project"),
+    "._complete": ("Completion", "complete_project"),
     "._errors": ("ProjectError",),
     "._readers": ("read_project",),
     "._spec": ("AdjustmentSettings", "ProjectSpec"),
+    "._write": ("write_project",),
 })

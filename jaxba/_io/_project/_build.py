@@ -23,7 +23,9 @@ class Project:
     """A project ready to adjust: the problem plus what maps its rows back to IDs.
 
     `camera_rows[camera_id] = (model, row)`; `image_ids` and `point_ids` are the row
-    order of the image and point blocks; `labels` names every scalar unknown.
+    order of the image and point blocks; `labels` names every scalar unknown;
+    `initialisation`: what `complete_project` computed (`Completion.summary()`, the
+    `initialisation` section of results.json), None when the files held every approximation.
     """
 
     spec: ProjectSpec
@@ -33,6 +35,7 @@ class Project:
     point_ids: list[str]
     pixel_grids: dict[str, PixelGrid | None]
     labels: list[str]
+    initialisation: dict | None = None
 
 
 def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
@@ -92,7 +95,7 @@ def _images(spec: ProjectSpec):
     return jnp.asarray(eop), jnp.asarray(free), groups
 
 
-def _used_points(spec: ProjectSpec) -> list[str]:
+def used_points(spec: ProjectSpec) -> list[str]:
     used = set(spec.image_points.point)
     used.update(p for d in spec.distances for p in (d.a, d.b))
     return [pid for pid in spec.points if pid in used]
@@ -117,10 +120,31 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
     return jnp.asarray(xyz), jnp.asarray(free), groups
 
 
-def _pixel_grid(camera) -> PixelGrid | None:
+def pixel_grid(camera) -> PixelGrid | None:
     if camera.pixel_size is None or camera.sensor is None:
         return None
     return PixelGrid(tuple(camera.pixel_size), tuple(camera.sensor))
+
+
+def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
+                 grid: PixelGrid | None) -> tuple[np.ndarray, np.ndarray]:
+    """The image points `rows` of the table (all of camera `camera_id`) and their σ in its
+    model's units: pixels -> mm for a mm-model in a pixel project (`grid`); a pixel model in
+    a mm project is refused."""
+    table = spec.image_points
+    model = spec.cameras[camera_id].model
+    model_units = CAMERA_MODELS[model].image_units
+    if spec.image_units != model_units and model_units != "mm":
+        raise ProjectError(
+            f"camera {camera_id!r}: model {model!r} works in {model_units} units, but the "
+            f'project has image_units = "{spec.image_units}"'
+        )
+    xy = table.xy[rows]
+    sigma = np.where(np.isnan(table.sigma[rows]), spec.settings.image_sigma, table.sigma[rows])
+    if spec.image_units == "pixel" and model_units == "mm":
+        xy = np.asarray(grid.pixel_to_image(xy))
+        sigma = sigma * np.asarray(grid.pixel_size)
+    return xy, sigma
 
 
 def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
@@ -136,18 +160,7 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
     for camera_id, code in codes.items():
         rows = np.flatnonzero(camera_code == code)
         model, row = camera_rows[camera_id]
-        model_units = CAMERA_MODELS[model].image_units
-        if spec.image_units != model_units and model_units != "mm":
-            raise ProjectError(
-                f"camera {camera_id!r}: model {model!r} works in {model_units} units, but the "
-                f'project has image_units = "{spec.image_units}"'
-            )
-        xy = table.xy[rows]
-        sigma = np.where(np.isnan(table.sigma[rows]), spec.settings.image_sigma, table.sigma[rows])
-        if spec.image_units == "pixel" and model_units == "mm":
-            grid = grids[camera_id]
-            xy = np.asarray(grid.pixel_to_image(xy))
-            sigma = sigma * np.asarray(grid.pixel_size)
+        xy, sigma = measurements(spec, camera_id, rows, grids[camera_id])
         constants = spec.cameras[camera_id].constants
         groups.append(ImagePoints(
             name=f"image_points:{camera_id}",
@@ -173,14 +186,39 @@ def _datum_rows(spec: ProjectSpec, point_index: dict[str, int]) -> list[int] | N
     return [point_index[p] for p in names] or None
 
 
+def missing_approximations(spec: ProjectSpec) -> str:
+    """What a spec misses, e.g. "2 images (img01, orientation.txt:2; ...) and 77 points
+    (2, image_coordinates.txt:3; ...) have no approximations"."""
+    images = [spec.images[i] for i in spec.missing_images]
+    points = [spec.points[p] for p in spec.missing_points]
+    names = spec.file_names
+
+    def listed(records, what, file):
+        where = [f"{r.id!r} ({names.get(file, file)}:{r.line})" for r in records[:3]]
+        more = f" and {len(records) - 3} more" if len(records) > 3 else ""
+        return f"{len(records)} {what}{'s' if len(records) != 1 else ''} ({', '.join(where)}{more})"
+
+    parts = [listed(images, "image", "images")] if images else []
+    parts += [listed(points, "point", "image_points")] if points else []
+    return " and ".join(parts) + " have no approximations"
+
+
 def build_project(spec: ProjectSpec) -> Project:
-    """The BundleProblem of a project, in mm (image) and object units; angles in radians."""
+    """The BundleProblem of a project, in mm (image) and object units; angles in radians.
+
+    Every image and point needs its approximation: a spec with missing ones (`-` EOPs, tie
+    points absent from the points table) is refused (`ProjectError`); `complete_project`
+    computes them."""
+    if not spec.complete:
+        raise ProjectError(
+            f"{spec.path.name}: {missing_approximations(spec)}; `jaxba adjust` and `jaxba"
+            " init` compute them (in Python: jaxba.complete_project)")
     camera_rows, iop, iop_free, camera_priors = _cameras(spec)
     image_ids = list(spec.images)
-    point_ids = _used_points(spec)
+    point_ids = used_points(spec)
     eop, eop_free, gnss = _images(spec)
     xyz, xyz_free, control = _points(spec, point_ids)
-    grids = {cid: _pixel_grid(camera) for cid, camera in spec.cameras.items()}
+    grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     image_index = {iid: k for k, iid in enumerate(image_ids)}
     point_index = {pid: k for k, pid in enumerate(point_ids)}
     groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids)

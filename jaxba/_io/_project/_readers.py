@@ -7,6 +7,11 @@ decimal degrees and image coordinates (and their σ) in the project's `image_uni
 A σ read from a text table is `None` (free / no observation), `0.0` (fixed) or a positive
 number (weighted). Image points have no fixed state: their σ pair is `None` (use the project's
 `image_sigma`) or two positive numbers.
+
+Missing approximations are read as such (`_spec.py`): `-` in all six EOP columns of an image
+(`ImageSpec.eop` None; its σ columns must then be `-`), and a point measured in the image
+points but absent from the points table (a tie point, `PointSpec.xyz` None, appended to the
+points in the order of first measurement).
 """
 
 import collections
@@ -102,7 +107,8 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     cameras = _read_cameras(files["cameras"], image_units, name)
     images = _read_images(files["images"], cameras, files["cameras"].name)
     points = _read_points(files["points"])
-    image_points = _read_image_points(files["image_points"], images, points, files)
+    image_points = _read_image_points(files["image_points"], images, files)
+    points.update(_missing_points(image_points, points))
     distances = []
     if "distances" in files:
         distances = _read_distances(files["distances"], points, files["points"].name)
@@ -120,6 +126,8 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
         image_points=image_points,
         distances=distances,
         input_files=tuple(inputs),
+        files={key: file.path for key, file in files.items()},
+        file_names={key: file.name for key, file in files.items()},
     )
 
 
@@ -461,13 +469,35 @@ def _read_images(
                 f"known: {', '.join(cameras) or 'none'})",
                 1,
             )
-        eop = tuple(row.number(column) for column in range(2, 8))
         eop_sigma = tuple(row.sigma(column) for column in range(8, 14))
+        eop = _read_eop(row, eop_sigma)
         image = ImageSpec(image_id, camera_id, eop, eop_sigma, row.line)
         _add_unique(images, image_id, image, row, f"image {image_id!r}")
     if not images:
         raise ProjectError(f"{file.name}: no images")
     return images
+
+
+def _read_eop(row: _Row, eop_sigma: tuple[float | None, ...]) -> tuple[float, ...] | None:
+    """X0 .. kappa of an images row: six numbers, or None for `-` in all six (no
+    approximation), which needs `-` (or no) σ columns."""
+    tokens = row.tokens[2:8]
+    if "-" not in tokens:
+        return tuple(row.number(column) for column in range(2, 8))
+    if tokens.count("-") != len(tokens):
+        odd = next(k for k, token in enumerate(tokens) if (token == "-") != (tokens[0] == "-"))
+        column = 2 + odd  # the first column that breaks X0's pattern
+        raise row.error(
+            "'-' (no approximation) must stand in all six EOP columns X0 .. kappa or in none;"
+            " give the six values, or '-' in all six to have them computed", column)
+    for k, sigma in enumerate(eop_sigma):
+        if sigma is not None:
+            state = "fixed" if sigma == 0 else "weighted"
+            raise row.error(
+                f"the EOPs are '-' (no approximation), but this column makes "
+                f"{_IMAGE_COLUMNS[2 + k]} {state}: a fixed or weighted EOP needs its value",
+                8 + k)
+    return None
 
 
 def _read_points(file: _File) -> dict[str, PointSpec]:
@@ -507,20 +537,33 @@ def _read_points_by_row(file: _File) -> dict[str, PointSpec]:
 
 
 def _read_image_points(
-    file: _File,
-    images: Mapping[str, ImageSpec],
-    points: Mapping[str, PointSpec],
-    files: Mapping[str, _File],
+    file: _File, images: Mapping[str, ImageSpec], files: Mapping[str, _File]
 ) -> ImagePointTable:
-    """image points: `image_id point_id x y [sx sy]`, σ both given (> 0) or both `-`/absent."""
-    table = _read_image_points_fast(file, images, points)
+    """image points: `image_id point_id x y [sx sy]`, σ both given (> 0) or both `-`/absent.
+    A point need not be in the points table (`_missing_points`)."""
+    table = _read_image_points_fast(file, images)
     if table is not None:
         return table
-    return ImagePointTable.from_records(_read_image_points_by_row(file, images, points, files))
+    return ImagePointTable.from_records(_read_image_points_by_row(file, images, files))
+
+
+def _missing_points(
+    image_points: ImagePointTable, points: Mapping[str, PointSpec]
+) -> dict[str, PointSpec]:
+    """The measured points absent from the points table: tie points without approximation
+    (`xyz` None, free), each at the line of its first measurement, in that order."""
+    missing = set(image_points.point) - points.keys()
+    first: dict[str, int] = {}
+    if missing:
+        for point_id, line in zip(image_points.point, image_points.line.tolist()):
+            if point_id in missing and point_id not in first:
+                first[point_id] = line
+    return {point_id: PointSpec(point_id, None, (None, None, None), line)
+            for point_id, line in first.items()}
 
 
 def _read_image_points_fast(
-    file: _File, images: Mapping[str, ImageSpec], points: Mapping[str, PointSpec]
+    file: _File, images: Mapping[str, ImageSpec]
 ) -> ImagePointTable | None:
     """`_read_image_points` column by column; None where a row needs
     `_read_image_points_by_row` (which names the problem)."""
@@ -534,7 +577,7 @@ def _read_image_points_fast(
         return None
     if np.any(np.isnan(sigma[0]) != np.isnan(sigma[1])):
         return None
-    if not (set(image) <= images.keys() and set(point) <= points.keys()):
+    if not set(image) <= images.keys():
         return None
     if len(set(zip(image, point))) != len(image):
         return None
@@ -543,10 +586,7 @@ def _read_image_points_fast(
 
 
 def _read_image_points_by_row(
-    file: _File,
-    images: Mapping[str, ImageSpec],
-    points: Mapping[str, PointSpec],
-    files: Mapping[str, _File],
+    file: _File, images: Mapping[str, ImageSpec], files: Mapping[str, _File]
 ) -> list[ImagePointSpec]:
     observations: list[ImagePointSpec] = []
     first_line: dict[tuple[str, str], ImagePointSpec] = {}
@@ -558,10 +598,6 @@ def _read_image_points_by_row(
             raise row.error("give both sx and sy, or '-' for both", 4 if sx is None else 5)
         if image_id not in images:
             raise row.error(f"unknown image {image_id!r} (not in {files['images'].name})", 0)
-        if point_id not in points:
-            raise row.error(
-                f"no approximation for point {point_id!r} (not in {files['points'].name})", 1
-            )
         observation = ImagePointSpec(
             image_id, point_id, xy, None if sx is None else (sx, sy), row.line
         )
@@ -620,6 +656,12 @@ def _check_consistency(
         where = f"{files['points'].name}:{point.line}"
         if seen:
             image = image_points.image[image_points.point.index(point.id)]
+            if point.xyz is None:
+                raise ProjectError(
+                    f"{files['image_points'].name}:{point.line}: point {point.id!r} is "
+                    f"measured in only 1 image ({image}) and is not in "
+                    f"{files['points'].name}: a tie point needs 2 images or more"
+                )
             raise ProjectError(
                 f"{where}: point {point.id!r} is measured in only 1 image ({image}) "
                 "but has free coordinates"

@@ -3,6 +3,11 @@
 Nothing here touches jax: the readers fill these records, `_build.py` turns them into a
 `BundleProblem`. Angles are kept in decimal degrees, as in the files. A σ entry is
 `None` (free / no observation), `0.0` (fixed) or a positive number (weighted).
+
+A missing approximation is explicit: an image whose six EOP columns are `-` has `eop`
+None, and a tie point that is measured but absent from the points table is a `PointSpec`
+with `xyz` None. `_complete.py` computes them (`complete_project`); `build_project` refuses
+a spec that still misses some.
 """
 
 import dataclasses
@@ -62,21 +67,27 @@ class CameraSpec:
 
 @dataclasses.dataclass(frozen=True)
 class ImageSpec:
-    """One row of the images table: approximate EOPs (degrees) and GNSS/INS σ."""
+    """One row of the images table: approximate EOPs (degrees) and GNSS/INS σ; `eop` None
+    where the row has `-` in all six EOP columns (no approximation: to be computed)."""
 
     id: str
     camera: str
-    eop: tuple[float, float, float, float, float, float]
+    eop: tuple[float, float, float, float, float, float] | None
     eop_sigma: tuple[float | None, ...]
     line: int
 
 
 @dataclasses.dataclass(frozen=True)
 class PointSpec:
-    """One row of the points table: approximation or control coordinates and their σ."""
+    """One row of the points table: approximation or control coordinates and their σ.
+
+    A tie point that is measured but absent from the points table has `xyz` None (no
+    approximation: to be computed), σ all None (free), and `line` the line of its first
+    measurement in the image-points table.
+    """
 
     id: str
-    xyz: tuple[float, float, float]
+    xyz: tuple[float, float, float] | None
     sigma: tuple[float | None, float | None, float | None]
     line: int
 
@@ -163,3 +174,22 @@ class ProjectSpec:
     image_points: ImagePointTable
     distances: list[DistanceSpec]
     input_files: tuple[pathlib.Path, ...]
+    # The `[files]` table: key ("cameras", "images", ...) -> the resolved path, and the
+    # names as written there (for messages).
+    files: dict[str, pathlib.Path] = dataclasses.field(default_factory=dict)
+    file_names: dict[str, str] = dataclasses.field(default_factory=dict)
+
+    @property
+    def missing_images(self) -> list[str]:
+        """The images without approximate EOPs (`-` in the images table), in file order."""
+        return [image.id for image in self.images.values() if image.eop is None]
+
+    @property
+    def missing_points(self) -> list[str]:
+        """The measured tie points absent from the points table (no approximation)."""
+        return [point.id for point in self.points.values() if point.xyz is None]
+
+    @property
+    def complete(self) -> bool:
+        """Whether every image and point has an approximation."""
+        return not (self.missing_images or self.missing_points)

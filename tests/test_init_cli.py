@@ -1,0 +1,237 @@
+"""Missing approximations (issue #13 item 3): `jaxba adjust` computes them first, `jaxba init`
+writes the completed project. Run in-process on copies of configs/lab whose EOPs are all `-`
+and whose tie points (the rows with three free coordinates) are left out of the points table.
+"""
+
+import contextlib
+import hashlib
+import io
+import json
+import pathlib
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+import jaxba
+from jaxba._cli._main import main
+
+LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
+OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
+TABLES = ("lab.toml", "cameras.toml", "orientation.txt", "image_coordinates.txt",
+          "ground_points.txt", "distances.txt")
+RTOL, ATOL = 1e-6, 1e-9  # the adjustment from computed approximations against the lab's own
+
+
+def _run(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def _hashes(folder: pathlib.Path) -> dict[str, str]:
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
+
+
+def _incomplete_lab(folder: pathlib.Path) -> pathlib.Path:
+    """The lab with `-` for every EOP and only the control points (1, 10, 71) in the points
+    table: 18 images and 77 tie points without approximations."""
+    shutil.copytree(LAB, folder, ignore=shutil.ignore_patterns(*OUTPUTS))
+    images = folder / "orientation.txt"
+    images.write_text("".join(
+        line if line.startswith("#") else " ".join(line.split()[:2] + ["-"] * 6) + "\n"
+        for line in images.read_text().splitlines(keepends=True)))
+    points = folder / "ground_points.txt"
+    points.write_text("".join(line for line in points.read_text().splitlines(keepends=True)
+                              if "- - -" not in line))
+    return folder / "lab.toml"
+
+
+def _data_lines(path: pathlib.Path) -> list[list[str]]:
+    return [line.split("#")[0].split() for line in path.read_text().splitlines()
+            if line.split("#")[0].strip()]
+
+
+def _assert_same_adjustment(result: dict, reference: dict, rtol: float = RTOL) -> None:
+    """σ̂0 and every camera, image and point parameter, by ID."""
+    assert result["converged"] and reference["converged"]
+    assert result["sigma0"] == pytest.approx(reference["sigma0"], rel=rtol)
+    for section in ("cameras", "images", "points"):
+        assert result[section].keys() == reference[section].keys(), section
+        for key, entry in reference[section].items():
+            for name, value in entry.items():
+                if name != "ellipsoid":
+                    assert result[section][key][name]["value"] == pytest.approx(
+                        value["value"], rel=rtol, abs=ATOL), (section, key, name)
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """The lab adjusted as it is, and its incomplete copy adjusted and initialised."""
+    root = tmp_path_factory.mktemp("init")
+    code, _, stderr = _run("adjust", str(LAB / "lab.toml"), "--out", str(root / "reference"))
+    assert code == 0, stderr
+    project_file = _incomplete_lab(root / "incomplete")
+    inputs = _hashes(root / "incomplete")
+    adjusted = _run("adjust", str(project_file), "--out", str(root / "adjusted"))
+    initialised = _run("init", str(project_file), "--out", str(root / "completed"))
+    return {
+        "root": root, "project_file": project_file, "inputs": inputs,
+        "reference": json.loads((root / "reference" / "results.json").read_text()),
+        "adjusted": adjusted, "initialised": initialised,
+    }
+
+
+# --- jaxba adjust ----------------------------------------------------------------------------
+
+
+def test_adjust_computes_the_approximations_first(lab):
+    code, stdout, stderr = lab["adjusted"]
+    assert code == 0, stderr
+    assert "computing approximations for 18 images and 77 points ..." in stdout
+    assert "initialised 18 of 18 images and 80 of 80 points" in stdout
+    assert "pair img01-" in stdout  # indices named by ID
+    assert stdout.index("computing approximations") < stdout.index("iter  0")
+    assert "suspect blunders" in stderr  # the approximate camera (no distortion) flags some
+    results = json.loads((lab["root"] / "adjusted" / "results.json").read_text())
+    _assert_same_adjustment(results, lab["reference"])
+    assert "initialisation" not in lab["reference"]
+
+
+def test_results_json_says_what_was_computed(lab):
+    section = json.loads((lab["root"] / "adjusted" / "results.json").read_text())[
+        "initialisation"]
+    assert len(section["computed_images"]) == 18 and section["computed_images"][0] == "img01"
+    assert len(section["computed_points"]) == 77 and "1" not in section["computed_points"]
+    assert sum(section["image_methods"].values()) == 18 and "given" not in section["image_methods"]
+    assert section["point_methods"] == {"given": 3, "intersection": 77}
+    assert section["frame"] == "control"
+    assert any(line.startswith("initialised 18 of 18 images") for line in section["log"])
+    assert section["suspects"], "the lab's approximate camera leaves some far off"
+    for suspect in section["suspects"]:
+        assert set(suspect) == {"image", "point", "line", "sigmas"} and suspect["sigmas"] > 3
+    assert _hashes(lab["root"] / "incomplete") == lab["inputs"]
+
+
+# --- jaxba init ------------------------------------------------------------------------------
+
+
+def test_init_writes_the_completed_project(lab):
+    code, stdout, stderr = lab["initialised"]
+    assert code == 0, stderr
+    folder = lab["root"] / "completed"
+    assert sorted(p.name for p in folder.iterdir()) == sorted(TABLES)
+    for name in ("cameras.toml", "image_coordinates.txt", "distances.txt"):
+        assert (folder / name).read_bytes() == (LAB / name).read_bytes(), name
+    images = _data_lines(folder / "orientation.txt")
+    assert len(images) == 18 and not any("-" in row[2:8] for row in images)
+    points = _data_lines(folder / "ground_points.txt")
+    assert [row[0] for row in points[:3]] == ["1", "10", "71"]  # the given rows first, kept
+    assert len(points) == 80 and all(row[4:] == ["-", "-", "-"] for row in points[3:])
+    assert _hashes(lab["root"] / "incomplete") == lab["inputs"]
+    spec = jaxba.read_project(folder / "lab.toml")
+    assert spec.complete and spec.settings == jaxba.read_project(LAB / "lab.toml").settings
+
+
+def test_the_completed_project_adjusts_without_computing(lab):
+    folder = lab["root"] / "completed"
+    code, stdout, stderr = _run("adjust", str(folder / "lab.toml"),
+                                "--out", str(lab["root"] / "again"))
+    assert code == 0, stderr
+    assert "computing approximations" not in stdout
+    results = json.loads((lab["root"] / "again" / "results.json").read_text())
+    assert "initialisation" not in results
+    adjusted = json.loads((lab["root"] / "adjusted" / "results.json").read_text())
+    _assert_same_adjustment(results, adjusted, rtol=1e-12)  # the same approximations
+    _assert_same_adjustment(results, lab["reference"])
+
+
+def test_init_of_a_complete_project_copies_it(lab, tmp_path):
+    code, stdout, _ = _run("init", str(LAB / "lab.toml"), "--out", str(tmp_path / "copy"))
+    assert code == 0 and "nothing to compute" in stdout
+    for name in TABLES[1:]:
+        assert (tmp_path / "copy" / name).read_bytes() == (LAB / name).read_bytes(), name
+
+
+def test_python_api(lab):
+    spec = jaxba.read_project(lab["project_file"])
+    with pytest.raises(jaxba.ProjectError, match="18 images .* and 77 points .* have no"
+                                                 " approximations"):
+        jaxba.build_project(spec)
+    same, completion = jaxba.complete_project(jaxba.read_project(LAB / "lab.toml"))
+    assert same.complete and not completion.computed_images and not completion.computed_points
+
+
+# --- errors ----------------------------------------------------------------------------------
+
+
+def _edit(path: pathlib.Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, f"{old!r} not in {path}"
+    path.write_text(text.replace(old, new, 1))
+
+
+def test_a_partial_eop_row_is_refused(tmp_path):
+    project_file = _incomplete_lab(tmp_path / "lab")
+    _edit(project_file.parent / "orientation.txt", "img02 C1 - - -", "img02 C1 1.0 2.0 3.0")
+    for command in ("adjust", "init"):
+        code, _, stderr = _run(command, str(project_file), "--out", str(tmp_path / command))
+        assert code == 2, stderr
+        assert "orientation.txt:3: column omega" in stderr and "all six" in stderr
+        assert not (tmp_path / command).exists()
+
+
+def test_an_image_that_cannot_be_oriented_is_refused(tmp_path):
+    """An image with 3 image points cannot be resected, and a new tie point seen by it and
+    one other image cannot be intersected: both named, with the reason, exit 2."""
+    project_file = _incomplete_lab(tmp_path / "lab")
+    with (project_file.parent / "orientation.txt").open("a") as stream:
+        stream.write("img19 C1 - - - - - -\n")
+    image_points = project_file.parent / "image_coordinates.txt"
+    line = len(image_points.read_text().splitlines()) + 3
+    with image_points.open("a") as stream:
+        stream.write("img19 2 -1.0 -1.0\nimg19 3 1.0 1.0\nimg19 999 0.5 0.5\nimg01 999 0.3 0.3\n")
+    code, _, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "out"))
+    assert code == 2, stderr
+    assert stderr.startswith("jaxba: error: cannot compute the approximations of 1 image")
+    assert "'img19' (orientation.txt:20)" in stderr and "a resection needs 6" in stderr
+    assert f"1 point: '999' (image_coordinates.txt:{line}): seen in 2 images, 1 of them" in stderr
+    assert "Traceback" not in stderr and not (tmp_path / "out" / "results.json").exists()
+
+
+def test_init_refuses_the_input_folder(tmp_path):
+    project_file = _incomplete_lab(tmp_path / "lab")
+    before = _hashes(tmp_path / "lab")
+    code, _, stderr = _run("init", str(project_file), "--out", str(tmp_path / "lab"))
+    assert code == 2
+    assert "the folder of the input project lab.toml" in stderr and "--out" in stderr
+    assert _hashes(tmp_path / "lab") == before
+    # A table beside the output: would be overwritten, refused too.
+    (tmp_path / "elsewhere").mkdir()
+    shutil.move(tmp_path / "lab" / "distances.txt", tmp_path / "elsewhere" / "distances.txt")
+    _edit(project_file, '"distances.txt"', '"../elsewhere/distances.txt"')
+    code, _, stderr = _run("init", str(project_file), "--out", str(tmp_path / "elsewhere"))
+    assert code == 2 and "distances.txt" in stderr and "overwrite an input" in stderr
+    assert main(["init", str(project_file)]) == 2  # --out is required
+
+
+def test_input_errors_are_reported_before_jax_is_loaded(tmp_path):
+    """Fail fast with missing approximations too: a partial `-` row (adjust, init) and the
+    input folder as init's output end with exit 2, the file named, and jax never loaded."""
+    project_file = _incomplete_lab(tmp_path / "lab")
+    broken = _incomplete_lab(tmp_path / "broken")
+    _edit(broken.parent / "orientation.txt", "img05 C1 - - - - - -", "img05 C1 - - - - - 0")
+    runs = [["adjust", str(broken), "--out", str(tmp_path / "out")],
+            ["init", str(broken), "--out", str(tmp_path / "out")],
+            ["init", str(project_file), "--out", str(tmp_path / "lab")]]
+    script = ("import json, sys; from jaxba._cli._main import main;"
+              " codes = [main(argv) for argv in json.loads(sys.argv[1])];"
+              " print(*codes, 'jax' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", script, json.dumps(runs)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.stdout.split() == ["2", "2", "2", "False"], done.stderr
+    assert done.stderr.count("orientation.txt:6: column kappa") == 2
+    assert "the folder of the input project" in done.stderr
+    assert not (tmp_path / "out").exists()
