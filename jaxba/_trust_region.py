@@ -17,7 +17,7 @@ a factor that starts at 1/`low_constant` and doubles with every consecutive reje
 x3 for a good model where Ceres grows by a ratio-dependent factor); at an accepted point the
 descent linearises (`query`: the Jacobian-dependent work), then proposes the damped step
 for the current radius (`step`: the damping-dependent work), or with `step_tolerance` the
-Gauss-Newton step near the optimum (below).
+Gauss-Newton step first (below).
 
 Stops as converged at an accepted point from which the Gauss-Newton step would move every
 unknown by less than `step_tolerance` of its standard deviation (the statistical test below;
@@ -209,7 +209,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     `rtol`, `atol`, `norm`: optimistix's Cauchy termination; `step_tolerance`: τ of the
     statistical test, stop where the descent's Gauss-Newton decrement gᵀN⁻¹g is at most τ²,
-    with the Gauss-Newton end game (0: both off, as for BAL; jaxba's bundle solvers use
+    with the Gauss-Newton steps (0: both off, as for BAL; jaxba's bundle solvers use
     `STEP_TOLERANCE`); `function_tolerance`: stop once an accepted step lowers the cost by
     at most this fraction (0: off);
     `initial_radius`: the first trust-region radius (1/λ in the descent's units); `update`:
