@@ -24,9 +24,10 @@ from ._linearisation import LinearisationPlan, linearisation_plan, normal_equati
 from ._parameters import Parameters, parameter_labels
 from ._problem import BundleProblem, free_indices, observed_minus_computed, params_from_scaled
 from ._progress import Iteration, StepRecorder
-from ._schur._bundle import bundle_structure, schur_precision, solve_schur
+from ._schur._bundle import bundle_structure, solve_schur
 from ._schur._choice import use_schur
 from ._schur._datum import check_datum_schur
+from ._schur._reliability import schur_precision_and_redundancy
 from ._solution import Solution
 from ._statistics import Precision, precision, precision_from_covariance
 from ._steps import StepInfo, least_squares_stepwise
@@ -215,10 +216,11 @@ def adjust(
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
-    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" for large
-    bundles). A free network on the Schur backend is solved with a minimal datum and
-    carried over to its inner constraints (`jaxba._free_network`). The phases are timed
-    into `timings` (a new `Timings` when None), which the result holds.
+    `Precision` holds the covariance in blocks and the redundancy numbers) or "auto"
+    (`use_schur`: "schur" for large bundles). A free network on the Schur backend is solved
+    with a minimal datum and carried over to its inner constraints (`jaxba._free_network`).
+    The phases are timed into `timings` (a new `Timings` when None), which the result
+    holds.
     """
     require_float64("jaxba.adjust")
     timings = Timings() if timings is None else timings
@@ -262,7 +264,9 @@ def adjust(
                 parameter_precision = free_network_precision(
                     problem, params, sigma0=sigma0, **split)
             else:
-                parameter_precision = (schur_precision if schur else precision)(
+                # The Schur backend's redundancy numbers come with the covariance (one
+                # program for both), for `jaxba.reliability` to use.
+                parameter_precision = (schur_precision_and_redundancy if schur else precision)(
                     problem, params, sigma0=sigma0, **split)
         except np.linalg.LinAlgError as error:
             parameter_precision = _precision_unavailable(
