@@ -55,9 +55,9 @@ nothing else: the damped step for the same radius is tried next from the same po
 the Gauss-Newton step had not been proposed (no shrink of the radius), and from then on
 the Gauss-Newton step is proposed only where it is 10x shorter in gᵀN⁻¹g than the one that
 failed (`GAUSS_NEWTON_RETREAT`), and always within `GAUSS_NEWTON_REGION` (gᵀN⁻¹g ≤ 1: 1 σ0
-in every unknown, where the linear model is excellent). The undamped solve that gives Δ and
-gᵀN⁻¹g is skipped while a lower bound from the damped step (`_end_game`) shows that the
-point is outside that region. Measured (benchmarks/README.md): the 60-image block 6 -> 5
+in every unknown, where the linear model is excellent). At an accepted point the undamped
+solve comes first (it also gives the stopping test's gᵀN⁻¹g), the damped one only where its
+step is the one proposed (`_propose`). Measured (benchmarks/README.md): the 60-image block 6 -> 5
 steps (4 accepted, as Ceres' 4 iterations, iteration 0 included), with a free datum 12 -> 5,
 Zhang's calibration 8 -> 7, DBAT's 8 -> 7, the lab 6 -> 5, the free network of 115 images
 5 -> 4; the Gauss-Newton step was accepted wherever it was proposed on these. Proposed only
@@ -284,12 +284,13 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             accept, accepted, rejected, state.descent_state)
         result = optx.RESULTS.where(
             jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
-        y_descent, descent_result = self.descent.step(radius, descent_state)
-        gauss_newton, decrement = jnp.array(False), jnp.array(jnp.inf, cost.dtype)
         if self.step_tolerance > 0:
-            y_descent, converged, gauss_newton, decrement = self._end_game(
-                accept, y_descent, descent_state, cost, region)
+            y_descent, descent_result, converged, gauss_newton, decrement = self._propose(
+                accept, radius, descent_state, cost, region)
             terminate = terminate | converged
+        else:
+            y_descent, descent_result = self.descent.step(radius, descent_state)
+            gauss_newton, decrement = jnp.array(False), jnp.array(jnp.inf, cost.dtype)
         # The step for the next trial; it does not matter once the solve has ended.
         proposing = (result == optx.RESULTS.successful) & ~terminate
         result = optx.RESULTS.where(proposing, descent_result, result)
@@ -312,39 +313,34 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         )
         return y, state, aux
 
-    def _end_game(
-        self, accept, damped: Y, descent_state, cost, region
-    ) -> tuple[Y, Bool[Array, ""], Bool[Array, ""], Float[Array, ""]]:
-        """At a point just linearised (`accept`) with `cost`: the next trial step, the
-        Gauss-Newton step where gᵀN⁻¹g ≤ `region`, else the `damped` one; whether gᵀN⁻¹g ≤
-        τ² or the step's predicted reduction is below the cost's resolution, ½gᵀN⁻¹g ≤
-        `COST_RESOLUTION` cost (converged); whether the step is the Gauss-Newton one, and
-        gᵀN⁻¹g (inf where not computed).
+    def _propose(self, accept, radius, descent_state, cost, region):
+        """The next trial step and its result; whether the solve has converged; whether the
+        step is the Gauss-Newton one, and gᵀN⁻¹g (inf where not computed).
 
-        Any δ bounds the decrement from below, gᵀN⁻¹g ≥ (gᵀδ)² / δᵀNδ (Cauchy-Schwarz in
-        the metric of N); gᵀδ and δᵀNδ of the damped step follow from the predicted
-        reductions of ±δ. Where that bound exceeds the region the descent's undamped solve
-        (`gauss_newton`) is skipped (under vmap both branches run).
+        At a point just linearised (`accept`) with `cost` the Gauss-Newton step Δ = -N⁻¹g
+        and gᵀN⁻¹g come first (`descent.gauss_newton`): converged where gᵀN⁻¹g ≤ τ² or
+        where the step's predicted reduction is below the cost's resolution, ½gᵀN⁻¹g ≤
+        `COST_RESOLUTION` cost; Δ is proposed where it is finite and gᵀN⁻¹g ≤ `region`.
+        The damped step for `radius` (`descent.step`) is solved only where Δ is not
+        proposed (under vmap both branches run).
         """
-        ahead = self.descent.predicted_reduction(damped, descent_state)  # gᵀδ + ½ δᵀNδ
-        back = self.descent.predicted_reduction(
-            jax.tree.map(jnp.negative, damped), descent_state)  # -gᵀδ + ½ δᵀNδ
-        curvature = ahead + back
-        bound = jnp.where(curvature > 0, 0.25 * (ahead - back) ** 2 / curvature, 0.0)
         tolerance = jnp.maximum(self.step_tolerance**2, 2 * COST_RESOLUTION * cost)
-        region = jnp.maximum(region, tolerance)
 
         def undamped():
             return self.descent.gauss_newton(descent_state)
 
         def skipped():
-            return jax.tree.map(jnp.zeros_like, damped), jnp.array(jnp.inf, bound.dtype)
+            step, decrement = jax.eval_shape(undamped)
+            return (jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), step),
+                    jnp.array(jnp.inf, decrement.dtype))
 
-        step, decrement = jax.lax.cond(accept & (bound <= region), undamped, skipped)
+        step, decrement = jax.lax.cond(accept, undamped, skipped)
         converged = accept & (decrement <= tolerance)
-        near = accept & (decrement <= region) & _all_finite(step)
-        step = jax.tree.map(lambda a, b: jnp.where(near, a, b), step, damped)
-        return step, converged, near, decrement
+        near = accept & (decrement <= jnp.maximum(region, tolerance)) & _all_finite(step)
+        y_descent, result = jax.lax.cond(
+            near, lambda: (step, optx.RESULTS.successful),
+            lambda: self.descent.step(radius, descent_state))
+        return y_descent, result, converged, near, decrement
 
     def _cauchy_test(self, y, y_diff, residual, residual_diff) -> Bool[Array, ""]:
         """optimistix's Cauchy termination: |Δy| < atol + rtol |y| and |Δr| < atol + rtol

@@ -185,8 +185,8 @@ def test_rejected_gauss_newton_step_leaves_the_radius():
 
 
 def test_statistical_test_ends_a_solve_started_at_the_optimum():
-    """g = 0 at the start: the step test passes there (the damped step is 0, so the bound
-    from it is 0 and the decrement is asked), the start is the answer."""
+    """g = 0 at the start: the step test passes there (the decrement gᵀN⁻¹g is 0), the
+    start is the answer."""
     optimum = jnp.array([1.0, 1.0])
     solution = _solve(DenseDescent(rosenbrock), optimum, rtol=0.0, atol=0.0,
                       step_tolerance=STEP_TOLERANCE)
