@@ -124,6 +124,16 @@ def test_reliability_variance_components_and_snooping_agree(both):
         assert other.redundancy == pytest.approx(component.redundancy, rel=1e-6), name
 
 
+def test_redundancy_numbers_come_with_the_covariance(both):
+    """The Schur adjustment's covariance holds its redundancy numbers (one program for both),
+    the same as `schur_redundancy_numbers` computed apart at the solution."""
+    _, _, schur = both
+    cached_r, cached_e = schur.precision.schur.redundancy
+    r, e = jaxba.schur_redundancy_numbers(schur.problem, schur.parameters)
+    np.testing.assert_allclose(cached_r, r, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cached_e, e, rtol=0, atol=1e-12)
+
+
 def test_reports_are_written_from_the_blocks(both, tmp_path):
     """results.json of both adjustments: the same statistics (σ, correlations, point σ,
     redundancy numbers) to SIGMA_RTOL (the values themselves: see above); the text

@@ -152,9 +152,41 @@ def test_gauss_newton_end_game_solves_a_linear_problem_in_one_step():
     assert float(jnp.max(jnp.abs(damped.value - optimum))) > 1e-6
 
 
+class WrongNewtonDescent(DenseDescent):
+    """Damped steps as `DenseDescent`, a Gauss-Newton step that goes the wrong way (its
+    decrement is right)."""
+
+    def gauss_newton(self, state):
+        step, decrement = super().gauss_newton(state)
+        return -step, decrement
+
+
+def test_rejected_gauss_newton_step_leaves_the_radius():
+    """Far from the optimum the Gauss-Newton step is proposed first; when the trust region
+    rejects it, the next trial is the damped step for the same radius (λ = 1e-4 from the
+    first radius 1e4), not for a shrunk one: step 0 evaluates the start, step 1 rejects the
+    Gauss-Newton point, step 2 accepts the damped one."""
+    optimum = jnp.linalg.lstsq(LINEAR_A, LINEAR_B)[0]
+    start = optimum + jnp.array([30.0, -20.0])
+    assert float((start - optimum) @ (LINEAR_A.T @ LINEAR_A) @ (start - optimum)) > 1e3
+    solver = LevenbergMarquardt(0.0, 0.0, WrongNewtonDescent(linear),
+                                step_tolerance=STEP_TOLERANCE)
+    first = optx.least_squares(linear, solver, start, max_steps=2, throw=False)
+    assert int(first.state.num_accepted_steps) == 1  # the start: Gauss-Newton rejected
+    np.testing.assert_array_equal(first.value, start)
+    solution = optx.least_squares(linear, solver, start, max_steps=3, throw=False)
+    normal, gradient = LINEAR_A.T @ LINEAR_A, LINEAR_A.T @ linear(start)
+    damped = start - jnp.linalg.solve(normal + jnp.eye(2) / 1e4, gradient)
+    assert int(solution.state.num_accepted_steps) == 2  # the start and the damped point
+    np.testing.assert_allclose(solution.value, damped, rtol=1e-12)
+    converged = optx.least_squares(linear, solver, start, max_steps=200, throw=False)
+    assert converged.result == optx.RESULTS.successful
+    np.testing.assert_allclose(converged.value, optimum, rtol=0, atol=1e-6)
+
+
 def test_statistical_test_ends_a_solve_started_at_the_optimum():
-    """g = 0 at the start: the step test passes there (the damped step is 0, so the bound
-    from it is 0 and the decrement is asked), the start is the answer."""
+    """g = 0 at the start: the step test passes there (the decrement gᵀN⁻¹g is 0), the
+    start is the answer."""
     optimum = jnp.array([1.0, 1.0])
     solution = _solve(DenseDescent(rosenbrock), optimum, rtol=0.0, atol=0.0,
                       step_tolerance=STEP_TOLERANCE)

@@ -25,7 +25,7 @@ from .._statistics._free_network import (
     to_inner_datum,
 )
 from .._statistics._schur_datum import check_datum_schur
-from .._statistics._schur_precision import schur_precision
+from .._statistics._schur_reliability import schur_precision_and_redundancy
 from .._timing import Timings
 
 
@@ -85,10 +85,11 @@ def adjust(
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
-    `Precision` holds the covariance in blocks) or "auto" (`use_schur`: "schur" for large
-    bundles). A free network on the Schur backend is solved with a minimal datum and
-    carried over to its inner constraints (`jaxba._statistics._free_network`). The phases are timed
-    into `timings` (a new `Timings` when None), which the result holds.
+    `Precision` holds the covariance in blocks and the redundancy numbers) or "auto"
+    (`use_schur`: "schur" for large bundles). A free network on the Schur backend is solved
+    with a minimal datum and carried over to its inner constraints
+    (`jaxba._statistics._free_network`). The phases are timed into `timings` (a new `Timings`
+    when None), which the result holds.
     """
     require_float64("jaxba.adjust")
     timings = Timings() if timings is None else timings
@@ -132,7 +133,9 @@ def adjust(
                 parameter_precision = free_network_precision(
                     problem, params, sigma0=sigma0, **split)
             else:
-                parameter_precision = (schur_precision if schur else precision)(
+                # The Schur backend's redundancy numbers come with the covariance (one
+                # program for both), for `jaxba.reliability` to use.
+                parameter_precision = (schur_precision_and_redundancy if schur else precision)(
                     problem, params, sigma0=sigma0, **split)
         except np.linalg.LinAlgError as error:
             parameter_precision = _precision_unavailable(

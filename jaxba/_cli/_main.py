@@ -10,14 +10,17 @@ Each subcommand is an `_add_<name>` function that registers its parser and its `
 """
 
 import argparse
+import contextlib
 import dataclasses
 import io
 import os
 import pathlib
+import signal
 import sys
+import threading
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
@@ -30,6 +33,42 @@ CACHE_DIR = pathlib.Path("~/.cache/jaxba/jax")
 
 class _UsageError(Exception):
     """Bad input from the user: printed as `jaxba: error: ...`, exit code 2."""
+
+
+_interrupted = threading.Event()
+
+
+def _remember_interrupt(signum, frame) -> None:
+    _interrupted.set()
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _remembered_interrupts() -> Iterator[None]:
+    """While a command runs, a Ctrl-C is also remembered (`_raise_if_interrupted`).
+
+    Python drops an exception raised inside a garbage-collector callback ("Exception
+    ignored in ..."), and jax runs one at every collection (`_xla_gc_callback`): a Ctrl-C
+    whose KeyboardInterrupt surfaced there was lost, and the run went on to write its
+    reports. Only where SIGINT raises KeyboardInterrupt (Python's default handler; not in a
+    background job that ignores it) and in the main thread."""
+    if (signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+            or threading.current_thread() is not threading.main_thread()):
+        yield
+        return
+    _interrupted.clear()
+    signal.signal(signal.SIGINT, _remember_interrupt)
+    try:
+        yield
+        _raise_if_interrupted()
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _raise_if_interrupted() -> None:
+    """KeyboardInterrupt if a Ctrl-C came (and was lost) since the command started."""
+    if _interrupted.is_set():
+        raise KeyboardInterrupt
 
 
 def _error(message: str, kind: str = "error") -> None:
@@ -227,6 +266,7 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
     except jaxba.NotConvergedError as error:
         _error(f"the adjustment failed: {error}")
         return EXIT_NOT_CONVERGED
+    _raise_if_interrupted()  # not a report from a run that was asked to stop
     try:
         with timings.phase("reports"):
             written = _report.write_reports(project, result, out_dir)
@@ -466,7 +506,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exit_:  # --help, or a usage error already printed by argparse
         return exit_.code if isinstance(exit_.code, int) else EXIT_BAD_INPUT
     try:
-        return args.run(args)
+        with _remembered_interrupts():
+            return args.run(args)
     except (_UsageError, OutputError) as error:
         _error(str(error))
         return EXIT_BAD_INPUT

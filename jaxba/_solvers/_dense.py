@@ -45,7 +45,7 @@ def solve(
 
     Converged at an accepted iterate from which the Gauss-Newton step would move every
     unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._solvers._trust_region`,
-    with its Gauss-Newton end game; 0: both off), or where optimistix's Cauchy test passes
+    with its Gauss-Newton steps; 0: both off), or where optimistix's Cauchy test passes
     (step and residual change within `rtol`, `atol`, elementwise, in the scaled unknowns),
     or when every step from it is rejected down to the trust region's minimum radius.
     No datum check, no statistics. Without `on_step` the whole solve is one compiled

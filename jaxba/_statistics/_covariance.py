@@ -19,12 +19,16 @@ class SchurCovariance:
 
     - `reduced_positions`: (n_r,) `flatten` positions of the reduced unknowns;
     - `reduced`: (n_r, n_r) their covariance (rows of fixed unknowns 0);
-    - `points`: (n_points, 3, 3) every point's covariance (0 for fixed coordinates).
+    - `points`: (n_points, 3, 3) every point's covariance (0 for fixed coordinates);
+    - `redundancy`: the redundancy numbers and whitened residuals (r_i, e_i) of the real
+      observations at the same solution (`schur_redundancy_numbers`), where they were
+      computed with the covariance (`adjust`: one program for both), else None.
     """
 
     reduced_positions: np.ndarray
     reduced: np.ndarray
     points: np.ndarray
+    redundancy: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -83,8 +83,12 @@ def reliability(
     `alpha` is the significance of each w-test, or with `familywise=True` that of the
     whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
     """
-    r, whitened = redundancy_numbers(result.problem, result.parameters,
-                                     schur=result.precision.schur is not None)
+    schur = result.precision.schur
+    if schur is not None and schur.redundancy is not None:  # computed with the covariance
+        r, whitened = schur.redundancy
+    else:
+        r, whitened = redundancy_numbers(result.problem, result.parameters,
+                                         schur=schur is not None)
     return reliability_from_redundancy(
         result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
     )

@@ -77,6 +77,17 @@ def schur_precision(
     if structure is None:
         structure = bundle_structure(problem)
     cofactors = schur_cofactors(problem, params, sigma0=sigma0, structure=structure)
+    return _precision_from_cofactors(problem, structure, cofactors, sigma0)
+
+
+def _precision_from_cofactors(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    cofactors: BundleCofactors,
+    sigma0: float,
+    redundancy: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Precision:
+    """`schur_precision` from `schur_cofactors`' result (and `SchurCovariance.redundancy`)."""
     sigma0_squared = float(cofactors.sigma0_squared)
     variance_factor = sigma0_squared / sigma0**2
     index = free_indices(problem)
@@ -92,6 +103,7 @@ def schur_precision(
             reduced_positions=_reduced_positions(problem, structure),
             reduced=variance_factor * np.asarray(cofactors.reduced),
             points=variance_factor * np.asarray(cofactors.points),
+            redundancy=redundancy,
         ),
     )
 
@@ -169,6 +181,11 @@ def _schur_cofactors(problem, structure, params, sigma0, redundancy):
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
     points = _point_cofactors(problem, structure, cofactor, eliminated)
     residuals = problem.residuals(problem.with_free(params))
+    return _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy)
+
+
+def _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy):
+    """`BundleCofactors` from S⁻¹, the points' 3 x 3 blocks and the whitened residuals."""
     sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy
     variance_factor = sigma0_squared / sigma0**2
     reduced_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(cofactor), 0.0))

@@ -34,7 +34,14 @@ from .._solvers._schur._bundle import (
     bundle_normal_equations,
     bundle_structure,
 )
-from ._schur_precision import _observation_cofactors, _point_cofactors, _reduced_cofactor
+from ._covariance import Precision
+from ._schur_precision import (
+    _bundle_cofactors,
+    _observation_cofactors,
+    _point_cofactors,
+    _precision_from_cofactors,
+    _reduced_cofactor,
+)
 
 
 def schur_redundancy_numbers(
@@ -45,7 +52,31 @@ def schur_redundancy_numbers(
     For bundles with a datum (S positive definite); not for free networks."""
     if structure is None:
         structure = bundle_structure(problem)
-    leverages, residuals = _leverages(problem, structure, params)
+    leverages, residuals, _ = _leverages(problem, structure, params)
+    return _redundancy(problem, leverages, residuals)
+
+
+def schur_precision_and_redundancy(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> Precision:
+    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`:
+    both from one compiled program, which forms the normal equations, S⁻¹ and the
+    pair-wise cofactor blocks once (two programs did all that twice: block A 0.3 s and, cold,
+    one compilation of ~3 s more)."""
+    if structure is None:
+        structure = bundle_structure(problem)
+    redundancy = problem.n_observations() - problem.n_unknowns()
+    leverages, residuals, cofactors = _statistics(problem, structure, params, sigma0, redundancy)
+    return _precision_from_cofactors(problem, structure, cofactors, sigma0,
+                                     _redundancy(problem, leverages, residuals))
+
+
+def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations from the leverages and residuals per group."""
     leverage = np.concatenate([np.ravel(np.asarray(h)) for h in leverages])
     whitened = np.concatenate([np.ravel(np.asarray(e)) for e in residuals])
     real = observation_mask(problem)
@@ -53,8 +84,18 @@ def schur_redundancy_numbers(
 
 
 @eqx.filter_jit
-def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
-    """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k), and the residuals."""
+def _statistics(problem, structure, params, sigma0, redundancy):
+    """`_leverages` and `schur_cofactors` in one program."""
+    leverages, residuals, (cofactor, points) = _leverages(problem, structure, params)
+    cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
+                                  redundancy)
+    return leverages, residuals, cofactors
+
+
+@eqx.filter_jit
+def _leverages(problem, structure, params):
+    """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k); the residuals; and
+    S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`)."""
     normal = bundle_normal_equations(problem, structure, params)
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
@@ -80,7 +121,7 @@ def _leverages(problem, structure, params) -> tuple[list[Array], list[Array]]:
             jd = jd * free_r[columns][:, None, :]
             block = cofactor[columns[:, :, None], columns[:, None, :]]
             leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
-    return leverages, residuals
+    return leverages, residuals, (cofactor, point_cofactors)
 
 
 def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:

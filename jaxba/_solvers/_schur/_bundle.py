@@ -795,7 +795,7 @@ def solve_schur(
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
     every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ²,
-    `jaxba._solvers._trust_region`, with its Gauss-Newton end game; 0: both off), where an
+    `jaxba._solvers._trust_region`, with its Gauss-Newton steps; 0: both off), where an
     accepted step lowered the cost by at most `function_tolerance` of it (0: off; BAL's
     gauge-free problems, whose N is singular, stop this way as Ceres does), or where
     optimistix's Cauchy test (`rtol`, `atol`) passes.
