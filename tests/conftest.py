@@ -15,7 +15,6 @@ test_batch); a later test that needs one of them again loads it from the persist
 instead of compiling it.
 """
 
-import ctypes
 import gc
 import os
 import shutil
@@ -48,12 +47,7 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes",
 from helpers import SYNTHETIC_BLOCK  # noqa: E402
 
 import jaxba  # noqa: E402
-
-try:  # glibc: hand freed heap pages back to the system (else RSS keeps its high-water mark)
-    _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
-except (OSError, AttributeError):
-    _malloc_trim = None
-
+from jaxba._memory import release_free_memory  # noqa: E402
 
 # Above this resident size a test's compiled programs are dropped when it ends, not only at
 # the end of its module: a module of large vmapped programs (test_batch) otherwise climbed
@@ -64,8 +58,7 @@ CLEAR_ABOVE_BYTES = 1 << 30
 def _release_memory():
     jax.clear_caches()
     gc.collect()
-    if _malloc_trim is not None:
-        _malloc_trim(0)
+    release_free_memory()  # glibc keeps freed pages resident otherwise
 
 
 def _resident_bytes() -> int:
