@@ -86,13 +86,19 @@ def _images(spec: ProjectSpec):
         free.append([f for f, _ in flags])
         sigma.append(observed_sigma)
     eop, sigma = np.asarray(eop), np.asarray(sigma)
-    groups = []
-    if np.isfinite(sigma).any():
-        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
-        groups.append(ParameterObservations(
-            name="gnss_ins", block="images", rows=jnp.asarray(rows),
-            observed=jnp.asarray(eop[rows]), stddev=jnp.asarray(sigma[rows])))
+    groups = _weighted_rows("gnss_ins", "images", eop, sigma)
     return jnp.asarray(eop), jnp.asarray(free), groups
+
+
+def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray) -> list:
+    """The rows of a block with any finite σ as one `ParameterObservations` group (a list of
+    it, empty where no row is weighted); `values`, `sigma`: (n_rows, width)."""
+    rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
+    if rows.size == 0:
+        return []
+    return [ParameterObservations(
+        name=name, block=block, rows=jnp.asarray(rows),
+        observed=jnp.asarray(values[rows]), stddev=jnp.asarray(sigma[rows]))]
 
 
 def used_points(spec: ProjectSpec) -> list[str]:
@@ -111,12 +117,7 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
         given = np.array([point.sigma for point in rows], dtype=float).reshape(-1, 3)
     free = ~(given == 0)
     sigma = np.where(given > 0, given, np.inf)
-    groups = []
-    if np.isfinite(sigma).any():
-        rows = np.flatnonzero(np.isfinite(sigma).any(axis=1))
-        groups.append(ParameterObservations(
-            name="control", block="points", rows=jnp.asarray(rows),
-            observed=jnp.asarray(xyz[rows]), stddev=jnp.asarray(sigma[rows])))
+    groups = _weighted_rows("control", "points", xyz, sigma)
     return jnp.asarray(xyz), jnp.asarray(free), groups
 
 
