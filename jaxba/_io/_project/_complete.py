@@ -251,20 +251,18 @@ def _check(spec: ProjectSpec, result: BlockInitialisation, image_ids, point_ids)
     computed ones that are not in the frame of the given values."""
     names = spec.file_names
     problems = []
-    failed = [(k, iid) for k, iid in enumerate(image_ids)
-              if spec.images[iid].eop is None and k in result.failed_images]
-    if failed:
-        problems.append(f"{len(failed)} image{'s' * (len(failed) != 1)}: " + "; ".join(
-            f"{iid!r} ({names.get('images')}:{spec.images[iid].line}):"
-            f" {_named(result.failed_images[k], image_ids, point_ids)}"
-            for k, iid in failed[:LISTED]) + _more(failed))
-    failed = [(k, pid) for k, pid in enumerate(point_ids)
-              if spec.points[pid].xyz is None and k in result.failed_points]
-    if failed:
-        problems.append(f"{len(failed)} point{'s' * (len(failed) != 1)}: " + "; ".join(
-            f"{pid!r} ({names.get('image_points')}:{spec.points[pid].line}):"
-            f" {_named(result.failed_points[k], image_ids, point_ids)}"
-            for k, pid in failed[:LISTED]) + _more(failed))
+    kinds = (
+        ("image", image_ids, spec.images, "eop", result.failed_images, names.get("images")),
+        ("point", point_ids, spec.points, "xyz", result.failed_points,
+         names.get("image_points")),
+    )
+    for kind, ids, rows, value, reasons, file in kinds:
+        failed = [(k, i) for k, i in enumerate(ids)
+                  if getattr(rows[i], value) is None and k in reasons]
+        if failed:
+            problems.append(f"{len(failed)} {kind}{'s' * (len(failed) != 1)}: " + "; ".join(
+                f"{i!r} ({file}:{rows[i].line}): {_named(reasons[k], image_ids, point_ids)}"
+                for k, i in failed[:LISTED]) + _more(failed))
     if problems:
         raise ProjectError(
             "cannot compute the approximations of " + "; and of ".join(problems)
