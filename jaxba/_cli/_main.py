@@ -50,19 +50,29 @@ def _remembered_interrupts() -> Iterator[None]:
     Python drops an exception raised inside a garbage-collector callback ("Exception
     ignored in ..."), and jax runs one at every collection (`_xla_gc_callback`): a Ctrl-C
     whose KeyboardInterrupt surfaced there was lost, and the run went on to write its
-    reports. Only where SIGINT raises KeyboardInterrupt (Python's default handler; not in a
-    background job that ignores it) and in the main thread."""
+    reports. Such a dropped KeyboardInterrupt is not printed either (it is not an error:
+    the run stops with "interrupted" at the next check). Only where SIGINT raises
+    KeyboardInterrupt (Python's default handler; not in a background job that ignores it)
+    and in the main thread."""
     if (signal.getsignal(signal.SIGINT) is not signal.default_int_handler
             or threading.current_thread() is not threading.main_thread()):
         yield
         return
     _interrupted.clear()
     signal.signal(signal.SIGINT, _remember_interrupt)
+    report_unraisable = sys.unraisablehook
+
+    def drop_interrupts(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            report_unraisable(unraisable)
+
+    sys.unraisablehook = drop_interrupts
     try:
         yield
         _raise_if_interrupted()
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        sys.unraisablehook = report_unraisable
 
 
 def _raise_if_interrupted() -> None:
