@@ -192,8 +192,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     and per point with a free coordinate its 1σ "ellipsoid"; solver (the normal-equation
     backend that ran: "dense" or "schur") and timings (seconds per phase up to the reports,
     compilation apart; see `_timings`); initialisation (what `complete_project` computed,
-    `Completion.summary()`), only when the approximations were computed. Iteration 0 is the
-    approximations.
+    `Completion.summary()`), only when the approximations were computed; datum (how it is
+    defined: `Project.datum`). Iteration 0 is the approximations.
     Every parameter carries "status": free, fixed or weighted.
     """
     precision = result.precision
@@ -243,6 +243,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     }
     if project.initialisation is not None:
         tree["initialisation"] = _nulls(project.initialisation)
+    tree["datum"] = project.datum  # `datum_summary`: kind, and what it fixes
     return tree
 
 

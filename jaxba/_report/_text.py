@@ -137,6 +137,26 @@ def _header(project: Project, result: Adjustment) -> list[str]:
     ]
 
 
+def _datum_section(project: Project) -> list[str]:
+    """How the datum is defined (`Project.datum`): which image and coordinate a dependent
+    relative orientation fixes, the points of a free network's inner constraints."""
+    datum = project.datum
+    if datum["kind"] == "dependent":
+        lines = ["datum: dependent relative orientation",
+                 f"  fixed: {' '.join(datum['fixed'])} of image {datum['image']}"]
+        if datum["scale"] == "base":
+            lines.append(f"  fixed: {datum['base_coordinate']} of image {datum['base_image']} "
+                         "(the longest base: the scale)")
+        else:
+            lines.append("  scale: from the distances")
+        return lines
+    if datum["kind"] == "free":
+        points = datum["points"]
+        which = "all points" if points == "all" else f"points {' '.join(points)}"
+        return ["datum: free network", f"  inner constraints over {which}"]
+    return ["datum: control (the fixed and weighted values of the tables)"]
+
+
 def _camera_section(project: Project, cid: str, camera: ParameterTable) -> list[str]:
     spec = project.spec.cameras[cid]
     model = project.camera_rows[cid][0]
@@ -313,6 +333,7 @@ def out_text(project: Project, result: Adjustment) -> str:
     w weighted.
     """
     lines = _header(project, result)
+    lines += ["", *_datum_section(project)]
     correlations = camera_correlations(project, result)
     for cid, camera in camera_tables(project, result).items():
         lines += ["", *_camera_section(project, cid, camera)]

@@ -26,6 +26,7 @@ class Project:
     order of the image and point blocks; `labels` names every scalar unknown;
     `initialisation`: what `complete_project` computed (`Completion.summary()`, the
     `initialisation` section of results.json), None when the files held every approximation.
+    `datum`: how the datum is defined (`datum_summary`; the `datum` section of the reports).
     """
 
     spec: ProjectSpec
@@ -36,6 +37,7 @@ class Project:
     pixel_grids: dict[str, PixelGrid | None]
     labels: list[str]
     initialisation: dict | None = None
+    datum: dict = dataclasses.field(default_factory=lambda: {"kind": "control"})
 
 
 def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
@@ -75,11 +77,15 @@ def _cameras(spec: ProjectSpec):
 
 
 def _images(spec: ProjectSpec):
+    """EOP block (radians), free mask and GNSS/INS observations; a dependent datum frees
+    every EOP (`_dependent_datum` then fixes its own)."""
     eop, free, sigma = [], [], []
+    ignore_sigma = spec.settings.datum == "dependent"
     for image in spec.images.values():
         values = np.asarray(image.eop, dtype=float)
         values[_ANGLE_COLUMNS] = np.radians(values[_ANGLE_COLUMNS])
-        flags = [_sigma_to_free_and_observed(s) for s in image.eop_sigma]
+        flags = [_sigma_to_free_and_observed(None if ignore_sigma else s)
+                 for s in image.eop_sigma]
         observed_sigma = np.array([s for _, s in flags])
         observed_sigma[_ANGLE_COLUMNS] = np.radians(observed_sigma[_ANGLE_COLUMNS])
         eop.append(values)
@@ -111,7 +117,7 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
     """Point block, free mask and control observations; a free network frees them all."""
     rows = [spec.points[pid] for pid in point_ids]
     xyz = np.array([point.xyz for point in rows], dtype=float).reshape(-1, 3)
-    if spec.settings.datum == "free":  # a free network frees them all
+    if spec.settings.datum in ("free", "dependent"):  # the datum frees them all
         given = np.full(xyz.shape, np.nan)
     else:  # the file's σ: None (NaN here) free, 0 fixed, > 0 weighted
         given = np.array([point.sigma for point in rows], dtype=float).reshape(-1, 3)
@@ -187,6 +193,53 @@ def _datum_rows(spec: ProjectSpec, point_index: dict[str, int]) -> list[int] | N
     return [point_index[p] for p in names] or None
 
 
+EOP_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+
+
+def _dependent_datum(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray,
+                     eop_free: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Fix a dependent relative orientation in `eop_free` (n_images, 6; a copy is returned).
+
+    The six EOPs of `datum_image` (default the first image) are fixed; without distances the
+    scale is fixed too, by the station coordinate of the longest base (from the datum image
+    to the image farthest from it) with the largest absolute value. Returns the mask and the
+    summary of `datum_summary`."""
+    name = spec.settings.datum_image or image_ids[0]
+    if name not in image_ids:
+        raise ProjectError(
+            f"{spec.path.name}: [adjustment] datum_image: no image {name!r} in the images table")
+    if len(image_ids) < 2:
+        raise ProjectError(f"{spec.path.name}: [adjustment] datum = \"dependent\" needs two "
+                           "images or more")
+    free = np.array(eop_free, dtype=bool)
+    reference = image_ids.index(name)
+    free[reference] = False
+    summary = {"kind": "dependent", "image": name, "fixed": list(EOP_NAMES), "scale": "distances",
+               "base_image": None, "base_coordinate": None}
+    if not spec.distances:
+        bases = eop[:, :3] - eop[reference, :3]
+        far = int(np.argmax(np.linalg.norm(bases, axis=1)))
+        axis = int(np.argmax(np.abs(bases[far])))
+        free[far, axis] = False
+        summary.update(scale="base", base_image=image_ids[far], base_coordinate=EOP_NAMES[axis])
+    return free, summary
+
+
+def datum_summary(spec: ProjectSpec) -> dict:
+    """The datum as the reports give it: {"kind": "control"}; {"kind": "free", "points": the
+    datum points or "all"}; dependent: see `_dependent_datum` ({"kind", "image", "fixed",
+    "scale": "distances" or "base", "base_image", "base_coordinate"}). A datum key of another
+    kind of datum is refused."""
+    settings = spec.settings
+    for key, kind in (("datum_points", "free"), ("datum_image", "dependent")):
+        if getattr(settings, key) and settings.datum != kind:
+            raise ProjectError(f'{spec.path.name}: [adjustment] {key} needs datum = "{kind}", '
+                               f'not "{settings.datum}"')
+    if settings.datum == "free":
+        return {"kind": "free", "points": list(settings.datum_points) or "all"}
+    return {"kind": settings.datum}
+
+
 def missing_approximations(spec: ProjectSpec) -> str:
     """What a spec misses, e.g. "2 images (img01, orientation.txt:2; ...) and 77 points
     (2, image_coordinates.txt:3; ...) have no approximations"."""
@@ -218,6 +271,10 @@ def build_project(spec: ProjectSpec) -> Project:
     image_ids = list(spec.images)
     point_ids = used_points(spec)
     eop, eop_free, gnss = _images(spec)
+    datum = datum_summary(spec)
+    if spec.settings.datum == "dependent":
+        eop_free, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
+        eop_free = jnp.asarray(eop_free)
     xyz, xyz_free, control = _points(spec, point_ids)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     image_index = {iid: k for k, iid in enumerate(image_ids)}
@@ -262,5 +319,5 @@ def build_project(spec: ProjectSpec) -> Project:
     labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
     if settings.datum == "free":
         problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
-    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels)
+    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum)
 

@@ -56,7 +56,7 @@ _POSITIVE_SETTINGS = frozenset({
 })
 _SETTING_CHOICES = {
     "robust": ("none", "huber", "cauchy"),
-    "datum": ("control", "free"),
+    "datum": ("control", "free", "dependent"),
     "solver": ("auto", "dense", "schur"),
 }
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})

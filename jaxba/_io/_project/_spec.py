@@ -41,10 +41,14 @@ class AdjustmentSettings:
     # Robust loss on image observations: "none", "huber" or "cauchy", scale k in σ.
     robust: str = "none"
     robust_scale: float = 3.0
-    # Datum: "control" (fixed/weighted coordinates in the points table) or "free" (inner
-    # constraints over `datum_points`, default all points; point σ are then ignored).
+    # Datum: "control" (fixed/weighted coordinates in the points table), "free" (inner
+    # constraints over `datum_points`, default all points; point σ are then ignored) or
+    # "dependent" (dependent relative orientation: the six EOPs of `datum_image`, default the
+    # first image, fixed, and without distances one station coordinate of the image farthest
+    # from it; point and EOP σ are then ignored).
     datum: str = "control"
     datum_points: tuple[str, ...] = ()
+    datum_image: str = ""
     # Solver: "dense" (normal equations of all unknowns), "schur" (object points
     # eliminated, covariance in blocks) or "auto" (schur above 2000 unknowns).
     solver: str = "auto"

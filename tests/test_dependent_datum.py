@@ -1,0 +1,106 @@
+"""The dependent relative orientation datum (`datum = "dependent"`) against other minimal
+datums of the same block: σ̂0, redundancy and IOPs are datum-invariant."""
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxba
+from jaxba._report._json import results_json
+from jaxba._report._text import out_text
+
+GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
+EOPS = ["X0", "Y0", "Z0", "omega", "phi", "kappa"]
+
+
+def _with_settings(truth, **settings):
+    lines = "".join(f"\n{key} = {value}" for key, value in settings.items())
+    text = truth.project_file.read_text()
+    path = truth.project_file.with_name(f"{'_'.join(settings) or 'base'}.toml")
+    path.write_text(text.replace("[adjustment]", "[adjustment]" + lines))
+    return jaxba.build_project(jaxba.read_project(path))
+
+
+def _iops(result):
+    return np.asarray(result.parameters.cameras["smac"]).ravel()
+
+
+def _same_invariants(a, b):
+    assert a.converged and b.converged
+    assert a.precision.redundancy == b.precision.redundancy
+    assert a.sigma0 == pytest.approx(b.sigma0, rel=1e-9)
+    iop_a, iop_b = _iops(a), _iops(b)
+    np.testing.assert_allclose(iop_a, iop_b, rtol=GAUGE_RTOL, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def with_distances(tmp_path_factory):
+    """The lab block (6 fixed coordinates, scale from distances) and the same observations
+    with a dependent datum (6 EOPs of img03 fixed, scale from the distances)."""
+    truth = jaxba.write_synthetic_project(tmp_path_factory.mktemp("dep"), seed=4, noise_px=0.3,
+                                     n_images=10, n_targets=40)
+    control = _with_settings(truth)
+    dependent = _with_settings(truth, datum='"dependent"', datum_image='"img03"')
+    return (control, jaxba.adjust_project(control)), (dependent, jaxba.adjust_project(dependent))
+
+
+def test_dependent_datum_with_distances_fixes_six_eops(with_distances):
+    (_, control), (project, dependent) = with_distances
+    _same_invariants(control, dependent)
+    assert project.datum == {"kind": "dependent", "image": "img03", "fixed": EOPS,
+                             "scale": "distances", "base_image": None, "base_coordinate": None}
+    free = np.asarray(project.problem.free.images)
+    fixed = [(project.image_ids[i], EOPS[j]) for i, j in zip(*np.nonzero(~free))]
+    assert fixed == [("img03", name) for name in EOPS]
+    assert np.asarray(project.problem.free.points).all()  # the lab's fixed coordinates freed
+    # The fixed image keeps its approximations exactly.
+    np.testing.assert_array_equal(np.asarray(dependent.parameters.images)[2],
+                                  np.asarray(project.problem.initial.images)[2])
+    text = out_text(project, dependent)
+    assert "fixed: X0 Y0 Z0 omega phi kappa of image img03" in text
+    assert "scale: from the distances" in text
+    data = json.loads(results_json(project, dependent))
+    assert data["datum"]["image"] == "img03" and data["datum"]["scale"] == "distances"
+    assert all(data["images"]["img03"][name]["status"] == "fixed" for name in EOPS)
+
+
+def test_dependent_datum_without_distances_fixes_the_longest_base(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_distances=0,
+                                          n_images=10, n_targets=40)
+    # Control: the lab's six fixed coordinates (X Y Z of A, Y Z of B, Z of C) plus X of B
+    # for the scale, at their true values.
+    points = truth.project_file.with_name("ground_points.txt")
+    rows = [line.split() for line in points.read_text().splitlines()]
+    b = next(k for k, row in enumerate(rows) if row[-3:] == ["-", "0", "0"])
+    rows[b][1], rows[b][-3] = repr(truth.points[rows[b][0]][0]), "0"
+    points.write_text("\n".join(" ".join(row) for row in rows) + "\n")
+    control = _with_settings(truth)
+    project = _with_settings(truth, datum='"dependent"')
+    dependent = jaxba.adjust_project(project)
+    _same_invariants(jaxba.adjust_project(control), dependent)
+
+    # Independently: the image farthest from img01, and its largest base component.
+    stations = {iid: np.array(spec.eop[:3]) for iid, spec in project.spec.images.items()}
+    bases = {iid: xyz - stations["img01"] for iid, xyz in stations.items()}
+    far = max(bases, key=lambda iid: np.linalg.norm(bases[iid]))
+    axis = ["X0", "Y0", "Z0"][int(np.argmax(np.abs(bases[far])))]
+    assert project.datum == {"kind": "dependent", "image": "img01", "fixed": EOPS,
+                             "scale": "base", "base_image": far, "base_coordinate": axis}
+    free = np.asarray(project.problem.free.images)
+    fixed = [(project.image_ids[i], EOPS[j]) for i, j in zip(*np.nonzero(~free))]
+    assert fixed == [("img01", name) for name in EOPS] + [(far, axis)]
+    assert f"fixed: {axis} of image {far} (the longest base: the scale)" in out_text(
+        project, dependent)
+    data = json.loads(results_json(project, dependent))
+    assert data["images"][far][axis]["status"] == "fixed"
+    assert data["datum"]["base_image"] == far
+
+
+def test_datum_image_must_exist_and_needs_the_dependent_datum(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_images=6,
+                                          n_targets=30)
+    with pytest.raises(jaxba.ProjectError, match="datum_image: no image 'img99'"):
+        _with_settings(truth, datum='"dependent"', datum_image='"img99"')
+    with pytest.raises(jaxba.ProjectError, match='datum_image needs datum = "dependent"'):
+        _with_settings(truth, datum_image='"img02"')
