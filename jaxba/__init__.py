@@ -20,7 +20,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "flying_height_from_parallax", "forward_intersection", "ground_from_parallax",
         "relative_orientation", "space_resection", "stereo_parallax",
     ),
-    "._io._bal": ("BalFormatError", "BalProblem", "read_bal"),
+    "._io._bal": ("BalFormatError", "BalProblem", "read_bal", "write_bal_project"),
     "._cli._bal": ("run_bal",),
     "._adjust._batch": (
         "PaddedBatch", "adjust_batch", "broadcast_plan", "check_datum_batch", "pad_problems",
