@@ -161,7 +161,7 @@ def test_importer_pixels_shifted_to_jaxba_origin(written):
     names = {f"{n}": f"P82500{20 + n}" for n in range(1, N_IMAGES + 1)}
     assert [(r[0], r[1]) for r in rows] == [(names[m.image], m.point) for m in marks]
     got = np.array([[float(v) for v in r[2:6]] for r in rows])
-    expected = np.array([[m.col - 0.5, m.row - 0.5, m.sigma, m.sigma] for m in marks])
+    expected = np.array([[m.col - 0.5, m.row - 0.5, *m.sigma] for m in marks])
     np.testing.assert_array_equal(got, expected)
 
 
@@ -185,13 +185,14 @@ def test_configs_match_a_fresh_import(written):
 
 
 def test_control_points_read():
-    fixed = read_control_points(DATA / "reference" / "camcal-fixed.txt")
+    fixed = read_control_points(DATA / "reference" / "camcal-fixed.txt", "id,label,x,y,z")
     assert {p.label: p.xyz for p in fixed.values()} == {
         "CP1": (0.0, 1.0, 0.0), "CP2": (1.0, 1.0, 0.0),
         "CP3": (0.0, 0.0, 0.0), "CP4": (1.0, 0.0, 0.0)}
-    assert all(p.sigma is None for p in fixed.values())
-    weighted = read_control_points(DATA / "reference" / "camcal-weighted.txt")
-    assert all(p.sigma == 0.001 for p in weighted.values())
+    assert all(p.sigma == (0.0, 0.0, 0.0) for p in fixed.values())
+    weighted = read_control_points(DATA / "reference" / "camcal-weighted.txt",
+                                   "id, label, x, y, z, sxyz")
+    assert all(p.sigma == (0.001, 0.001, 0.001) for p in weighted.values())
 
 
 def test_principal_point_mapping():
@@ -303,7 +304,7 @@ def test_pm_reproduces_dbat_residuals():
     camera = _camera()
     grid = jaxba.PixelGrid(camera.pixel_size, camera.image_size)
     ps = camera.pixel_size[0]
-    control = read_control_points(DATA / "reference" / "camcal-fixed.txt")
+    control = read_control_points(DATA / "reference" / "camcal-fixed.txt", "id,label,x,y,z")
     marks = {(m.image, m.point): m for m in read_mark_points(DATA / "measurements" / "markpts.txt")}
     stations = np.loadtxt(DATA / "result" / "camera_stations.txt", delimiter=",",
                           usecols=range(8), comments="#")
