@@ -132,6 +132,8 @@ def parse_camera(element: ET.Element, where: str, number: int) -> DbatCamera:
         k=k,
         p=p,
     )
+    if texts.get("pp") == "default":  # DBAT's: the sensor centre
+        camera = dataclasses.replace(camera, pp=camera.principal_point_to_dbat(0.0, 0.0))
     if camera.lens_model != 3:
         raise ValueError(f"{at} <model>: only DBAT's lens model 3 (PhotoModeler's, jaxba's "
                          f'"photomodeler") is supported, got {camera.lens_model}')

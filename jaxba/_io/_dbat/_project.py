@@ -64,18 +64,19 @@ def _image_mm(camera: DbatCamera, pixels: np.ndarray) -> np.ndarray:
     return np.c_[(pixels[:, 0] - width / 2) * ps_x, (height / 2 - pixels[:, 1]) * ps_y]
 
 
-def _numbers(value, count: int, what: str) -> list[float]:
+def _numbers(value, count: int, what: str, where: str) -> list[float]:
     try:
         values = [float(v) for v in str(value).split(",")]
     except ValueError:
         values = []
     if len(values) != count:
-        raise ValueError(f"<set_initial_values><io><{what}>: expected {count} numbers or default"
-                         f" or loaded, got {value!r}")
+        raise ValueError(f"{where}: <set_initial_values><io><{what}>: expected {count} numbers,"
+                         f" default or loaded, got {value!r}")
     return values
 
 
-def initial_camera(camera: DbatCamera, io_initial: dict[str, object]) -> dict[str, float]:
+def initial_camera(camera: DbatCamera, io_initial: dict[str, object], where: str = "script"
+                   ) -> dict[str, float]:
     """jaxba's starting values of the "photomodeler" parameters: per IO field of
     `set_initial_values` "default" (c = focal, principal point at the sensor centre, the rest
     0), "loaded" (the camera's) or given numbers; a field not named: loaded where the camera
@@ -89,12 +90,12 @@ def initial_camera(camera: DbatCamera, io_initial: dict[str, object]) -> dict[st
             continue
         if choice == "loaded":
             if given is None:
-                raise ValueError(f"<set_initial_values><io><{field}>: loaded, but the camera "
-                                 f"has no <{field}>")
+                raise ValueError(f"{where}: <set_initial_values><io><{field}>: loaded, but the"
+                                 f" camera has no <{field}>")
             value = given
         else:
             count = {"pp": 2, "K": camera.n_k, "P": camera.n_p}.get(field, 1)
-            value = _numbers(choice, count, field)
+            value = _numbers(choice, count, field, where)
             value = value if field in ("pp", "K", "P") else value[0]
         if field == "cc":
             values["c"] = float(value)
@@ -254,7 +255,7 @@ def write_dbat_project(
     if datum_image is None and not (control_datum or eo_datum):
         raise ValueError(f"{where}: no control points, no fixed or weighted prior EO and no "
                          '<set_datum ref_cam="1">depend</set_datum>: the datum is undefined')
-    initial = initial_camera(camera, ops.io_initial)
+    initial = initial_camera(camera, ops.io_initial, where)
     free = _free_parameters(camera, ops.io_free)
 
     poses = _starting_poses(script, camera, initial, control)
