@@ -156,11 +156,14 @@ def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
 
 
-def test_cofactors_match_dense_precision(block):
+@pytest.mark.parametrize("pairwise", [True, False])
+def test_cofactors_match_dense_precision(block, pairwise):
     index = jnp.asarray(free_indices(block))
     params = solve_schur(block, index).parameters
     dense = jaxba.precision(block, params)
-    schur = schur_cofactors(block, params)
+    # Several chunks of pairs and of points; the cofactors pair-wise and densely.
+    structure = bundle_structure(block, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
+    schur = schur_cofactors(block, params, structure=structure)
     assert float(schur.sigma0_squared) == pytest.approx(dense.sigma0_squared, rel=1e-12)
     for a, b in zip(jax.tree.leaves(schur.std), jax.tree.leaves(dense.std)):
         np.testing.assert_allclose(a, b, rtol=COVARIANCE_RTOL, atol=1e-15)
@@ -215,14 +218,16 @@ def test_run_bal_with_and_without_progress_agree(tmp_path):
 
 
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])
-def test_redundancy_numbers_match_dense(block, variant):
+@pytest.mark.parametrize("pairwise", [True, False])
+def test_redundancy_numbers_match_dense(block, variant, pairwise):
     """r_i = 1 - j N⁻¹ jᵀ from the Schur blocks equals the dense computation for every real
     observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances."""
     problem = block if variant == "plain" else _with_control_and_robust(block)
     flat, unravel = ravel_pytree(problem.initial)
     perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
     params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))
-    structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
+    # Several chunks of pairs and of points; the cofactors pair-wise and densely.
+    structure = bundle_structure(problem, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
     r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
     expected_r, expected_whitened = redundancy_numbers(problem, params)
     assert r.shape == expected_r.shape == (problem.n_observations(),)

@@ -124,6 +124,59 @@ def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:
 def _observation_cofactors(
     structure: BundleStructure, normal: BundleNormalEquations, cofactor: Array, inverse: Array
 ) -> tuple[Float[Array, "n_obs1 3 k"], Float[Array, "n_e1 3 3"]]:
+    """`_pairwise_cofactors` or `_dense_cofactors`, as `structure.pairwise` says: the same
+    blocks, less work pair-wise where points are seen by few images."""
+    if structure.pairwise:
+        return _pairwise_cofactors(structure, normal, cofactor, inverse)
+    return _dense_cofactors(structure, normal, cofactor, inverse)
+
+
+def _dense_cofactors(
+    structure: BundleStructure, normal: BundleNormalEquations, cofactor: Array, inverse: Array
+) -> tuple[Float[Array, "n_obs1 3 k"], Float[Array, "n_e1 3 3"]]:
+    """`_pairwise_cofactors`' blocks from G_p = S⁻¹ Y_p V_p⁻¹ (n_r x 3) formed for a chunk of
+    points at a time as one matrix product, (n_r + 1) x (n_r + 1) by (n_r + 1) x 3P: for
+    points seen by many images (a target field), where the pairs are many."""
+    n_r, n_points, k = structure.n_reduced, structure.points_per_chunk, _g_width(structure)
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+
+    def chunk(g_all, chunk):
+        obs, local, points = chunk
+        t = _chunk_coupling(structure, normal, inverse, obs, local, points)
+        t_flat = t.transpose(1, 0, 2).reshape(n_r + 1, 3 * n_points)
+        g = (padded @ t_flat).reshape(n_r + 1, n_points, 3)
+        blocks = inverse[points] + jnp.einsum("pci,cpk->pik", t, g)
+        g_obs = g[structure.image_columns[obs][:, :k], local[:, None], :]  # (max_obs, k, 3)
+        return g_all.at[obs].set(g_obs.transpose(0, 2, 1)), blocks
+
+    g_all = jnp.zeros((structure.image_point.shape[0], 3, k), cofactor.dtype)
+    g_all, blocks = jax.lax.scan(
+        chunk, g_all, (structure.chunk_obs, structure.chunk_local, structure.chunk_points))
+    n_e = inverse.shape[0] - 1
+    points = jnp.concatenate([blocks.reshape(-1, 3, 3)[:n_e], jnp.zeros_like(inverse[:1])])
+    return g_all.at[-1].set(0.0), points
+
+
+def _chunk_coupling(structure, normal, inverse, obs, local, points) -> Array:
+    """T = Y V⁻¹ (points of the chunk, n_r + 1, 3): the coupling blocks W of the chunk's
+    observations summed per point (Y; last row: padding), times the point's V⁻¹."""
+    n_r, n_points = structure.n_reduced, structure.points_per_chunk
+    flat = local[:, None] * (n_r + 1) + structure.image_columns[obs]
+    y = jnp.zeros((n_points * (n_r + 1), 3), normal.coupling.dtype).at[flat].add(
+        normal.coupling[obs].transpose(0, 2, 1), mode="drop"
+    )
+    y = y.reshape(n_points, n_r + 1, 3)
+    return jnp.sum(y[:, :, None, :] * inverse[points][:, None, :, :], axis=3)
+
+
+def _g_width(structure: BundleStructure) -> int:
+    """k: the reduced columns an eliminated point's observation can be nonzero in."""
+    return structure.m - structure.point_width
+
+
+def _pairwise_cofactors(
+    structure: BundleStructure, normal: BundleNormalEquations, cofactor: Array, inverse: Array
+) -> tuple[Float[Array, "n_obs1 3 k"], Float[Array, "n_e1 3 3"]]:
     """The cofactor blocks between the reduced side and the eliminated points that the
     statistics need, pair-wise over the observations of each point, without the dense
     n_r x 3 blocks G_p = S⁻¹ Y_p V_p⁻¹ (O(n_points n_r²) work).
@@ -136,7 +189,7 @@ def _observation_cofactors(
     whose S⁻¹ block is gathered once per key pair). `cofactor`: S⁻¹ (n_r, n_r); `inverse`:
     V⁻¹ padded (n_e + 1, 3, 3). Returns g_iᵀ (n_obs1, 3, k) and the eliminated points' 3 x 3
     cofactor blocks (n_e + 1, 3, 3; last: padding)."""
-    k = structure.m - structure.point_width
+    k = _g_width(structure)
     padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
     first = structure.key_columns[structure.key_pairs[:, 0], :k]
     second = structure.key_columns[structure.key_pairs[:, 1], :k]

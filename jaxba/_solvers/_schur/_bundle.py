@@ -68,6 +68,14 @@ from ._pairs import block_rows, same_point_pairs
 # Observation pairs per row of the S assembly: a row's product is a sum of 24 broadcast
 # products, which on the CPU ran ~7 % faster than rows of 16 and ~25 % faster than 32 (BAL).
 PAIR_ROW_SIZE = 8
+# The statistics' point cofactors pair-wise take ~n_pairs k² multiply-adds, as sums of
+# broadcast products and scatters; densely, ~n_eliminated (n_r + 1)² in matrix products,
+# which run faster per multiply-add: pair-wise where the first count times this is the
+# smaller. Measured with the redundancy numbers (benchmarks/blocks.py, warm, one CPU):
+# block A (26,200 points seen ~3.4 times each; 1.37e2 times fewer pair-wise) 0.19 s
+# pair-wise against 0.92 s densely; block B (148 targets seen ~65 times each; 1.18 times
+# fewer) 0.18 s against 0.09 s.
+PAIRWISE_ADVANTAGE = 8.0
 
 
 class BundleStructure(eqx.Module):
@@ -90,6 +98,12 @@ class BundleStructure(eqx.Module):
       eliminated point with key_i >= key_j (i = j included), in rows of one key pair each
       (`_pairs.block_rows`; padding: observation n_image_obs, block n_key_pairs);
       `key_pairs` (n_key_pairs, 2): the (key_i, key_j) of every block;
+    - `chunk_obs` (n_chunks, max_obs), `chunk_local` (n_chunks, max_obs), `chunk_points`
+      (n_chunks, points_per_chunk): the image observations of each chunk of eliminated
+      points, for the statistics' point cofactors where they are formed densely (padding:
+      observation n_image_obs / local point points_per_chunk / point n_eliminated);
+      `pairwise`: they are summed over the pairs instead
+      (`_schur_precision._observation_cofactors`);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
     - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
@@ -107,6 +121,9 @@ class BundleStructure(eqx.Module):
     pair_second: Int[Array, "n_pair_chunks rows row_size"]
     pair_block: Int[Array, "n_pair_chunks rows"]
     key_pairs: Int[Array, "n_key_pairs 2"]
+    chunk_obs: Int[Array, "n_chunks max_obs"]
+    chunk_local: Int[Array, "n_chunks max_obs"]
+    chunk_points: Int[Array, "n_chunks points_per_chunk"]
     reduced_points: Int[Array, " n_reduced_points"]
     eliminated_points: Int[Array, " n_eliminated"]
     point_column: Int[Array, " n_points"]
@@ -118,20 +135,27 @@ class BundleStructure(eqx.Module):
     n_reduced: int = eqx.field(static=True)
     m: int = eqx.field(static=True)
     point_width: int = eqx.field(static=True)
+    points_per_chunk: int = eqx.field(static=True)
+    pairwise: bool = eqx.field(static=True)
     jacobian_batch: int = eqx.field(static=True)
 
 
 def bundle_structure(
     problem: BundleProblem,
     *,
+    chunk_mib: float = 64.0,
     jacobian_batch: int = 4096,
     pair_batch: int = 4096,
+    pairwise: bool | None = None,
 ) -> BundleStructure:
     """The Schur split of `problem` (NumPy, before any tracing).
 
-    `jacobian_batch` is the number of image observations differentiated at once,
-    `pair_batch` the number of observation pairs multiplied at once in S and in the
-    cofactors (`_precision._observation_cofactors`). The split depends on `problem.free`
+    `chunk_mib` bounds the dense coupling matrix of one chunk of points (3 P x n_reduced
+    doubles) where the statistics form the point cofactors densely; `jacobian_batch` is the
+    number of image observations differentiated at once, `pair_batch` the number of
+    observation pairs multiplied at once in S and in the pair-wise cofactors; `pairwise`:
+    how the cofactors are formed (`_schur_precision._observation_cofactors`), None: by the
+    work each takes (`PAIRWISE_ADVANTAGE`). The split depends on `problem.free`
     (`iop_columns`): rebuild it when the free mask changes. Raises `ValueError` for
     observation groups other than ImagePoints, ParameterObservations and Distances.
     """
@@ -199,6 +223,11 @@ def bundle_structure(
         observations, observations, key[:n_obs], key_columns.shape[0], fill=n_obs,
         row_size=PAIR_ROW_SIZE, rows_per_chunk=max(1, pair_batch // PAIR_ROW_SIZE),
     )
+    chunks = _point_chunks(point_rows[:n_obs], n_eliminated, n_reduced, chunk_mib)
+    if pairwise is None:  # multiply-adds of each way to form the cofactors
+        k = m - point_width
+        n_pairs = int(np.count_nonzero(pairs[0] < n_obs))
+        pairwise = PAIRWISE_ADVANTAGE * n_pairs * k * k < n_eliminated * (n_reduced + 1) ** 2
 
     return BundleStructure(
         image_columns=jnp.asarray(columns),
@@ -211,6 +240,9 @@ def bundle_structure(
         pair_second=jnp.asarray(pairs[1]),
         pair_block=jnp.asarray(pairs[2]),
         key_pairs=jnp.asarray(key_pairs),
+        chunk_obs=jnp.asarray(chunks[0]),
+        chunk_local=jnp.asarray(chunks[1]),
+        chunk_points=jnp.asarray(chunks[2]),
         reduced_points=jnp.asarray(reduced_points),
         eliminated_points=jnp.asarray(eliminated_points),
         point_column=jnp.asarray(point_column),
@@ -222,8 +254,33 @@ def bundle_structure(
         n_reduced=int(n_reduced),
         m=int(m),
         point_width=point_width,
+        points_per_chunk=chunks[2].shape[1],
+        pairwise=bool(pairwise),
         jacobian_batch=int(jacobian_batch),
     )
+
+
+def _point_chunks(
+    point_rows: np.ndarray, n_eliminated: int, n_reduced: int, chunk_mib: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`BundleStructure.chunk_obs`, `.chunk_local`, `.chunk_points` from every image
+    observation's row in the eliminated block (`point_rows`, n_eliminated for reduced
+    points): the eliminated points in chunks whose dense coupling (3 P x (n_r + 1)) fits
+    in `chunk_mib`."""
+    per_chunk = int(max(1, min(n_eliminated, chunk_mib * 2**20 / (24 * (n_reduced + 1)))))
+    n_chunks = max(1, -(-n_eliminated // per_chunk))
+    order = np.argsort(point_rows, kind="stable")
+    order = order[point_rows[order] < n_eliminated]
+    chunk_of = point_rows[order] // per_chunk
+    counts = np.bincount(chunk_of, minlength=n_chunks)
+    max_obs = max(1, int(counts.max(initial=0)))
+    chunk_obs = np.full((n_chunks, max_obs), point_rows.size, dtype=np.int64)
+    chunk_local = np.full((n_chunks, max_obs), per_chunk, dtype=np.int64)
+    rank = np.arange(order.size) - (np.cumsum(counts) - counts)[chunk_of]
+    chunk_obs[chunk_of, rank] = order
+    chunk_local[chunk_of, rank] = point_rows[order] - chunk_of * per_chunk
+    chunk_points = np.arange(n_chunks * per_chunk).reshape(n_chunks, per_chunk)
+    return chunk_obs, chunk_local, np.minimum(chunk_points, n_eliminated)
 
 
 def _observation_pairs(
