@@ -120,7 +120,8 @@ def correction_profile(
     terms = _correction_terms(model)
     others = terms & ~np.isin(CAMERA_MODELS[model].parameter_names, terms_of[kind])
     radii = jnp.asarray(radii, dtype=float)
-    phis = jnp.zeros(1) if kind == "radial" else jnp.arange(directions) * (2 * np.pi / directions)
+    # Both kinds on the same rays (the radial one reads direction 0): one compiled program.
+    phis = jnp.arange(directions) * (2 * np.pi / directions)
     ideal_camera = _with_values(camera, camera.parameters(), jnp.asarray(terms))
     angles, centre = _ray_angles(ideal_camera, radii, phis)
     shift, jacobian, ideal = (np.asarray(a) for a in _displacements(
