@@ -58,7 +58,10 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "IMAGE_PARAMETER_NAMES", "POINT_PARAMETER_NAMES", "Parameters", "flatten",
         "parameter_labels", "unflatten",
     ),
-    "._report._plots": ("plot_correlation", "plot_image_residuals"),
+    "._report._plots": (
+        "figure_set", "plot_correlation", "plot_coverage", "plot_distortion",
+        "plot_image_residuals", "plot_normalised_residuals", "plot_point_ellipses",
+    ),
     "._statistics._derived": (
         "camera_correlation", "correlation", "error_ellipsoids", "full_covariance",
         "point_covariances", "propagate",
@@ -72,7 +75,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._io._project._complete": ("Completion", "complete_project"),
     "._io._project._write": ("write_project",),
     "._statistics._reliability": ("Reliability", "reliability"),
-    "._report": ("OutputError", "read_observations", "write_reports"),
+    "._report": ("OutputError", "html_report", "read_observations", "write_reports"),
     "._models._robust": ("RobustLoss",),
     "._models._rotation": (
         "matrix_to_opk", "matrix_to_quaternion", "matrix_to_rodrigues", "opk_to_matrix",

@@ -3,6 +3,7 @@
 One adjustment is shared by most tests (module fixture); the error cases stop before solving.
 """
 
+import base64
 import contextlib
 import hashlib
 import io
@@ -21,7 +22,9 @@ from jaxba._cli._main import main
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
 OUTPUTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")
-PLOTS = ("residuals.png", "correlation_C1.png")  # written by --plots
+PLOTS = ("residuals.png", "normalised_residuals.png", "coverage.png", "distortion_C1.png",
+         "correlation_C1.png", "point_ellipses.png")  # written by --plots
+HTML = "lab.html"  # written by --report html
 APPROXIMATION_DEG = 10.0  # the lab's angle approximations are within a few degrees of the result
 SIGMA_FILE_RTOL = 1e-9  # .sigma prints 11 significant digits
 REDUNDANCY_RTOL = 1e-8  # Σ r_i against n - u (two dense factorisations of the same N)
@@ -56,11 +59,12 @@ def _data_lines(path: pathlib.Path) -> list[list[str]]:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    """`jaxba adjust lab.toml --plots` (reports beside the project) on a fresh copy of the lab."""
+    """`jaxba adjust lab.toml --plots --report html` (reports beside the project) on a fresh
+    copy of the lab."""
     folder = tmp_path_factory.mktemp("cli") / "lab"
     project_file = _copy_lab(folder)
     inputs = _hashes(folder)
-    code, stdout, stderr = _run("adjust", str(project_file), "--plots")
+    code, stdout, stderr = _run("adjust", str(project_file), "--plots", "--report", "html")
     return {
         "folder": folder, "inputs": inputs, "code": code, "stdout": stdout, "stderr": stderr,
         "results": json.loads((folder / "results.json").read_text()),
@@ -74,12 +78,18 @@ def test_exit_code_and_files(run):
         assert (run["folder"] / name).is_file()
     for name in PLOTS:
         assert (run["folder"] / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    page = (run["folder"] / HTML).read_text(encoding="utf-8")
+    sigma0 = f'<span id="sigma0">{run["results"]["sigma0"]:.6g}</span>'
+    assert page.startswith("<!DOCTYPE html>") and sigma0 in page
+    for name in PLOTS:  # the same figures, embedded
+        png = base64.b64encode((run["folder"] / name).read_bytes()).decode("ascii")
+        assert f'src="data:image/png;base64,{png}"' in page
 
 
 def test_inputs_untouched(run):
     after = _hashes(run["folder"])
     assert {name: after[name] for name in run["inputs"]} == run["inputs"]
-    assert set(after) == set(run["inputs"]) | set(OUTPUTS) | set(PLOTS)
+    assert set(after) == set(run["inputs"]) | set(OUTPUTS) | set(PLOTS) | {HTML}
 
 
 def test_results_json_contract(run):
@@ -182,7 +192,7 @@ def test_progress_and_summary(run):
     assert progress[0].split()[:3] == ["iter", "0", "cost"]
     assert any(line.startswith("sigma0 ") for line in lines)
     assert any(line.strip().startswith("c ") and "+/-" in line for line in lines)
-    for name in OUTPUTS + PLOTS:
+    for name in OUTPUTS + PLOTS + (HTML,):
         assert any(line.strip().endswith(name) for line in lines)
     assert any(line.startswith("converged after") and "dense backend" in line for line in lines)
 
@@ -215,14 +225,25 @@ def test_res_statistics_columns(run):
     assert "Variance components" not in text and "Data snooping" not in text
 
 
-def test_plots_without_matplotlib_warn_before_the_run(monkeypatch, tmp_path):
+@pytest.mark.parametrize("option", [["--plots"], ["--report", "html"]])
+def test_figures_without_matplotlib_refused_before_the_run(monkeypatch, tmp_path, option):
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     code, stdout, stderr = _run("adjust", str(_copy_lab(tmp_path / "lab")), "--out",
-                                str(tmp_path / "out"), "--plots")
-    assert code == 0
-    assert stderr.startswith("jaxba: warning: --plots: matplotlib is not installed")
-    written = {path.name for path in (tmp_path / "out").iterdir()}
-    assert written >= set(OUTPUTS) and not written & set(PLOTS)
+                                str(tmp_path / "out"), *option)
+    assert code == 2 and stdout == ""
+    assert stderr.startswith(f"jaxba: error: {' '.join(option)}: matplotlib cannot be imported")
+    assert not (tmp_path / "out").exists()
+
+
+def test_html_report_over_an_input_refused_before_the_run(tmp_path):
+    project_file = _copy_lab(tmp_path / "lab")
+    (tmp_path / "lab" / "distances.txt").rename(tmp_path / "lab" / "lab.html")
+    _edit(project_file, '"distances.txt"', '"lab.html"')
+    before = _hashes(tmp_path / "lab")
+    code, stdout, stderr = _run("adjust", str(project_file), "--report", "html")
+    assert code == 2 and stdout == ""
+    assert stderr.startswith("jaxba: error: ") and "lab.html" in stderr
+    assert _hashes(tmp_path / "lab") == before
 
 
 def test_output_would_overwrite_input(tmp_path):

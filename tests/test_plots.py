@@ -121,3 +121,15 @@ def test_correlation_heat_map(lab):
     assert ax.texts[1].get_text() == f"{matrix[0, 1]:.2f}"
     with pytest.raises(ValueError, match="unknown camera"):
         jaxba.plot_correlation(result, project, "C9")
+
+
+def test_distortion_of_a_pixel_camera_draws_its_estimated_kinds_only():
+    """Zhang's OpenCV camera estimates k1, k2 and no decentering: one panel, in pixels, out to
+    the 640 x 480 sensor's corner farthest from (cx, cy) = (320, 240)."""
+    project = jaxba.build_project(jaxba.read_project(CONFIGS / "zhang" / "zhang.toml"))
+    figure = jaxba.plot_distortion(project, _fake_result(project))
+    (ax,) = [ax for ax in figure.axes if ax.get_xlabel()]
+    assert ax.get_xlabel().endswith("(px)") and ax.get_ylabel() == "radial (px)"
+    assert "k1, k2 estimated" in ax.get_title()
+    assert ax.get_xlim()[1] == pytest.approx(np.hypot(320.5, 240.5), rel=1e-12)
+    assert jaxba.figure_set(project, _fake_result(project))[3].name == "distortion_C1"

@@ -12,7 +12,6 @@ Each subcommand is an `_add_<name>` function that registers its parser and its `
 import argparse
 import contextlib
 import dataclasses
-import io
 import os
 import pathlib
 import shutil
@@ -131,8 +130,8 @@ def _add_adjust(subparsers) -> None:
         "adjust",
         help="adjust a project and write its reports",
         description=(
-            "Adjust the bundle of PROJECT.toml and write NAME.out, NAME.res, NAME.sigma and"
-            " results.json (NAME = the project name). " + EXIT_CODES
+            "Adjust the bundle of PROJECT.toml and write NAME.out, NAME.res, NAME.sigma,"
+            " results.json and observations.csv (NAME = the project name). " + EXIT_CODES
         ),
         parents=[_common_options()],
     )
@@ -143,7 +142,12 @@ def _add_adjust(subparsers) -> None:
     )
     parser.add_argument(
         "--plots", action="store_true",
-        help="also write residuals.png and correlation_<camera>.png (needs matplotlib)",
+        help="also write the report's figures as PNG: residuals, normalised_residuals,"
+             " coverage, distortion_<camera>, correlation_<camera>, point_ellipses",
+    )
+    parser.add_argument(
+        "--report", choices=("html",), action="append", default=[], metavar="html",
+        help="also write NAME.html: summary, tables and figures in one offline page",
     )
     parser.add_argument(
         "--solver", choices=("auto", "dense", "schur"), default=None,
@@ -153,66 +157,62 @@ def _add_adjust(subparsers) -> None:
     parser.set_defaults(run=_adjust)
 
 
-def _plot_name(camera_id: str) -> str:
-    return "correlation_" + "".join(c if c.isalnum() or c in "-_." else "_" for c in camera_id)
+def _write_figures(project, result, out_dir, *, plots: bool, html: bool) -> list[pathlib.Path]:
+    """The report's figures (`figure_set`) as NAME.png files (`plots`) and NAME.html
+    (`html`) with them embedded, in `out_dir`; each figure drawn once.
 
-
-def _write_plots(project, result, out_dir) -> list[pathlib.Path]:
-    """residuals.png and correlation_<camera>.png (cameras with estimated IOPs) in `out_dir`.
-
-    Never over an input (an input's name is skipped with a warning); the files replace the
-    old ones together (`replace_files`).
+    Never over an input: a figure whose file name is an input's is skipped with a warning
+    (NAME.html was checked before the run); the files replace the old ones together
+    (`replace_files`).
     """
-    import jaxba
-    from jaxba._report import replace_files
+    from jaxba._report import html_path, html_report, png_bytes, replace_files
+    from jaxba._report._plots import figure_set
 
     out_dir = pathlib.Path(out_dir)
     inputs = {pathlib.Path(path).resolve() for path in project.spec.input_files}
-    figures = {"residuals.png": lambda: jaxba.plot_image_residuals(project, result)}
-    for cid, (model, row) in project.camera_rows.items():
-        if bool(project.problem.free.cameras[model][row].any()):
-            figures[_plot_name(cid) + ".png"] = (
-                lambda cid=cid: jaxba.plot_correlation(result, project, cid)
-            )
-    images = {}
-    for name, make in figures.items():
-        path = out_dir / name
+    images = {figure.name: png_bytes(figure.make()) for figure in figure_set(project, result)}
+    files = {}
+    for name, image in images.items() if plots else ():
+        path = out_dir / f"{name}.png"
         if path.resolve() in inputs:
             _error(f"--plots: {path} is an input file of the project; not written", "warning")
             continue
-        image = io.BytesIO()
-        make().savefig(image, dpi=100, format="png")
-        images[path] = image.getvalue()
-    replace_files(images)
-    return list(images)
+        files[path] = image
+    if html:
+        files[html_path(project.spec, out_dir)] = html_report(project, result, figures=images)
+    replace_files(files)
+    return list(files)
 
 
 def _read_checked(args: argparse.Namespace):
     """Read the project and check the output folder, without jax: bad input is reported
     within a fraction of a second. Returns the spec, the output folder and the seconds."""
     from jaxba._io._project import ProjectError, read_project
-    from jaxba._report import OutputError, check_outputs
+    from jaxba._report import OutputError, check_outputs, check_targets, html_path
 
     start = time.perf_counter()
     try:
         spec = read_project(args.project)
         out_dir = args.out if args.out is not None else spec.path.parent
         check_outputs(spec, out_dir)
+        if "html" in args.report:
+            check_targets([html_path(spec, out_dir)], spec.input_files, f"project {spec.name!r}")
     except (ProjectError, OutputError) as error:
         raise _UsageError(str(error)) from None
     return spec, out_dir, time.perf_counter() - start
 
 
-def _plots_possible() -> bool:
-    """Whether matplotlib can be imported; warns (before the run) when it cannot."""
+def _check_matplotlib(args: argparse.Namespace) -> None:
+    """Refuse --plots and --report html before the run where matplotlib (a dependency of
+    jaxba) cannot be imported: a broken installation."""
+    if not (args.plots or args.report):
+        return
     try:
         import matplotlib  # noqa: F401
-        return True
-    except ImportError:
-        pass
-    _error("--plots: matplotlib is not installed (pip install 'jaxba[plots]'); no plots will"
-           " be written", "warning")
-    return False
+    except ImportError as error:
+        option = "--plots" if args.plots else "--report html"
+        raise _UsageError(f"{option}: matplotlib cannot be imported ({error}); reinstall jaxba"
+                          " (pip install jaxba) or leave the option out") from None
 
 
 def _plural(count: int, noun: str) -> str:
@@ -244,12 +244,12 @@ def _adjust(args: argparse.Namespace) -> int:
     from jaxba._report import output_lock
 
     spec, out_dir, read_seconds = _read_checked(args)
-    plots = args.plots and _plots_possible()
+    _check_matplotlib(args)
     with output_lock(out_dir):
-        return _adjust_locked(args, spec, out_dir, read_seconds, plots)
+        return _adjust_locked(args, spec, out_dir, read_seconds)
 
 
-def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int:
+def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
     start = time.perf_counter()
     _setup_jax()
     import jaxba
@@ -282,8 +282,9 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float, plots: bool) -> int
     try:
         with timings.phase("reports"):
             written = _report.write_reports(project, result, out_dir)
-            if plots:
-                written += _write_plots(project, result, out_dir)
+            if args.plots or args.report:
+                written += _write_figures(project, result, out_dir, plots=args.plots,
+                                          html="html" in args.report)
     except (_report.OutputError, OSError) as error:
         raise _UsageError(str(error)) from None
 

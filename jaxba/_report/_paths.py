@@ -27,6 +27,11 @@ def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
     }
 
 
+def html_path(spec: ProjectSpec, out_dir) -> pathlib.Path:
+    """The HTML report of a project in `out_dir`: NAME.html."""
+    return pathlib.Path(out_dir) / f"{spec.name}.html"
+
+
 def check_folder(out_dir) -> None:
     """Raise `OutputError` unless `out_dir` is a writable folder or can be made one.
 

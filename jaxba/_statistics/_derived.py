@@ -35,14 +35,18 @@ def _positions(result: Adjustment) -> Parameters:
     return unflatten(result.parameters, np.arange(flatten(result.parameters).size))
 
 
+def camera_covariance(result: Adjustment, model: str, row: int) -> np.ndarray:
+    """Cxx (p, p) of all parameters of camera `row` of `model`, in the order of its
+    `parameter_names`; rows and columns of fixed parameters 0."""
+    return result.precision.covariance_of(np.asarray(_positions(result).cameras[model][row]))
+
+
 def camera_correlation(result: Adjustment, model: str, row: int) -> tuple[list[str], np.ndarray]:
     """(names, ρ) of the estimated IOPs of camera `row` of `model`."""
     names = CAMERA_MODELS[model].parameter_names
-    positions = np.asarray(_positions(result).cameras[model][row])
     free = np.asarray(result.problem.free.cameras[model][row])
-    chosen = positions[free]
-    return [n for n, f in zip(names, free) if f], correlation(
-        result.precision.covariance_of(chosen))
+    chosen = camera_covariance(result, model, row)[np.ix_(free, free)]
+    return [n for n, f in zip(names, free) if f], correlation(chosen)
 
 
 def point_covariances(result: Adjustment) -> Float[np.ndarray, "n_points 3 3"]:

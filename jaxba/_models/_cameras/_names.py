@@ -32,3 +32,17 @@ INSEPARABLE_PARAMETERS: dict[str, tuple[tuple[str, str, str], ...]] = {
 }
 """Per model, pairs of parameters that the observations cannot separate (a datum defect
 when both are free without a prior), with the reason: `check_datum` refuses them."""
+
+DISTORTION_TERMS: dict[str, dict[str, tuple[str, ...]]] = {
+    "smac": {"radial": RADIAL_SMAC, "decentering": DECENTERING_SMAC, "affine": AFFINE},
+    "opencv": {"radial": ("k1", "k2", "k3"), "decentering": ("p1", "p2"), "affine": ("skew",)},
+    "photomodeler": {"radial": ("K1", "K2", "K3"), "decentering": ("P1", "P2"),
+                     "affine": ("aspect", "skew")},
+    "bal": {"radial": ("k1", "k2")},
+    "fisheye": {"radial": ("k1", "k2", "k3", "k4")},
+    "metrology": {"radial": ("A1", "A2", "A3"), "decentering": ("B1", "B2"),
+                  "affine": ("C1", "C2")},
+}
+"""Per model, its image-correction terms by kind: the parameters that vanish for an ideal
+camera of the model (the rest: principal point and distance). `jaxba._statistics._distortion`
+draws each kind alone by setting the others to 0."""
