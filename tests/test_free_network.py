@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._statistics._backends import DenseBackend, SchurBackend
 from jaxba._statistics._datum import similarity_transform
 from jaxba._statistics._free_network import (
     free_network_precision,
     inner_constraint_group,
     to_inner_datum,
 )
-from jaxba._statistics._reliability import redundancy_numbers
 
 GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
 
@@ -162,8 +162,8 @@ def test_s_transformed_covariance_equals_the_bordered_inverse(free_block):
     reduced = transformed.schur.reduced_positions
     np.testing.assert_allclose(transformed.schur.reduced, bordered.covariance_of(reduced),
                                rtol=0, atol=1e-9 * np.abs(transformed.schur.reduced).max())
-    r_schur, e_schur = redundancy_numbers(problem, params, schur=True)
-    r_dense, e_dense = redundancy_numbers(problem, params)
+    r_schur, e_schur = SchurBackend(problem).redundancy_numbers(params)
+    r_dense, e_dense = DenseBackend(problem).redundancy_numbers(params)
     np.testing.assert_allclose(r_schur, r_dense, rtol=0, atol=1e-9)
     np.testing.assert_allclose(e_schur, e_dense, rtol=0, atol=1e-9)
 

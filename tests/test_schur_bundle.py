@@ -28,7 +28,7 @@ from jaxba._solvers._schur._bundle import (
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._solvers._trust_region import STEP_TOLERANCE
-from jaxba._statistics._reliability import redundancy_numbers
+from jaxba._statistics._backends import DenseBackend
 from jaxba._statistics._schur_precision import schur_cofactors
 from jaxba._statistics._schur_reliability import schur_redundancy_numbers
 
@@ -229,7 +229,7 @@ def test_redundancy_numbers_match_dense(block, variant, pairwise):
     # Several chunks of pairs and of points; the cofactors pair-wise and densely.
     structure = bundle_structure(problem, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
     r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
-    expected_r, expected_whitened = redundancy_numbers(problem, params)
+    expected_r, expected_whitened = DenseBackend(problem).redundancy_numbers(params)
     assert r.shape == expected_r.shape == (problem.n_observations(),)
     np.testing.assert_allclose(whitened, expected_whitened, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(r, expected_r, rtol=0, atol=REDUNDANCY_ATOL)

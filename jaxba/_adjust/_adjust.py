@@ -10,22 +10,12 @@ import optimistix as optx
 from .._float64 import require_float64
 from .._problem._bundle import BundleProblem, free_indices, observed_minus_computed
 from .._problem._parameters import parameter_labels
-from .._solvers._dense import solve
 from .._solvers._progress import Iteration, StepRecorder
-from .._solvers._schur._bundle import bundle_structure, solve_schur
-from .._solvers._schur._choice import use_schur
 from .._statistics._adjustment import Adjustment
+from .._statistics._backends import backend_for
 from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
-from .._statistics._covariance import Precision, precision, precision_from_covariance
-from .._statistics._datum import check_datum, nonfinite_start_error
-from .._statistics._free_network import (
-    free_network_precision,
-    inner_constraint_group,
-    minimal_constraints,
-    to_inner_datum,
-)
-from .._statistics._schur_datum import check_datum_schur
-from .._statistics._schur_reliability import schur_precision_and_redundancy
+from .._statistics._covariance import Precision, precision_from_covariance
+from .._statistics._datum import nonfinite_start_error
 from .._timing import Timings
 
 
@@ -72,7 +62,8 @@ def adjust(
     solver: str = "auto",
     timings: Timings | None = None,
 ) -> Adjustment:
-    """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
+    """Adjust `problem` by Levenberg-Marquardt on the normal-equation backend `solver` names
+    (`jaxba._statistics._backends`).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
     `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
@@ -84,35 +75,22 @@ def adjust(
     is marked not converged. Needs float64 (`ValueError` otherwise).
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
-    points eliminated: `solve_schur`, `check_datum_schur`, `schur_precision`, whose
-    `Precision` holds the covariance in blocks and the redundancy numbers) or "auto"
-    (`use_schur`: "schur" for large bundles). A free network on the Schur backend is solved
-    with a minimal datum and carried over to its inner constraints
-    (`jaxba._statistics._free_network`). The phases are timed into `timings` (a new `Timings`
-    when None), which the result holds.
+    points eliminated; the `Precision` holds the covariance in blocks and the redundancy
+    numbers) or "auto" (`use_schur`: "schur" for large bundles). The phases are timed into
+    `timings` (a new `Timings` when None), which the result holds.
     """
     require_float64("jaxba.adjust")
     timings = Timings() if timings is None else timings
-    schur = use_schur(problem, solver)
-    free_network = schur and inner_constraint_group(problem) is not None
-    solved = minimal_constraints(problem, problem.initial) if free_network else problem
-    # The Schur split's structure, computed once for the datum check, solve and covariance.
-    split = {"structure": bundle_structure(solved)} if schur else {}
+    backend = backend_for(problem, solver)
     if check:
         with timings.phase("datum check"):
-            if schur:
-                check_datum_schur(solved, labels=labels, **split)
-            else:
-                check_datum(problem, labels=labels)
+            backend.check_datum(labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):
-        solution = (solve_schur if schur else solve)(
-            solved, max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder, **split)
+        solution = backend.solve(max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
-    if free_network:
-        params = to_inner_datum(problem, params)
     final_cost = float(solution.cost)
     if not np.isfinite(final_cost):
         # A trial point with a non-finite cost is rejected and the first, the approximations,
@@ -129,14 +107,7 @@ def adjust(
         whitened = _whitened(problem, params)
         residuals = observed_minus_computed(problem, whitened)
         try:
-            if free_network:
-                parameter_precision = free_network_precision(
-                    problem, params, sigma0=sigma0, **split)
-            else:
-                # The Schur backend's redundancy numbers come with the covariance (one
-                # program for both), for `jaxba.reliability` to use.
-                parameter_precision = (schur_precision_and_redundancy if schur else precision)(
-                    problem, params, sigma0=sigma0, **split)
+            parameter_precision = backend.precision(params, sigma0=sigma0)
         except np.linalg.LinAlgError as error:
             parameter_precision = _precision_unavailable(
                 problem, params, sigma0, final_cost, redundancy)
@@ -159,6 +130,6 @@ def adjust(
         converged=bool(converged),
         message=str(message),
         steps=int(steps),
-        backend="schur" if schur else "dense",
+        backend=backend.name,
         timings=timings,
     )

@@ -13,7 +13,7 @@ import numpy as np
 
 from .._problem._bundle import BundleProblem, observation_mask
 from .._statistics._adjustment import Adjustment
-from .._statistics._reliability import redundancy_numbers
+from .._statistics._backends import adjusted_redundancy_numbers
 from ._adjust import adjust
 from ._snooping import restart_from
 
@@ -67,8 +67,7 @@ def estimate_variance_components(
     current = result
     for iteration in range(1, max_iterations + 1):
         problem = current.problem
-        r, whitened = redundancy_numbers(problem, current.parameters,
-                                         schur=current.precision.schur is not None)
+        r, whitened = adjusted_redundancy_numbers(current)
         full_r = np.zeros(observation_mask(problem).shape)
         full_e = np.zeros_like(full_r)
         full_r[observation_mask(problem)] = r

@@ -11,14 +11,11 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.linalg
 import scipy.stats
 
 from .._problem._bundle import BundleProblem, observation_mask
-from .._problem._linearisation import dense_jacobian
 from ._adjustment import Adjustment
-from ._free_network import free_network_redundancy_numbers, inner_constraint_group
-from ._schur_reliability import schur_redundancy_numbers
+from ._backends import adjusted_redundancy_numbers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,24 +48,6 @@ def _split(problem: BundleProblem, flat_real: np.ndarray) -> tuple[np.ndarray, .
     return tuple(parts)
 
 
-def redundancy_numbers(
-    problem: BundleProblem, params, *, schur: bool = False
-) -> tuple[np.ndarray, np.ndarray]:
-    """(r_i, e_i) of the real observations, flat, at `params`: dense, or with `schur` from
-    the Schur split (`schur_redundancy_numbers`, for bundles adjusted that way; free
-    networks through their minimal datum)."""
-    if schur and inner_constraint_group(problem) is not None:
-        return free_network_redundancy_numbers(problem, params)
-    if schur:
-        return schur_redundancy_numbers(problem, params)
-    jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
-    column_scale = 1.0 / np.linalg.norm(jacobian, axis=0)
-    scaled = jacobian * column_scale
-    factor = scipy.linalg.cho_factor(scaled.T @ scaled)
-    leverage = np.sum(scaled * scipy.linalg.cho_solve(factor, scaled.T).T, axis=1)
-    return 1.0 - leverage, whitened
-
-
 def per_test_alpha(alpha: float, n_tests: int, *, familywise: bool) -> float:
     """Significance of one w-test: `alpha` itself, or for a family-wise `alpha` over
     `n_tests` tests Šidák's α0 = 1 - (1 - α)^(1/n)."""
@@ -83,12 +62,7 @@ def reliability(
     `alpha` is the significance of each w-test, or with `familywise=True` that of the
     whole set of tests (see `per_test_alpha`); `Reliability.alpha` is the per-test one.
     """
-    schur = result.precision.schur
-    if schur is not None and schur.redundancy is not None:  # computed with the covariance
-        r, whitened = schur.redundancy
-    else:
-        r, whitened = redundancy_numbers(result.problem, result.parameters,
-                                         schur=schur is not None)
+    r, whitened = adjusted_redundancy_numbers(result)
     return reliability_from_redundancy(
         result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
     )

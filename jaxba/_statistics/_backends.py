@@ -1,0 +1,150 @@
+"""The two normal-equation backends behind one interface, for `adjust` and the statistics.
+
+A backend is made for one problem and says how its normal equations are formed and used:
+
+| operation          | `DenseBackend` (calibrations) | `SchurBackend` (blocks)                   |
+|--------------------|-------------------------------|-------------------------------------------|
+| datum check        | rank of the dense JᵀJ         | null space of S, extended to the points   |
+| solve              | Levenberg-Marquardt on N      | Levenberg-Marquardt on S, back-substitute |
+| precision          | N⁻¹                           | S⁻¹ and every point's 3 x 3 block         |
+| redundancy numbers | diag(J N⁻¹ Jᵀ)                | per-observation leverages from the blocks |
+| free network       | inner constraints as rows     | minimal datum, then S-transformation      |
+
+The statistics above them (σ, correlations, ellipsoids, reliability, variance components, data
+snooping) ask `backend_for(problem, result.backend)` and never which one it is.
+"""
+
+import abc
+from collections.abc import Callable
+
+import equinox as eqx
+import numpy as np
+import scipy.linalg
+
+from .._problem._bundle import BundleProblem
+from .._problem._linearisation import dense_jacobian
+from .._problem._parameters import Parameters
+from .._solvers._dense import solve
+from .._solvers._schur._bundle import bundle_structure, solve_schur
+from .._solvers._schur._choice import use_schur
+from .._solvers._solution import Solution
+from ._adjustment import Adjustment
+from ._covariance import Precision, precision
+from ._datum import check_datum
+from ._free_network import (
+    free_network_precision,
+    free_network_redundancy_numbers,
+    inner_constraint_group,
+    minimal_constraints,
+    to_inner_datum,
+)
+from ._schur_datum import check_datum_schur
+from ._schur_reliability import schur_precision_and_redundancy, schur_redundancy_numbers
+
+
+class Backend(abc.ABC):
+    """Normal equations of one `BundleProblem`: datum check, solve, precision, redundancy."""
+
+    name: str  # "dense" or "schur", as `Adjustment.backend` records it
+
+    def __init__(self, problem: BundleProblem):
+        self.problem = problem
+
+    @abc.abstractmethod
+    def check_datum(self, labels: list[str] | None = None) -> None:
+        """`DatumError` naming the unobservable directions (one label per scalar unknown)."""
+
+    @abc.abstractmethod
+    def solve(self, *, max_steps: int, rtol: float, atol: float,
+              on_step: Callable | None = None) -> Solution:
+        """Levenberg-Marquardt from the problem's approximations; parameters in its datum."""
+
+    @abc.abstractmethod
+    def precision(self, params: Parameters, *, sigma0: float = 1.0) -> Precision:
+        """σ̂0², σ of every unknown and the covariance at `params` (`LinAlgError` where the
+        normal matrix is singular)."""
+
+    @abc.abstractmethod
+    def redundancy_numbers(self, params: Parameters) -> tuple[np.ndarray, np.ndarray]:
+        """(r_i, e_i) of the real observations, flat in `observation_mask` order."""
+
+
+class DenseBackend(Backend):
+    """All unknowns in one dense normal matrix: calibrations, batches, vmap."""
+
+    name = "dense"
+
+    def check_datum(self, labels=None):
+        check_datum(self.problem, labels=labels)
+
+    def solve(self, *, max_steps, rtol, atol, on_step=None):
+        return solve(self.problem, max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step)
+
+    def precision(self, params, *, sigma0=1.0):
+        return precision(self.problem, params, sigma0=sigma0)
+
+    def redundancy_numbers(self, params):
+        """1 - diag(J N⁻¹ Jᵀ), from the column-scaled dense Jacobian."""
+        jacobian, whitened = (np.asarray(a) for a in dense_jacobian(self.problem, params))
+        scaled = jacobian / np.linalg.norm(jacobian, axis=0)
+        factor = scipy.linalg.cho_factor(scaled.T @ scaled)
+        leverage = np.sum(scaled * scipy.linalg.cho_solve(factor, scaled.T).T, axis=1)
+        return 1.0 - leverage, whitened
+
+
+class SchurBackend(Backend):
+    """Object points eliminated (`bundle_structure`, built once for every operation). A free
+    network is solved with a minimal datum and carried over to its inner constraints
+    (`jaxba._statistics._free_network`)."""
+
+    name = "schur"
+
+    def __init__(self, problem: BundleProblem):
+        super().__init__(problem)
+        self.free_network = inner_constraint_group(problem) is not None
+        self.solved = (minimal_constraints(problem, problem.initial) if self.free_network
+                       else problem)
+        self.structure = bundle_structure(self.solved)
+
+    def check_datum(self, labels=None):
+        check_datum_schur(self.solved, labels=labels, structure=self.structure)
+
+    def solve(self, *, max_steps, rtol, atol, on_step=None):
+        solution = solve_schur(self.solved, max_steps=max_steps, rtol=rtol, atol=atol,
+                               on_step=on_step, structure=self.structure)
+        if not self.free_network:
+            return solution
+        inner = to_inner_datum(self.problem, solution.parameters)
+        return eqx.tree_at(lambda s: s.parameters, solution, inner)
+
+    def precision(self, params, *, sigma0=1.0):
+        """With the redundancy numbers in `SchurCovariance.redundancy`: both from one
+        compiled program (normal equations, S⁻¹ and the point cofactors formed once)."""
+        if self.free_network:
+            return free_network_precision(self.problem, params, sigma0=sigma0,
+                                          structure=self.structure)
+        return schur_precision_and_redundancy(self.problem, params, sigma0=sigma0,
+                                              structure=self.structure)
+
+    def redundancy_numbers(self, params):
+        if self.free_network:
+            return free_network_redundancy_numbers(self.problem, params)
+        return schur_redundancy_numbers(self.problem, params, structure=self.structure)
+
+
+BACKENDS: dict[str, type[Backend]] = {"dense": DenseBackend, "schur": SchurBackend}
+
+
+def backend_for(problem: BundleProblem, solver: str = "auto") -> Backend:
+    """The backend for `problem`: `solver` "dense", "schur", or "auto" (`use_schur`: the
+    Schur split for large bundles). `ValueError` for another name."""
+    return BACKENDS["schur" if use_schur(problem, solver) else "dense"](problem)
+
+
+def adjusted_redundancy_numbers(result: Adjustment) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) at an adjustment's solution, from the backend that adjusted it: the ones
+    computed with its covariance where it kept them, else computed now."""
+    blocks = result.precision.schur
+    if blocks is not None and blocks.redundancy is not None:
+        return blocks.redundancy
+    return backend_for(result.problem, result.backend).redundancy_numbers(result.parameters)
