@@ -4,6 +4,7 @@ rays to object points (brentq), invalid geometry, derivatives against finite dif
 block simulated by the tracer adjusted through project files."""
 
 import math
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -319,8 +320,21 @@ free = {list(PORT_FREE)}\n[C1.refraction.sigma]\nnormal = 0.01\nn_medium = 0.003
     return folder / "block.toml", points
 
 
-def test_block_simulated_by_the_tracer_is_recovered(tmp_path):
-    project_file, points = _write_block(tmp_path, np.random.default_rng(41))
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    """The simulated block's project file and true points (simulated once)."""
+    return _write_block(tmp_path_factory.mktemp("block"), np.random.default_rng(41))
+
+
+@pytest.fixture
+def block_copy(block, tmp_path):
+    """A copy of the block's project, to edit."""
+    shutil.copytree(block[0].parent, tmp_path / "block")
+    return tmp_path / "block" / block[0].name
+
+
+def test_block_simulated_by_the_tracer_is_recovered(block):
+    project_file, points = block
     project = jaxba.build_project(jaxba.read_project(project_file))
     model, row = project.camera_rows["C1"]
     assert model == "smac+flat_port"
@@ -343,3 +357,44 @@ def test_block_simulated_by_the_tracer_is_recovered(tmp_path):
     order = [int(pid[1:]) for pid in project.point_ids]
     free = point_stds > 0
     assert np.all(np.abs(adjusted - points[order])[free] < TRUTH_SIGMAS * point_stds[free])
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("n_medium = 1.337", "n_medium = 0.0"), r"\[C1.refraction\] n_medium: expected a number > 0"),
+    (("n_glass = 1.49", "n_glass = -1.49"), r"\[C1.refraction\] n_glass: expected a number > 0"),
+    (("thickness = 0.012", "thickness = -0.012"),
+     r"\[C1.refraction\] thickness: expected a number ≥ 0"),
+    (("distance = 0.06", ""), r"\[C1.refraction\] distance: missing"),
+    (("-1.0]", "0.0]"), r"\[C1.refraction\] normal: .* across the optical axis"),
+    (('model = "flat_port"', 'model = "dome_port"'),
+     r"\[C1.refraction\] model: expected one of 'flat_port', got 'dome_port'"),
+    (("free = ['distance']", "free = ['c']"),
+     r"\[C1.refraction\] free: unknown parameter 'c'; allowed: distance, thickness"),
+    (("free = ['distance']", "free = ['n_medium']"),
+     r"\[C1.refraction.sigma\] n_medium: 'n_medium' is also in free"),
+    (('model = "smac"', 'model = "smac+flat_port"'),
+     r"\[C1\] model: 'smac\+flat_port': give the camera model alone"),
+])
+def test_bad_port_tables_are_refused_by_key(block_copy, edit, message):
+    project_file = block_copy
+    cameras = project_file.parent / "cameras.toml"
+    text = cameras.read_text()
+    assert edit[0] in text
+    cameras.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(jaxba.ProjectError, match=rf"cameras.toml: {message}"):
+        jaxba.read_project(project_file)
+
+
+def test_normal_is_read_in_either_sense_and_any_length(block_copy):
+    project_file = block_copy
+    cameras = project_file.parent / "cameras.toml"
+    text = cameras.read_text()
+    normal = f'normal = [{BLOCK_PORT["normal"][0]}, {BLOCK_PORT["normal"][1]}, -1.0]'
+    values = []
+    for given in (normal, "normal = [-0.09, 0.06, 3.0]", ""):  # the same normal, the default
+        cameras.write_text(text.replace(normal, given))
+        camera = jaxba.read_project(project_file).cameras["C1"]
+        values.append((camera.values["normal_x"], camera.values["normal_y"]))
+    unit = _port_normal([*BLOCK_PORT["normal"], -1.0])
+    np.testing.assert_allclose(values[:2], [unit[:2], unit[:2]], rtol=1e-15)
+    assert values[2] == (0.0, 0.0)

@@ -297,8 +297,7 @@ def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
 
     refraction = None
     if "refraction" in table:
-        refraction, port = _read_refraction(
-            table["refraction"], f"{file}: [{camera_id}.refraction]")
+        refraction, port = _read_refraction(table["refraction"], f"{file}: [{camera_id}")
         clash = sorted(set(port.values) & set(names))
         if clash:
             raise ProjectError(f"{where} refraction: model {model!r} has a parameter {clash[0]!r}"
@@ -355,9 +354,11 @@ class _Port:
     sigma: dict[str, float]
 
 
-def _read_refraction(table: Any, where: str) -> tuple[str, _Port]:
-    """`[ID.refraction]`: the ray refraction model (only "flat_port") and its parameters, the
-    normal as (normal_x, normal_y) of the unit normal turned towards the object (z < 0)."""
+def _read_refraction(table: Any, camera: str) -> tuple[str, _Port]:
+    """`[ID.refraction]` of `camera` ("cameras.toml: [ID"): the ray refraction model (only
+    "flat_port") and its parameters, the normal as (normal_x, normal_y) of the unit normal
+    turned towards the object (z < 0)."""
+    where, sigma_where = f"{camera}.refraction]", f"{camera}.refraction.sigma]"
     if not isinstance(table, dict):
         raise ProjectError(f"{where}: expected a table of the refraction model, got {table!r}")
     model = table.get("model")
@@ -380,17 +381,17 @@ def _read_refraction(table: Any, where: str) -> tuple[str, _Port]:
         raise ProjectError(f"{where} free: expected a list of parameter names, got {free!r}")
     sigma_table = table.get("sigma", {})
     if not isinstance(sigma_table, dict):
-        raise ProjectError(f"{where}.sigma: expected a table of prior σ, got {sigma_table!r}")
+        raise ProjectError(f"{sigma_where}: expected a table of prior σ, got {sigma_table!r}")
     allowed = _PORT_KEYS[1:-2]
     for name in free:
         if name not in allowed:
             raise ProjectError(f"{where} free: unknown parameter {name!r}; allowed: "
                                f"{', '.join(allowed)}")
         if name in sigma_table:
-            raise ProjectError(f"{where}.sigma {name}: {name!r} is also in free; a parameter is"
+            raise ProjectError(f"{sigma_where} {name}: {name!r} is also in free; a parameter is"
                                " either free or weighted, not both")
-    _check_keys(sigma_table, allowed, f"{where}.sigma")
-    sigma = {name: _toml_float(value, f"{where}.sigma {name}", positive=True)
+    _check_keys(sigma_table, allowed, sigma_where)
+    sigma = {name: _toml_float(value, f"{sigma_where} {name}", positive=True)
              for name, value in sigma_table.items()}
 
     def unknowns(name: str) -> tuple[str, ...]:
