@@ -3,9 +3,11 @@ tracer (Snell's law in vector form at both glass surfaces): projections over the
 rays to object points (brentq), invalid geometry, derivatives against finite differences, and a
 block simulated by the tracer adjusted through project files."""
 
+import dataclasses
 import math
 import shutil
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -398,3 +400,18 @@ def test_normal_is_read_in_either_sense_and_any_length(block_copy):
     unit = _port_normal([*BLOCK_PORT["normal"], -1.0])
     np.testing.assert_allclose(values[:2], [unit[:2], unit[:2]], rtol=1e-15)
     assert values[2] == (0.0, 0.0)
+
+
+def test_a_point_inside_the_housing_stops_the_adjustment_by_name(block):
+    """A point approximated 2 cm in front of a camera (inside its port) has NaN residuals:
+    the adjustment refuses to start and names its observations."""
+    project = jaxba.build_project(jaxba.read_project(block[0]))
+    problem = project.problem
+    image = np.asarray(problem.initial.images)[0]
+    m = np.asarray(jaxba.opk_to_matrix(jnp.asarray(image[3:])))
+    point = project.point_ids.index("p10")
+    inside = problem.initial.points.at[point].set(jnp.asarray(image[:3] - 0.02 * m[2]))
+    problem = eqx.tree_at(lambda p: p.initial.points, problem, inside)
+    project = dataclasses.replace(project, problem=problem)
+    with pytest.raises(jaxba.DatumError, match=r"not finite at the approximations of .*p10"):
+        jaxba.adjust_project(project)
