@@ -32,6 +32,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
         "MetrologyCamera", "NoRefraction", "OpenCVCamera", "PhotoModelerCamera", "PixelGrid",
         "RadialSmac", "SmacCamera", "metrology_to_smac", "smac_to_metrology",
+        "AbstractRayRefraction", "CameraModelError", "FlatPort", "RefractedCamera",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),
     "._solvers._dense": ("solve",),

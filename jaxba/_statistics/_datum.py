@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models._cameras import CAMERA_MODELS
-from .._models._cameras._names import INSEPARABLE_PARAMETERS
+from .._models._cameras._names import INSEPARABLE_PARAMETERS, lens_model
 from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices
@@ -217,7 +217,7 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
     solve from there collapses, e.g. to c = 0, K0 = 1)."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
     for model, free in problem.free.cameras.items():
-        pairs = INSEPARABLE_PARAMETERS.get(model, ())
+        pairs = INSEPARABLE_PARAMETERS.get(lens_model(model), ())
         if not pairs:
             continue
         free = np.asarray(free, dtype=bool)

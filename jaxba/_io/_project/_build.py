@@ -54,13 +54,12 @@ def _cameras(spec: ProjectSpec):
     rows, values, free, prior_sigma = {}, {}, {}, {}
     used = {image.camera for image in spec.images.values()}
     for camera in (c for c in spec.cameras.values() if c.id in used):
-        names = CAMERA_MODELS[camera.model].parameter_names
-        rows[camera.id] = (camera.model, len(values.setdefault(camera.model, [])))
-        values[camera.model].append([camera.values.get(n, 0.0) for n in names])
-        free.setdefault(camera.model, []).append(
-            [n in camera.free or n in camera.sigma for n in names])
-        prior_sigma.setdefault(camera.model, []).append(
-            [camera.sigma.get(n, math.inf) for n in names])
+        model = camera.model_key  # with a ray refraction, its parameters follow the camera's
+        names = CAMERA_MODELS[model].parameter_names
+        rows[camera.id] = (model, len(values.setdefault(model, [])))
+        values[model].append([camera.values.get(n, 0.0) for n in names])
+        free.setdefault(model, []).append([n in camera.free or n in camera.sigma for n in names])
+        prior_sigma.setdefault(model, []).append([camera.sigma.get(n, math.inf) for n in names])
     priors = [
         ParameterObservations(
             name="camera_priors" if len(values) == 1 else f"camera_priors:{model}",

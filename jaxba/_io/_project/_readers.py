@@ -30,6 +30,8 @@ from ..._models._cameras._names import (
     CAMERA_CONSTANT_NAMES,
     CAMERA_PARAMETER_NAMES,
     PRINCIPAL_DISTANCES,
+    RAY_REFRACTION_PARAMETER_NAMES,
+    lens_model,
 )
 from ._errors import ProjectError
 from ._spec import (
@@ -50,7 +52,14 @@ _PROJECT_TABLES = ("project", "files", "adjustment")
 _PROJECT_KEYS = ("name", "image_units")
 _REQUIRED_FILES = ("cameras", "images", "image_points", "points")
 _OPTIONAL_FILES = ("distances",)
-_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor")
+_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction")
+# `[ID.refraction]` of a flat port: its parameters, but the port normal as one 3-vector; the
+# indices > 0, distance and thickness ≥ 0; n_air 1 unless given, the normal the optical axis.
+_PORT_KEYS = ("model", "distance", "thickness", "n_air", "n_glass", "n_medium", "normal",
+              "free", "sigma")
+_PORT_NORMAL = ("normal_x", "normal_y")
+_PORT_DEFAULTS = {"n_air": 1.0, "normal": [0.0, 0.0, -1.0]}
+_PORT_INDICES = ("n_air", "n_glass", "n_medium")
 _POSITIVE_SETTINGS = frozenset({
     "sigma0", "image_sigma", "max_iterations", "object_unit_km", "snooping_alpha", "robust_scale",
 })
@@ -217,7 +226,6 @@ def _read_settings(table: dict, where: str) -> AdjustmentSettings:
 def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, CameraSpec]:
     """cameras.toml: one table per camera id."""
     document = _load_toml(file.path, file.name)
-    models = CAMERA_PARAMETER_NAMES
     cameras = {}
     for camera_id, table in document.items():
         if not isinstance(table, dict):
@@ -225,7 +233,7 @@ def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, Came
                 f"{file.name}: {camera_id}: expected a table [{camera_id}] per camera, "
                 f"got {table!r}"
             )
-        camera = _read_camera(camera_id, table, file.name, models)
+        camera = _read_camera(camera_id, table, file.name)
         if image_units == "pixel":
             missing = [key for key in ("pixel_size", "sensor") if table.get(key) is None]
             if missing:
@@ -237,16 +245,13 @@ def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, Came
     return cameras
 
 
-def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> CameraSpec:
-    """One camera table: model, parameter values, free list, `[ID.sigma]`, pixel size, sensor."""
+def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
+    """One camera table: model, parameter values, free list, `[ID.sigma]`, pixel size, sensor,
+    and the ray refraction `[ID.refraction]`, whose parameters join the camera's."""
     where = f"{file}: [{camera_id}]"
     model = table.get("model", DEFAULT_CAMERA_MODEL)
-    if not isinstance(model, str) or model not in models:
-        raise ProjectError(
-            f"{where} model: unknown camera model {model!r}; known models: {', '.join(models)}"
-        )
-    names = models[model]
-    constants = _read_constants(table, model, where)
+    names, constant_names = _model_names(model, where)
+    constants = _read_constants(table, model, names, constant_names, where)
     _check_keys(table, _CAMERA_KEYS + names + tuple(constants), where)
     values = {name: _toml_float(table.get(name, 0.0), f"{where} {name}") for name in names}
     for name in PRINCIPAL_DISTANCES.get(model, ()):
@@ -290,25 +295,136 @@ def _read_camera(camera_id: str, table: dict, file: str, models: Mapping) -> Cam
                 "free or weighted, not both"
             )
 
+    refraction = None
+    if "refraction" in table:
+        refraction, port = _read_refraction(table["refraction"], f"{file}: [{camera_id}")
+        clash = sorted(set(port.values) & set(names))
+        if clash:
+            raise ProjectError(f"{where} refraction: model {model!r} has a parameter {clash[0]!r}"
+                               f" as the {refraction} refraction has: one of them must be renamed")
+        values.update(port.values)
+        free = [*free, *port.free]
+        sigma.update(port.sigma)
+
     return CameraSpec(
         id=camera_id,
         model=model,
         values=values,
         free=frozenset(free),
         sigma=sigma,
+        refraction=refraction,
         pixel_size=_toml_pair(table.get("pixel_size"), f"{where} pixel_size", _toml_float),
         sensor=_toml_pair(table.get("sensor"), f"{where} sensor", _toml_int),
         constants=constants,
     )
 
 
-def _read_constants(table: dict, model: str, where: str) -> dict[str, float]:
-    """The model's constants (CAMERA_CONSTANT_NAMES; each required, ≥ 0); a constant of
-    another model is refused by name."""
-    own = CAMERA_CONSTANT_NAMES.get(model, ())
-    for other, names in CAMERA_CONSTANT_NAMES.items():
-        for name in names:
-            if name in table and name not in own:
+def _model_names(model: Any, where: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The parameter and constant names of the camera model `model`: a built-in one (no jax
+    loaded), or a user model ("package.module:ClassName", an entry point of "jaxba.cameras"),
+    imported and checked here."""
+    if not isinstance(model, str):
+        raise ProjectError(f"{where} model: expected a string, got {model!r}")
+    if model in CAMERA_PARAMETER_NAMES:
+        return CAMERA_PARAMETER_NAMES[model], CAMERA_CONSTANT_NAMES.get(model, ())
+    if lens_model(model) != model:
+        raise ProjectError(
+            f"{where} model: {model!r}: give the camera model alone, model ="
+            f' "{lens_model(model)}", and the refraction in a table [ID.refraction]')
+    from ..._models._cameras._registry import CAMERA_MODELS  # a user model: jax needed
+    from ..._models._cameras._user import CameraModelError
+
+    try:
+        camera = CAMERA_MODELS[model]
+    except CameraModelError as error:
+        raise ProjectError(f"{where} model: {error}") from error
+    reserved = sorted(set(_CAMERA_KEYS) & {*camera.parameter_names, *camera.constant_names})
+    if reserved:
+        raise ProjectError(f"{where} model: {model!r} names a parameter {reserved[0]!r}, a key"
+                           " that cameras.toml uses for something else: rename it")
+    return camera.parameter_names, camera.constant_names
+
+
+@dataclasses.dataclass(frozen=True)
+class _Port:
+    """The parameters of a camera's ray refraction, as they join the camera's."""
+
+    values: dict[str, float]
+    free: list[str]
+    sigma: dict[str, float]
+
+
+def _read_refraction(table: Any, camera: str) -> tuple[str, _Port]:
+    """`[ID.refraction]` of `camera` ("cameras.toml: [ID"): the ray refraction model (only
+    "flat_port") and its parameters, the normal as (normal_x, normal_y) of the unit normal
+    turned towards the object (z < 0)."""
+    where, sigma_where = f"{camera}.refraction]", f"{camera}.refraction.sigma]"
+    if not isinstance(table, dict):
+        raise ProjectError(f"{where}: expected a table of the refraction model, got {table!r}")
+    model = table.get("model")
+    if model not in RAY_REFRACTION_PARAMETER_NAMES:
+        raise ProjectError(f"{where} model: expected one of "
+                           f"{', '.join(map(repr, RAY_REFRACTION_PARAMETER_NAMES))}, got {model!r}")
+    _check_keys(table, _PORT_KEYS, where)
+    given = {**_PORT_DEFAULTS, **table}
+    values = {}
+    for name in ("distance", "thickness", *_PORT_INDICES):
+        if name not in given:
+            raise ProjectError(f"{where} {name}: missing; a flat port needs distance, thickness,"
+                               " n_glass and n_medium (n_air is 1 and the normal the optical"
+                               " axis unless given)")
+        values[name] = _toml_float(given[name], f"{where} {name}",
+                                   positive=name in _PORT_INDICES, nonnegative=True)
+    values.update(zip(_PORT_NORMAL, _port_normal(given["normal"], f"{where} normal")))
+    free = table.get("free", [])
+    if not isinstance(free, list) or not all(isinstance(name, str) for name in free):
+        raise ProjectError(f"{where} free: expected a list of parameter names, got {free!r}")
+    sigma_table = table.get("sigma", {})
+    if not isinstance(sigma_table, dict):
+        raise ProjectError(f"{sigma_where}: expected a table of prior σ, got {sigma_table!r}")
+    allowed = _PORT_KEYS[1:-2]
+    for name in free:
+        if name not in allowed:
+            raise ProjectError(f"{where} free: unknown parameter {name!r}; allowed: "
+                               f"{', '.join(allowed)}")
+        if name in sigma_table:
+            raise ProjectError(f"{sigma_where} {name}: {name!r} is also in free; a parameter is"
+                               " either free or weighted, not both")
+    _check_keys(sigma_table, allowed, sigma_where)
+    sigma = {name: _toml_float(value, f"{sigma_where} {name}", positive=True)
+             for name, value in sigma_table.items()}
+
+    def unknowns(name: str) -> tuple[str, ...]:
+        return _PORT_NORMAL if name == "normal" else (name,)
+
+    return model, _Port(
+        values, [n for name in free for n in unknowns(name)],
+        {n: value for name, value in sigma.items() for n in unknowns(name)})
+
+
+def _port_normal(value: Any, where: str) -> tuple[float, float]:
+    """(x, y) of the unit port normal given as a 3-vector (any length, either sense), turned
+    towards the object (z < 0); a normal across the optical axis (z = 0) is refused."""
+    if not isinstance(value, list) or len(value) != 3:
+        raise ProjectError(f"{where}: expected a list of three numbers, got {value!r}")
+    normal = np.array([_toml_float(v, where) for v in value])
+    length = float(np.linalg.norm(normal))
+    if normal[2] == 0:
+        raise ProjectError(f"{where}: {value!r} is not a port normal: it must not be across the"
+                           " optical axis (z ≠ 0)")
+    normal = -np.sign(normal[2]) * normal / length
+    return float(normal[0]), float(normal[1])
+
+
+def _read_constants(
+    table: dict, model: str, names: tuple[str, ...], own: tuple[str, ...], where: str
+) -> dict[str, float]:
+    """The model's constants `own` (each required, ≥ 0); a constant of another built-in model
+    (CAMERA_CONSTANT_NAMES) that is not one of the model's parameters `names` is refused by
+    name."""
+    for other, constants in CAMERA_CONSTANT_NAMES.items():
+        for name in constants:
+            if name in table and name not in own and name not in names:
                 raise ProjectError(
                     f"{where} {name}: {name} is a constant of model {other!r}; model "
                     f'{model!r} has no {name} (remove it, or set model = "{other}")'

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..._models._cameras._names import REFRACTION_SEPARATOR
+
 
 @dataclasses.dataclass(frozen=True)
 class AdjustmentSettings:
@@ -67,6 +69,17 @@ class CameraSpec:
     sensor: tuple[int, int] | None = None
     # The model's constants (CAMERA_CONSTANT_NAMES), e.g. {"r0": 12.5} for "metrology".
     constants: dict[str, float] = dataclasses.field(default_factory=dict)
+    # The ray refraction model of `[ID.refraction]` ("flat_port") or None; its parameters
+    # are in `values`, `free` and `sigma` with the camera's.
+    refraction: str | None = None
+
+    @property
+    def model_key(self) -> str:
+        """The camera model of the problem's parameter block: `model`, or with a ray
+        refraction "<model>+<refraction>" (e.g. "smac+flat_port", `CAMERA_MODELS`)."""
+        if self.refraction is None:
+            return self.model
+        return f"{self.model}{REFRACTION_SEPARATOR}{self.refraction}"
 
 
 @dataclasses.dataclass(frozen=True)

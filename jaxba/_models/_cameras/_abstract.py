@@ -39,11 +39,30 @@ class AbstractDistortion(_Parametrised):
 
 
 class AbstractRefraction(eqx.Module):
-    """Atmospheric refraction: a coefficient that depends on the ray's end heights."""
+    """Atmospheric refraction: a coefficient that depends on the ray's end heights.
+
+    The cameras apply it in image space (k x̄ (1 + r²/c²)), the photogrammetric models at the
+    *measured* point: a term no camera-frame ray can carry, hence a coefficient. Refraction
+    that bends the ray itself is an `AbstractRayRefraction`.
+    """
 
     @abc.abstractmethod
     def coefficient(self, station: Vector3, point: Vector3) -> Scalar:
         """Refraction coefficient k (dimensionless) for a ray from `point` to `station`."""
+
+
+class AbstractRayRefraction(_Parametrised):
+    """Refraction between the object point and the perspective centre that bends the ray
+    (e.g. a flat port: underwater or through-glass imaging), part of a camera: its
+    parameters are the camera's (`refracted_camera`), so they are fixed or estimated as
+    the camera's are."""
+
+    @abc.abstractmethod
+    def ray(self, p_camera: Vector3) -> Vector3:
+        """The ray at the perspective centre that, refracted, reaches `p_camera` = M (X - X0)
+        (camera frame, object units): a point on it, in the camera frame, in front of the
+        camera as `p_camera` is (a central camera sees its direction only); NaN where no
+        ray reaches the point."""
 
 
 class AbstractCamera(_Parametrised):

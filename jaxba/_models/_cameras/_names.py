@@ -15,6 +15,24 @@ CAMERA_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
     "metrology": ("xh", "yh", "c", "A1", "A2", "A3", "B1", "B2", "C1", "C2"),
 }
 
+RAY_REFRACTION_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
+    "flat_port": ("distance", "thickness", "n_air", "n_glass", "n_medium",
+                  "normal_x", "normal_y"),
+}
+"""Parameter names of the ray refraction models a camera's `[ID.refraction]` table names."""
+
+REFRACTION_SEPARATOR = "+"
+"""A camera behind a ray refraction model is the model "<camera>+<refraction>" (e.g.
+"smac+flat_port"): the camera's parameters, then the refraction's."""
+
+
+def lens_model(model: str) -> str:
+    """The camera model of a model name without its ray refraction ("smac+flat_port" ->
+    "smac")."""
+    lens, separator, refraction = model.rpartition(REFRACTION_SEPARATOR)
+    return lens if separator and refraction in RAY_REFRACTION_PARAMETER_NAMES else model
+
+
 CAMERA_CONSTANT_NAMES: dict[str, tuple[str, ...]] = {"metrology": ("r0",)}
 """Per model, its constants: values of the camera that are never unknowns (cameras.toml
 keys, required for the model and refused for the others), e.g. the radius r0 (mm) where
