@@ -67,7 +67,7 @@ def test_network_design_gradient(block):
     assert value > 0 and grad.shape == (8, 3)
 
     def trace_at(image, axis, step):
-        moved = params.images.at[image, axis].add(step)
+        moved = jnp.asarray(params.images).at[image, axis].add(step)
         return float(iop_trace_gradient(problem, eqx.tree_at(lambda p: p.images, params,
                                                              moved))[0])
 

@@ -5,6 +5,7 @@ GNSS/INS, distances, a planted blunder)."""
 
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -122,6 +123,36 @@ def test_reliability_variance_components_and_snooping_agree(both):
         other = schur.variance_components[name]
         assert other.sigma0 == pytest.approx(component.sigma0, rel=1e-5), name
         assert other.redundancy == pytest.approx(component.redundancy, rel=1e-6), name
+
+
+def test_results_by_id_agree(both):
+    """The result by ID is NumPy on both backends and gives the same σ, point covariances,
+    statuses and observation table (data-snooping rejections included)."""
+    project, dense, schur = both
+    for result in (dense, schur):
+        assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(
+            (result.parameters, result.precision.std)))
+    for cid in project.camera_rows:
+        for name, estimate in dense.cameras[cid].items():
+            other = schur.cameras[cid][name]
+            assert other.status == estimate.status, (cid, name)
+            if estimate.sigma is not None:
+                assert other.sigma == pytest.approx(estimate.sigma, rel=SIGMA_RTOL), (cid, name)
+    statuses = {e.status for iid in project.image_ids for e in schur.images[iid].values()}
+    assert statuses == {"weighted"}  # GNSS/INS on every EOP
+    for pid in project.point_ids:
+        np.testing.assert_allclose(schur.points[pid].covariance, dense.points[pid].covariance,
+                                   rtol=SIGMA_RTOL, atol=1e-18, err_msg=pid)
+        assert schur.points[pid].kind == dense.points[pid].kind
+    table_d, table_s = (dense.observations, schur.observations)
+    rejected = {(r.group, r.row) for r in dense.rejections}
+    removed = table_s["removed"]
+    assert removed.sum() == len(rejected) >= 1
+    np.testing.assert_array_equal(removed, table_d["removed"])
+    np.testing.assert_allclose(table_s["wx"], table_d["wx"], rtol=0, atol=SIGMA_RTOL)
+    np.testing.assert_allclose(table_s["ry"], table_d["ry"], rtol=0, atol=REDUNDANCY_ATOL)
+    text = schur.summary()
+    assert "schur backend" in text and f"{len(rejected)} removed by data snooping" in text
 
 
 def test_redundancy_numbers_come_with_the_covariance(both):

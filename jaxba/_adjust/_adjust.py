@@ -24,6 +24,7 @@ from .._statistics._free_network import (
     minimal_constraints,
     to_inner_datum,
 )
+from .._statistics._ids import ids_from_labels
 from .._statistics._schur_datum import check_datum_schur
 from .._statistics._schur_reliability import schur_precision_and_redundancy
 from .._timing import Timings
@@ -75,7 +76,9 @@ def adjust(
     """Adjust `problem` by Levenberg-Marquardt (`solve`: optx.least_squares).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
-    `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
+    `labels`, one per scalar unknown in `flatten` order as `parameter_labels` writes them;
+    the result's `cameras`, `images`, `points` are keyed by their IDs, by row numbers
+    without labels; `ValueError` for labels of another form); `check=False` skips it, e.g. when
     re-adjusting a checked bundle with new weights). `on_iteration` is called for
     every accepted iterate. With `throw=True` a non-converged solve raises
     `NotConvergedError`; otherwise `converged` and `message` say what happened. Where the
@@ -92,6 +95,7 @@ def adjust(
     when None), which the result holds.
     """
     require_float64("jaxba.adjust")
+    ids = ids_from_labels(problem.initial, labels) if labels is not None else None
     timings = Timings() if timings is None else timings
     schur = use_schur(problem, solver)
     free_network = schur and inner_constraint_group(problem) is not None
@@ -161,4 +165,6 @@ def adjust(
         steps=int(steps),
         backend="schur" if schur else "dense",
         timings=timings,
+        sigma0_prior=float(sigma0),
+        ids=ids,
     )

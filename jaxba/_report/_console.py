@@ -9,7 +9,6 @@ import scipy.stats
 from .._io._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
-from .._timing import Timings
 from ._collect import (
     CONSTANT,
     FIXED,
@@ -44,7 +43,9 @@ def start_line(project: Project) -> str:
 
 
 def summary_lines(project: Project, result: Adjustment) -> list[str]:
-    """Every free or weighted IOP with its σ, σ̂0 and the convergence state."""
+    """Every free or weighted IOP with its σ; σ̂0 with its χ² test, the datum and the outliers
+    (`jaxba._statistics._summary`); variance components and rejections; the convergence
+    state and the backend."""
     lines = []
     for cid, camera in camera_tables(project, result).items():
         lines.append(f"camera {cid} ({project.camera_rows[cid][0]})")
@@ -86,18 +87,6 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         )
         lines.append(f"  solver: {result.message}")
     return lines
-
-
-def timing_line(timings: Timings) -> str:
-    """E.g. `seconds: read 0.02, start-up 1.1, solve 0.03, ...; compile 4.2 (31 programs,
-    29 from the cache)`: each phase's run seconds, compilation apart."""
-    summary = timings.summary()
-    phases = ", ".join(
-        f"{name} {seconds:.2f}" for name, seconds in summary.items()
-        if name not in ("compile", "total"))
-    return (
-        f"seconds: {phases}; compile {summary['compile']:.2f} ({timings.compilations}"
-        f" programs, {timings.cache_hits} from the cache); total {summary['total']:.2f}")
 
 
 def warning_lines(project: Project, result: Adjustment) -> list[str]:
