@@ -402,7 +402,7 @@ def test_statistics_in_json(lab, tmp_path):
     # The removed point: its residual at the solution (observed - computed, σ = 1), no r,
     # w as rejected (with the sign of v), an outlier.
     entry = image[removed]
-    unit = np.asarray(jaxba.collinearity_residual(
+    unit = np.asarray(jaxba.advanced.collinearity_residual(
         "smac", result.parameters.cameras["smac"][0],
         result.parameters.images[int(group.image[5])],
         result.parameters.points[int(group.point[5])], group.measured[5], np.ones(2),

@@ -65,8 +65,8 @@ def test_images_by_id_in_radians_with_status(block):
 def test_points_by_id_with_covariance_and_kind(block):
     project, result = block
     covariance = jaxba.full_covariance(result)
-    positions = jaxba.unflatten(result.parameters,
-                                np.arange(jaxba.flatten(result.parameters).size)).points
+    positions = jaxba.advanced.unflatten(result.parameters,
+                                np.arange(jaxba.advanced.flatten(result.parameters).size)).points
     kinds = set()
     for k, pid in enumerate(project.point_ids):
         point = result.points[pid]

@@ -13,6 +13,7 @@ import pytest
 import jaxba
 from jaxba._solvers._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
 from jaxba._statistics._covariance import SchurCovariance
+from jaxba.advanced import flatten
 
 SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ apart
 PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ
@@ -68,9 +69,9 @@ def test_parameters_sigma0_and_sigmas_agree(both):
     assert isinstance(schur.precision.schur, SchurCovariance)
     assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-8)
     assert schur.precision.redundancy == dense.precision.redundancy
-    std = jaxba.flatten(dense.precision.std)
-    np.testing.assert_allclose(jaxba.flatten(schur.precision.std), std, rtol=SIGMA_RTOL)
-    difference = np.abs(jaxba.flatten(schur.parameters) - jaxba.flatten(dense.parameters))
+    std = flatten(dense.precision.std)
+    np.testing.assert_allclose(flatten(schur.precision.std), std, rtol=SIGMA_RTOL)
+    difference = np.abs(flatten(schur.parameters) - flatten(dense.parameters))
     free = std > 0
     assert np.all(difference[free] <= PARAMETER_SIGMAS * std[free])
     assert np.all(difference[~free] == 0)
@@ -160,7 +161,7 @@ def test_redundancy_numbers_come_with_the_covariance(both):
     the same as `schur_redundancy_numbers` computed apart at the solution."""
     _, _, schur = both
     cached_r, cached_e = schur.precision.schur.redundancy
-    r, e = jaxba.schur_redundancy_numbers(schur.problem, schur.parameters)
+    r, e = jaxba.advanced.schur_redundancy_numbers(schur.problem, schur.parameters)
     np.testing.assert_allclose(cached_r, r, rtol=0, atol=1e-12)
     np.testing.assert_allclose(cached_e, e, rtol=0, atol=1e-12)
 
