@@ -126,6 +126,8 @@ def test_schur_free_network_solves_to_the_inner_constraint_datum(free_block):
     project, dense = free_block
     schur = jaxba.adjust_project(project, solver="schur")
     assert schur.converged and schur.backend == "schur"
+    datum = f"free network: inner constraints (7 conditions) over {len(project.point_ids)} points"
+    assert f"datum          {datum}\n" in schur.summary()
     assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-9)
     assert schur.precision.redundancy == dense.precision.redundancy
     group = inner_constraint_group(project.problem)

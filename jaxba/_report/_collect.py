@@ -270,6 +270,20 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     )
 
 
+def in_pixel_frame(project: Project, residuals: ImageResiduals) -> ImageResiduals:
+    """`residuals` with every row in pixels (col, row; row down), as the image points of a
+    pixel project are given: rows of mm cameras through their pixel grid (x, y to col, row;
+    v to (vx / ps_x, -vy / ps_y)), rows of pixel cameras as they are."""
+    mm = residuals.units == MM
+    xy, v = residuals.xy.copy(), residuals.v_px.copy()
+    v[mm, 1] = -v[mm, 1]  # y up -> row down
+    for cid in np.unique(residuals.camera_ids[mm]).tolist():
+        rows = mm & (residuals.camera_ids == cid)
+        xy[rows] = np.asarray(project.pixel_grids[cid].image_to_pixel(residuals.xy[rows]))
+    units = np.full(len(residuals.units), PIXEL, dtype=object)
+    return dataclasses.replace(residuals, xy=xy, v=v, v_px=v, units=units)
+
+
 @_shared
 def other_observations(project: Project, result: Adjustment) -> list[ScalarObservation]:
     """Every scalar observation that is not an image coordinate, group by group.

@@ -111,17 +111,18 @@ def datum_description(problem) -> str:
 @dataclasses.dataclass(frozen=True)
 class OutlierSummary:
     """The observations the final solution used with |w| above `critical_value` (the
-    reliability's w-test at per-test `alpha`): their `count` and the `worst` few as
-    (description, |w|), largest first; `removed`: rejected by data snooping."""
+    reliability's w-test at per-test `alpha`): their `count` and the `worst` few as (group,
+    observation, |w|), largest first (e.g. ("image_points:C1", "image img01 point 5 x",
+    6.1)); `removed`: rejected by data snooping."""
 
     critical_value: float
     alpha: float
     count: int
-    worst: list[tuple[str, float]]
+    worst: list[tuple[str, str, float]]
     removed: int
 
     def text(self) -> str:
-        named = ", ".join(f"{name} |w| {abs_w:.2f}" for name, abs_w in self.worst)
+        named = ", ".join(f"{group} {name} |w| {abs_w:.2f}" for group, name, abs_w in self.worst)
         more = f" and {self.count - len(self.worst)} more" if self.count > len(self.worst) else ""
         removed = f"; {self.removed} removed by data snooping" if self.removed else ""
         found = f": {named}{more}" if self.count else ""
@@ -129,21 +130,42 @@ class OutlierSummary:
                 f" test){found}{removed}")
 
 
-def outlier_summary(result, ids: Ids, listed: int = LISTED) -> OutlierSummary | None:
-    """`OutlierSummary` of `result` naming observations by `ids`; None without a reliability."""
+def outlier_summary(result, ids: Ids, statistics=None,
+                    listed: int = LISTED) -> OutlierSummary | None:
+    """`OutlierSummary` of `result` naming observations by `ids` (`statistics`: its
+    `group_statistics`, computed when None); None without a reliability."""
     if result.reliability is None:
         return None
-    found = outliers(result, group_statistics(result))
+    found = outliers(result, group_statistics(result) if statistics is None else statistics)
     groups = result.problem.groups
 
-    def name(o) -> str:
-        group = groups[o.group]
-        return f"{group.name} {describe(observation_ids(ids, group, o.row, o.coordinate))}"
-
-    worst = [(name(o), o.abs_w) for o in found[:listed]]
+    worst = [
+        (groups[o.group].name, describe(observation_ids(ids, groups[o.group], o.row,
+                                                        o.coordinate)), o.abs_w)
+        for o in found[:listed]
+    ]
     return OutlierSummary(float(result.reliability.critical_value),
                           float(result.reliability.alpha), len(found), worst,
                           len(result.rejections))
+
+
+def statistical_items(result, ids: Ids, statistics=None) -> list[tuple[str, str]]:
+    """(name, text) of the variance test, the datum, the outliers and the timings: the lines
+    `brief_report` and NAME.out share (`statistics`: as `outlier_summary`)."""
+    test = variance_test(result)
+    found = outlier_summary(result, ids, statistics)
+    return [
+        ("variance test", test.text() if test is not None else "not available"),
+        ("datum", datum_description(result.problem)),
+        ("outliers", found.text() if found is not None else "no reliability computed"),
+        ("timings", result.timings.text() if result.timings.phases else "not timed"),
+    ]
+
+
+def aligned(items: list[tuple[str, str]], prefix: str = "") -> list[str]:
+    """`prefix key  value` lines, the values aligned."""
+    width = max(len(key) for key, _ in items)
+    return [f"{prefix}{key.ljust(width)}  {value}" for key, value in items]
 
 
 def brief_report(result, ids: Ids) -> str:
@@ -151,18 +173,12 @@ def brief_report(result, ids: Ids) -> str:
     precision = result.precision
     n_iterations = max(len(result.iterations) - 1, 0)
     state = "converged" if result.converged else f"NOT converged ({result.message})"
-    test = variance_test(result)
-    found = outlier_summary(result, ids)
     items = [
         ("solver", f"{state} after {n_iterations} iterations ({result.steps} steps),"
                    f" {result.backend} backend"),
         ("sigma0", f"{result.sigma0:.6g} (a priori {result.sigma0_prior:g})"),
-        ("variance test", test.text() if test is not None else "not available"),
         ("observations", f"{precision.n_observations}, unknowns {precision.n_unknowns},"
                          f" redundancy {precision.redundancy}"),
-        ("datum", datum_description(result.problem)),
-        ("outliers", found.text() if found is not None else "no reliability computed"),
-        ("timings", result.timings.text() if result.timings.phases else "not timed"),
+        *statistical_items(result, ids),
     ]
-    width = max(len(key) for key, _ in items)
-    return "\n".join(f"{key.ljust(width)}  {value}" for key, value in items) + "\n"
+    return "\n".join(aligned(items)) + "\n"
