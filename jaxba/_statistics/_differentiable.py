@@ -199,7 +199,7 @@ def iop_trace_gradient(
     w = jnp.ones(positions.shape[0]) if weights is None else jnp.asarray(weights)
 
     def objective(stations):
-        images = params.images.at[:, :3].set(stations)
+        images = jnp.asarray(params.images).at[:, :3].set(stations)
         moved = eqx.tree_at(lambda p: p.images, params, images)
         c = covariance(problem, moved, index, sigma0=sigma0)
         return jnp.sum(w * jnp.diag(c)[positions])
