@@ -30,8 +30,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._models._cameras": (
         "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
         "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
-        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "PhotoModelerCamera", "PixelGrid",
-        "RadialSmac", "SmacCamera", "metrology_to_smac", "smac_to_metrology",
+        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "OpenCVFullCamera",
+        "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera", "metrology_to_smac",
+        "smac_to_metrology",
         "AbstractRayRefraction", "CameraModelError", "FlatPort", "RefractedCamera",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),

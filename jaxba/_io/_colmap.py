@@ -405,7 +405,6 @@ def write_colmap_project(
         lines += [
             f"[{camera.id}]",
             f'model = "{jaxba_model}"  # COLMAP {camera.model}',
-            "pixel_size = [1.0, 1.0]  # unused by pixel models",
             f"sensor = [{camera.width}, {camera.height}]",
             *(f"{p} = {float(v)!r}" for p, v in values.items()),
             f"free = {json.dumps(list(camera_free))}",
