@@ -45,6 +45,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "read_colmap_model", "write_colmap", "write_colmap_project", "write_dbat_project",
         "write_opencv_yaml", "write_project_camera_yaml", "write_zhang_project",
     ),
+    "._io._camera_export": ("OpenCVExport", "export_camera_opencv", "fit_opencv"),
     "._adjust._initialise": (
         "BlockInitialisation", "IdealCoordinates", "ideal_coordinates", "image_residuals",
         "initialise_block",
