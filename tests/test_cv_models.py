@@ -308,3 +308,11 @@ def test_pixel_models_need_no_pixel_size_and_pixels_means_pixel(colmap_block):
         cameras.write('\n[99]\nmodel = "smac"\nc = 8.0\nsensor = [640, 480]\n')
     with pytest.raises(jaxba.ProjectError, match=r"\[99\] pixel_size: missing.*'smac' needs"):
         jaxba.read_project(renamed)
+
+
+def test_pixel_model_table_matches_the_models():
+    """The jax-free table that lets pixel models go without pixel_size is the models' own."""
+    from jaxba._models._cameras._names import PIXEL_MODELS
+
+    assert PIXEL_MODELS == {name for name, model in jaxba.CAMERA_MODELS.items()
+                            if model.image_units == "pixel"}
