@@ -32,8 +32,9 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._models._cameras": (
         "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
         "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
-        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "PhotoModelerCamera", "PixelGrid",
-        "RadialSmac", "SmacCamera", "metrology_to_smac", "smac_to_metrology",
+        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "OpenCVFullCamera",
+        "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera", "metrology_to_smac",
+        "smac_to_metrology",
         "AbstractRayRefraction", "CameraModelError", "FlatPort", "RefractedCamera",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),
@@ -47,6 +48,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
         "write_colmap", "write_colmap_project", "write_dbat_project",
         "write_opencv_yaml", "write_project_camera_yaml", "write_zhang_project",
     ),
+    "._io._camera_export": ("OpenCVExport", "export_camera_opencv", "fit_opencv"),
     "._adjust._initialise": (
         "BlockInitialisation", "IdealCoordinates", "ideal_coordinates", "image_residuals",
         "initialise_block",
