@@ -8,6 +8,7 @@ import math
 import pathlib
 import shutil
 
+import equinox as eqx
 import numpy as np
 import pytest
 
@@ -255,3 +256,33 @@ def test_reports_mark_tied_parameters(shared):
     row = next(line.split() for line in out_text(project, result).splitlines()
                if "tied to C1.P2" in line)
     assert row[0] == "P2" and float(row[2]) == pytest.approx(cameras["C1"]["P2"]["std"], rel=1e-3)
+
+
+def test_jacobian_of_tied_slots_is_the_sum_of_their_columns(shared):
+    """A tie within a camera (C1's P2 = P1: one row's two slots in one column) and between
+    cameras: the per-row blocks scattered into the source's column (dense Jacobian, column
+    norms) equal forward-mode differentiation through the tie's gather (J·T)."""
+    from helpers import jacfwd_jacobian
+
+    from jaxba._problem._linearisation import column_norms, dense_jacobian
+
+    _, project, result = shared
+    problem = project.problem
+    model = project.camera_rows["C1"][0]
+    names = jaxba.CAMERA_MODELS[model].parameter_names
+    positions = np.asarray(jaxba.unflatten(
+        problem.initial, np.arange(jaxba.flatten(problem.initial).size)).cameras[model])
+    p1, p2 = (int(positions[0, names.index(n)]) for n in ("P1", "P2"))
+    ties = tuple((d, p1 if s == p2 else s) for d, s in problem.ties) + ((p2, p1),)
+    free = problem.free.cameras[model].at[0, names.index("P2")].set(False)
+    tied = jaxba.BundleProblem(
+        problem.initial, eqx.tree_at(lambda f: f.cameras[model], problem.free, free),
+        problem.groups, ties=ties)
+    assert tied.n_unknowns() == problem.n_unknowns() - 1
+    params = tied.with_free(result.parameters)
+    jacobian, e = (np.asarray(a) for a in dense_jacobian(tied, params))
+    reference, e_ref = (np.asarray(a) for a in jacfwd_jacobian(tied, params))
+    np.testing.assert_allclose(jacobian, reference, rtol=1e-9, atol=1e-9 * np.abs(reference).max())
+    np.testing.assert_allclose(e, e_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(column_norms(tied, params)),
+                               np.linalg.norm(reference, axis=0), rtol=1e-9)
