@@ -38,7 +38,7 @@ from .._problem._bundle import (
 )
 from .._problem._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
 from .._problem._observations import AbstractObservationGroup
-from .._problem._parameters import Parameters, flatten
+from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._dense import solve
 from .._solvers._progress import Iteration
 from .._solvers._solution import Solution
@@ -124,6 +124,16 @@ def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | No
     return jax.tree.map(pad, params, shapes)
 
 
+def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
+    """`problem.ties` as positions of the padded Parameters shaped like `shapes`."""
+    own = unflatten(problem.initial, np.arange(flatten(problem.initial).size)).cameras
+    padded = unflatten(shapes, np.arange(flatten(shapes).size)).cameras
+    position = np.zeros(flatten(problem.initial).size, dtype=int)
+    for model, block in own.items():
+        position[np.ravel(block)] = np.ravel(padded[model][: block.shape[0]])
+    return tuple((int(position[d]), int(position[s])) for d, s in problem.ties)
+
+
 def pad_problems(problems) -> PaddedBatch:
     """Pad bundles of one kind (same observation groups in the same order, same camera
     models, refraction and robust loss) to a common shape and stack them.
@@ -155,11 +165,16 @@ def pad_problems(problems) -> PaddedBatch:
               for g in range(len(problems[0].groups))]
     names = [g.name for g in problems[0].groups]
     padded, indices = [], []
+    ties = {_padded_ties(problem, shapes) for problem in problems}
+    if len(ties) > 1:
+        raise ValueError("the problems tie different camera parameters (BundleProblem.ties);"
+                         " pad only problems with the same ties")
     for problem in problems:
         initial = _pad_parameters(problem.initial, shapes, None)
         free = _pad_parameters(problem.free, shapes, False)
         groups = tuple(_pad_group(g, n, name) for g, n, name in zip(problem.groups, n_rows, names))
-        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust)
+        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust,
+                            ties=next(iter(ties)))
         padded.append(one)
         indices.append(free_indices(one))
     n_free = np.array([len(i) for i in indices])

@@ -1,6 +1,7 @@
 """A bundle-adjustment problem: parameter blocks, their fixing, and observation groups."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
@@ -20,7 +21,12 @@ class BundleProblem(eqx.Module):
       weighted: weighted ones are free with a prior observation in `groups`);
     - `groups`: the observation groups (image points per camera, control, distances...);
     - `refraction`: the atmospheric refraction model (NoRefraction for close range);
-    - `robust`: an optional robust loss applied to the image-point groups.
+    - `robust`: an optional robust loss applied to the image-point groups;
+    - `ties`: (dependent, source) pairs of `flatten` positions of camera parameters that
+      are one unknown (fy = fx, one lens's distortion shared by two cameras): the
+      dependent takes its source's value everywhere (`with_free`, `params_from_free`), is
+      False in `free` itself, and the solvers and statistics see the source's column
+      only (the Jacobian J·T, T the 0/1 tie map; `tie_source`). No source is a dependent.
 
     `pose` (a property) is the pose model that reads `images` rows; every image group of a
     problem names the same one (checked at construction).
@@ -31,8 +37,10 @@ class BundleProblem(eqx.Module):
     groups: tuple[AbstractObservationGroup, ...]
     refraction: AbstractRefraction = NoRefraction()
     robust: RobustLoss | None = None
+    ties: tuple[tuple[int, int], ...] = eqx.field(static=True, default=())
 
     def __check_init__(self):
+        _check_ties(self)
         poses = {group.pose for group in self.groups if isinstance(group, ImagePoints)}
         if len(poses) > 1:
             raise ValueError(f"the image groups name different pose models {sorted(poses)}:"
@@ -63,8 +71,9 @@ class BundleProblem(eqx.Module):
         )
 
     def with_free(self, values: Parameters) -> Parameters:
-        """`values` on the free entries, the fixed values of `initial` elsewhere."""
-        return where_free(self.free, values, self.initial)
+        """`values` on the free entries, the fixed values of `initial` elsewhere, tied
+        entries at their sources' values."""
+        return tie(where_free(self.free, values, self.initial), self.ties)
 
     def n_observations(self) -> int:
         """Number of real scalar observations over all groups."""
@@ -84,6 +93,54 @@ def observed_minus_computed(problem: BundleProblem, whitened) -> tuple[np.ndarra
     )
 
 
+def _check_ties(problem: BundleProblem) -> None:
+    """`ValueError` unless the ties join distinct camera positions, each dependent once,
+    no source a dependent, and (where `free` is concrete) no dependent free."""
+    if not problem.ties:
+        return
+    n_cameras = sum(int(np.size(block)) for block in problem.initial.cameras.values())
+    dependent, source = (np.array(column) for column in zip(*problem.ties))
+    positions = np.concatenate([dependent, source])
+    if np.any((positions < 0) | (positions >= n_cameras)):
+        raise ValueError("ties join camera parameters only: a position is not a camera's")
+    if np.unique(dependent).size != dependent.size or np.any(dependent == source):
+        raise ValueError("a tied parameter has one source, other than itself")
+    if np.isin(source, dependent).any():
+        raise ValueError("a tie's source is itself tied: tie to the chain's first source")
+    leaves = jax.tree.leaves(problem.free.cameras)
+    if not any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        free = np.concatenate([np.ravel(np.asarray(leaf)) for leaf in leaves])
+        if free[dependent].any():
+            raise ValueError("a tied parameter is free itself: only its source is estimated")
+
+
+def tie(params: Parameters, ties: tuple[tuple[int, int], ...]) -> Parameters:
+    """`params` with every tied camera entry (`BundleProblem.ties`) set to its source's
+    value (a gather: derivatives w.r.t. a source collect its dependents'). Traceable."""
+    if not ties:
+        return params
+    dependent, source = (np.array(column) for column in zip(*ties))
+    models = sorted(params.cameras)
+    flat = jnp.concatenate([jnp.ravel(params.cameras[m]) for m in models])
+    flat = flat.at[dependent].set(flat[source])
+    cameras, start = {}, 0
+    for model in models:
+        shape = jnp.shape(params.cameras[model])
+        size = int(np.prod(shape))
+        cameras[model] = flat[start:start + size].reshape(shape)
+        start += size
+    return eqx.tree_at(lambda p: p.cameras, params, cameras)
+
+
+def tie_source(problem: BundleProblem) -> np.ndarray:
+    """(n_all,) for every `flatten` position the position of the unknown it is: its tie's
+    source for a tied entry, itself otherwise."""
+    source = np.arange(flatten(problem.initial).size)
+    for dependent, origin in problem.ties:
+        source[dependent] = origin
+    return source
+
+
 def free_indices(problem: BundleProblem) -> np.ndarray:
     """Positions of the free scalars in `flatten(Parameters)` order."""
     return np.flatnonzero(flatten(problem.free))
@@ -98,9 +155,10 @@ def params_from_free(
     problem: BundleProblem, x_free: Float[Array, " n_free"], index: Array
 ) -> Parameters:
     """The Parameters with the free scalars (positions `index` in `flatten` order) set to
-    `x_free` and all others at their values in `problem.initial`. Traceable."""
+    `x_free`, tied ones to their sources' and all others at their values in
+    `problem.initial`. Traceable."""
     flat, unravel = ravel_pytree(problem.initial)
-    return unravel(flat.at[index].set(x_free))
+    return tie(unravel(flat.at[index].set(x_free)), problem.ties)
 
 
 def params_from_scaled(

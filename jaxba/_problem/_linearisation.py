@@ -27,7 +27,13 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
-from ._bundle import BundleProblem, free_indices, observation_mask, params_from_free
+from ._bundle import (
+    BundleProblem,
+    free_indices,
+    observation_mask,
+    params_from_free,
+    tie_source,
+)
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
 
@@ -67,11 +73,13 @@ def _local_positions(problem: BundleProblem) -> list[np.ndarray | None]:
 
 
 def _free_columns(problem: BundleProblem, free_index: np.ndarray) -> np.ndarray:
-    """(n_all,) the free column of every position in `flatten` order; len(free_index), a
-    dummy column, for fixed unknowns (a repeated, padding position keeps its last column)."""
+    """(n_all,) the free column of every position in `flatten` order, a tied one's its
+    source's (`tie_source`); len(free_index), a dummy column, for fixed unknowns (a
+    repeated, padding position keeps its last column). Scatter-adds into these columns
+    sum a row's tied slots: the Jacobian J·T of the independent unknowns."""
     column_of = np.full(flatten(problem.initial).size, free_index.size)
     column_of[free_index] = np.arange(free_index.size)
-    return column_of
+    return column_of[tie_source(problem)]
 
 
 def live_slots(problem: BundleProblem, free_index: np.ndarray, local=None) -> list:
@@ -79,6 +87,7 @@ def live_slots(problem: BundleProblem, free_index: np.ndarray, local=None) -> li
     one row, or None for a group that is not row-local. `local`: `_local_positions`."""
     is_free = np.zeros(flatten(problem.initial).size, dtype=bool)
     is_free[free_index] = True
+    is_free = is_free[tie_source(problem)]
     local = _local_positions(problem) if local is None else local
     return [None if depends is None
             else tuple(int(k) for k in np.flatnonzero(is_free[depends].any(0)))
@@ -230,7 +239,11 @@ def _column_norms(problem, params, index, columns):
             squares = squares.at[:n].add(jnp.sum(jacobian**2, axis=0))
         else:
             blocks = _row_blocks(problem, group, params)[1]
-            squares = squares.at[group_columns].add(jnp.sum(blocks**2, axis=1))
+            merged = blocks
+            if problem.ties:  # a row's slots of one unknown: Σ_i∈c b_i·Σ_j∈c b_j = (Σ b)²
+                same = group_columns[:, :, None] == group_columns[:, None, :]
+                merged = jnp.einsum("nkj,nij->nki", blocks, same.astype(blocks.dtype))
+            squares = squares.at[group_columns].add(jnp.sum(blocks * merged, axis=1))
     return jnp.sqrt(squares[:n])
 
 

@@ -35,6 +35,7 @@ from .._statistics._observation_statistics import (
 )
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
+TIED = "tied to"  # a camera parameter tied to another's ("tied to C1.K1"): its unknown
 CONSTANT = "constant"  # a constant of the camera model (e.g. the metrology model's r0), σ 0
 MM, PIXEL = "mm", "pixel"  # image units of a camera model (CAMERA_MODELS[model].image_units)
 # One character per coordinate, as the σ columns of the input tables: - free, 0 fixed, w weighted.
@@ -44,7 +45,8 @@ STATUS_CODE = {FREE: "-", FIXED: "0", WEIGHTED: "w"}
 @dataclasses.dataclass(frozen=True)
 class ParameterTable:
     """Rows of one kind of unknown: `ids` (n,), `values` and `stds` (n, k), `status` (n, k):
-    FREE, FIXED or WEIGHTED (a list of lists, or an object array of str)."""
+    FREE, FIXED, WEIGHTED or, for a tied camera parameter, "tied to C1.K1" (a list of
+    lists, or an object array of str)."""
 
     names: tuple[str, ...]
     ids: list[str]
@@ -159,6 +161,12 @@ def _status(estimated: bool, weighted: bool) -> str:
     return WEIGHTED if weighted else FREE
 
 
+def _tied(source: tuple[str, str]) -> str:
+    """The status of a tied camera parameter (`CameraSpec.ties`): "tied to C1.K1"; its
+    value and σ are its source's."""
+    return f"{TIED} {source[0]}.{source[1]}"
+
+
 def _status_table(estimated, sigma: list[tuple]) -> np.ndarray:
     """`_status` of every entry of a table at once: `estimated` (n, k) bools, `sigma` n tuples
     of k file σ (None free, 0 fixed, > 0 weighted). An (n, k) object array of str."""
@@ -186,7 +194,8 @@ def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTa
             ids=[cid],
             values=np.r_[values, constants][None, :],
             stds=np.r_[stds, np.zeros(len(constants))][None, :],
-            status=[[_status(bool(e), n in camera.sigma) for n, e in zip(names, estimated)]
+            status=[[_tied(camera.ties[n]) if n in camera.ties
+                     else _status(bool(e), n in camera.sigma) for n, e in zip(names, estimated)]
                     + [CONSTANT] * len(constants)],
         )
     return tables

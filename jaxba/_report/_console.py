@@ -51,7 +51,7 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
             status = camera.status[0][k]
             if status in (FIXED, CONSTANT):
                 continue
-            note = "  (weighted)" if status != "free" else ""
+            note = f"  ({status})" if status != "free" else ""  # weighted, tied to C1.K1
             lines.append(
                 f"  {name.ljust(width)}  {camera.values[0, k]: .8e}"
                 f" +/- {camera.stds[0, k]:.2e}{note}"

@@ -224,7 +224,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     compilation apart; see `_timings`); initialisation (what `complete_project` computed,
     `Completion.summary()`), only when the approximations were computed; datum (how it is
     defined: `Project.datum`). Iteration 0 is the approximations.
-    Every parameter carries "status": free, fixed or weighted.
+    Every parameter carries "status": free, fixed or weighted; a tied camera parameter
+    "tied to CAMERA.parameter" (its source's unknown: the same value and std).
     """
     precision = result.precision
     cameras = camera_tables(project, result)

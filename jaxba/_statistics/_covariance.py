@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 
-from .._problem._bundle import BundleProblem, free_indices
+from .._problem._bundle import BundleProblem, free_indices, tie_source
 from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters, flatten, unflatten
 
@@ -39,7 +39,10 @@ class Precision:
     - `sigma0_squared`: a posteriori variance factor σ0² vᵀΣ⁻¹v / r;
     - `covariance`: (n_free, n_free) in the order of `free_index`, or None for a bundle
       adjusted with its points eliminated, whose covariance is `schur` instead;
-    - `std`: Parameters of standard deviations, 0 for fixed unknowns.
+    - `std`: Parameters of standard deviations, 0 for fixed unknowns, a tied parameter's
+      its source's (`BundleProblem.ties`);
+    - `source`: (n_all,) `tie_source` of a problem with ties (None without): a tied
+      parameter is its source's unknown, so its rows of Cxx are the source's (T C Tᵀ).
 
     `covariance_of(positions)` serves both.
     """
@@ -52,12 +55,13 @@ class Precision:
     covariance: np.ndarray | None
     std: Parameters
     schur: SchurCovariance | None = None
+    source: np.ndarray | None = None
 
     def covariance_of(self, positions: np.ndarray) -> np.ndarray:
         """Cxx among the unknowns at `positions` (`flatten` order over all unknowns; rows
         and columns of fixed ones 0). From `schur`, the positions must all be reduced
         unknowns or all coordinates of one object point (`ValueError` otherwise)."""
-        positions = np.asarray(positions, dtype=int)
+        positions = self._untied(positions)
         if self.covariance is not None:
             rows = self.covariance_rows(positions)
             free = rows >= 0
@@ -68,7 +72,22 @@ class Precision:
 
     def covariance_rows(self, positions: np.ndarray) -> np.ndarray:
         """Rows of `covariance` of the unknowns at `positions` (any shape), -1 where fixed."""
-        return _rows_of(flatten(self.std).size, self.free_index)[np.asarray(positions, dtype=int)]
+        return _rows_of(flatten(self.std).size, self.free_index)[self._untied(positions)]
+
+    def _untied(self, positions) -> np.ndarray:
+        """`positions` with every tied parameter's replaced by its source's."""
+        positions = np.asarray(positions, dtype=int)
+        return positions if self.source is None else self.source[positions]
+
+
+def with_ties(precision: Precision, problem: BundleProblem) -> Precision:
+    """`precision` of a problem with `ties`: every tied parameter's σ its source's, and its
+    covariances read at its source (`Precision.source`). Unchanged without ties."""
+    if not problem.ties:
+        return precision
+    source = tie_source(problem)
+    std = unflatten(precision.std, flatten(precision.std)[source])
+    return dataclasses.replace(precision, std=std, source=source)
 
 
 def _rows_of(n_all: int, index: np.ndarray) -> np.ndarray:
@@ -152,7 +171,7 @@ def precision_from_covariance(
     index = free_indices(problem)
     std = np.zeros(flatten(params).shape)
     std[index] = np.sqrt(np.diag(covariance))
-    return Precision(
+    return with_ties(Precision(
         sigma0_squared=sigma0_squared,
         redundancy=redundancy,
         n_observations=n_observations,
@@ -160,4 +179,4 @@ def precision_from_covariance(
         free_index=index,
         covariance=covariance,
         std=unflatten(params, std),
-    )
+    ), problem)

@@ -8,7 +8,7 @@ from .._models._cameras import CAMERA_MODELS
 from .._models._cameras._names import INSEPARABLE_PARAMETERS, lens_model
 from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
-from .._problem._bundle import BundleProblem, free_indices
+from .._problem._bundle import BundleProblem, free_indices, tie_source
 from .._problem._linearisation import dense_jacobian
 from .._problem._observations import ParameterObservations
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
@@ -216,7 +216,9 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
     K0 and c) is free with no prior on either: the observations cannot tell them apart (a
     solve from there collapses, e.g. to c = 0, K0 = 1)."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
-    for model, free in problem.free.cameras.items():
+    # A tied parameter is as free as its source (`BundleProblem.ties`).
+    estimated = unflatten(problem.free, flatten(problem.free)[tie_source(problem)])
+    for model, free in estimated.cameras.items():
         pairs = INSEPARABLE_PARAMETERS.get(lens_model(model), ())
         if not pairs:
             continue

@@ -38,7 +38,7 @@ from .._problem._linearisation import column_norms
 from .._problem._observations import AbstractObservationGroup
 from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._schur._bundle import BundleStructure, bundle_structure, schur_solve
-from ._covariance import Precision, SchurCovariance
+from ._covariance import Precision, SchurCovariance, with_ties
 from ._datum import DatumError, network_centre, similarity_directions, similarity_transform
 from ._schur_precision import schur_precision
 from ._schur_reliability import schur_redundancy_numbers
@@ -247,7 +247,7 @@ def free_network_precision(
     std[reduced_positions] = np.sqrt(np.clip(np.diag(reduced), 0.0, None))
     std[point_positions] = np.sqrt(np.clip(np.diagonal(points, axis1=1, axis2=2), 0.0, None))
     index = free_indices(problem)
-    return Precision(
+    return with_ties(Precision(
         sigma0_squared=base.sigma0_squared,
         redundancy=base.redundancy,
         n_observations=problem.n_observations(),
@@ -256,7 +256,7 @@ def free_network_precision(
         covariance=None,
         std=unflatten(jax.tree.map(np.asarray, params), std * flatten(problem.free)),
         schur=SchurCovariance(reduced_positions, reduced, points),
-    )
+    ), problem)
 
 
 def free_network_redundancy_numbers(

@@ -20,7 +20,7 @@ from .._solvers._schur._bundle import (
     bundle_structure,
 )
 from .._solvers._schur._normal import _matmul, _small_inverse
-from ._covariance import Precision, SchurCovariance
+from ._covariance import Precision, SchurCovariance, with_ties
 
 
 class BundleCofactors(eqx.Module):
@@ -91,7 +91,7 @@ def _precision_from_cofactors(
     sigma0_squared = float(cofactors.sigma0_squared)
     variance_factor = sigma0_squared / sigma0**2
     index = free_indices(problem)
-    return Precision(
+    return with_ties(Precision(
         sigma0_squared=sigma0_squared,
         redundancy=problem.n_observations() - index.size,
         n_observations=problem.n_observations(),
@@ -105,7 +105,7 @@ def _precision_from_cofactors(
             points=variance_factor * np.asarray(cofactors.points),
             redundancy=redundancy,
         ),
-    )
+    ), problem)
 
 
 def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:

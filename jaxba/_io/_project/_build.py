@@ -75,6 +75,23 @@ def _cameras(spec: ProjectSpec):
     return rows, as_arrays, {m: jnp.asarray(f) for m, f in free.items()}, priors
 
 
+def _ties(spec: ProjectSpec, camera_rows: dict, iop: dict) -> tuple[tuple[int, int], ...]:
+    """The cameras' ties (`CameraSpec.ties`, resolved by the reader) as `flatten` positions
+    of the IOP blocks `iop` (cameras by sorted model name, row-major): `BundleProblem.ties`."""
+    offsets, start = {}, 0
+    for model in sorted(iop):
+        offsets[model] = start
+        start += int(np.size(iop[model]))
+
+    def position(camera_id: str, name: str) -> int:
+        model, row = camera_rows[camera_id]
+        names = CAMERA_MODELS[model].parameter_names
+        return offsets[model] + row * len(names) + names.index(name)
+
+    return tuple((position(cid, name), position(*source))
+                 for cid in camera_rows for name, source in spec.cameras[cid].ties.items())
+
+
 def _images(spec: ProjectSpec):
     """EOP block (radians), free mask and GNSS/INS observations; a dependent datum frees
     every EOP (`_dependent_datum` then fixes its own)."""
@@ -311,6 +328,7 @@ def build_project(spec: ProjectSpec) -> Project:
         groups=tuple(groups),
         refraction=refraction,
         robust=robust,
+        ties=_ties(spec, camera_rows, iop),
     )
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():

@@ -45,6 +45,7 @@ from ._spec import (
     PointSpec,
     ProjectSpec,
 )
+from ._ties import TIE_KEYS, expand_per_image, read_camera_ties, resolve_ties
 
 IMAGE_UNITS = ("mm", "pixel")
 IMAGE_UNIT_ALIASES = {"pixels": "pixel"}  # also accepted for [project] image_units
@@ -54,7 +55,7 @@ _PROJECT_TABLES = ("project", "files", "adjustment")
 _PROJECT_KEYS = ("name", "image_units")
 _REQUIRED_FILES = ("cameras", "images", "image_points", "points")
 _OPTIONAL_FILES = ("distances",)
-_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction")
+_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", *TIE_KEYS)
 # `[ID.refraction]` of a flat port: its parameters, but the port normal as one 3-vector; the
 # indices > 0, distance and thickness ≥ 0; n_air 1 unless given, the normal the optical axis.
 _PORT_KEYS = ("model", "distance", "thickness", "n_air", "n_glass", "n_medium", "normal",
@@ -117,6 +118,7 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     settings = _read_settings(adjustment, f"{name}: [adjustment]")
     cameras = _read_cameras(files["cameras"], image_units, name)
     images = _read_images(files["images"], cameras, files["cameras"].name)
+    cameras, images = expand_per_image(cameras, images, files["cameras"].name)
     points = _read_points(files["points"])
     image_points = _read_image_points(files["image_points"], images, files)
     points.update(_missing_points(image_points, points))
@@ -248,7 +250,7 @@ def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, Came
                     + " and ".join(needed)
                 )
         cameras[camera_id] = camera
-    return cameras
+    return resolve_ties(cameras, document, file.name)
 
 
 def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
@@ -312,8 +314,11 @@ def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
         free = [*free, *port.free]
         sigma.update(port.sigma)
 
+    ties, per_image = read_camera_ties(table, camera_id, where)
     return CameraSpec(
         id=camera_id,
+        ties=ties,
+        per_image=per_image,
         model=model,
         values=values,
         free=frozenset(free),

@@ -72,6 +72,11 @@ class CameraSpec:
     # The ray refraction model of `[ID.refraction]` ("flat_port") or None; its parameters
     # are in `values`, `free` and `sigma` with the camera's.
     refraction: str | None = None
+    # Ties (`_ties.py`): parameter -> (camera, parameter) of its source, the chain's first
+    # (a tied parameter is its source's unknown); `per_image`: the parameters each image of
+    # the camera estimates on its own (the reader expands them into per-image cameras).
+    ties: dict[str, tuple[str, str]] = dataclasses.field(default_factory=dict)
+    per_image: tuple[str, ...] = ()
 
     @property
     def model_key(self) -> str:

@@ -38,7 +38,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int, Scalar
 
 from ..._models._poses import POSE_MODELS
-from ..._problem._bundle import BundleProblem
+from ..._problem._bundle import BundleProblem, tie_source
 from ..._problem._observations import (
     Distances,
     ImagePoints,
@@ -107,8 +107,11 @@ class BundleStructure(eqx.Module):
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
     - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
-    - `iop_columns`: per model (in `models` order), the IOPs free in some camera of it: the
-      only IOP columns an observation carries (fixed ones would be zero).
+    - `camera_column`: the reduced column of every camera parameter (`flatten` order): its
+      own, or its tie's source's (`BundleProblem.ties`; a tied one's own column stays
+      empty, as a fixed unknown's);
+    - `iop_columns`: per model (in `models` order), the IOPs free or tied in some camera of
+      it: the only IOP columns an observation carries (fixed ones would be zero).
     """
 
     image_columns: Int[Array, "n_obs1 m"]
@@ -128,6 +131,7 @@ class BundleStructure(eqx.Module):
     eliminated_points: Int[Array, " n_eliminated"]
     point_column: Int[Array, " n_points"]
     eliminated_index: Int[Array, " n_points"]
+    camera_column: Int[Array, " n_iop_all"]
     models: tuple[str, ...] = eqx.field(static=True)
     iop_columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     camera_offsets: tuple[int, ...] = eqx.field(static=True)
@@ -187,8 +191,14 @@ def bundle_structure(
     eliminated_index = np.full(n_points, n_eliminated, dtype=np.int64)
     eliminated_index[eliminated_points] = np.arange(n_eliminated)
 
+    # A camera's reduced columns are its `flatten` positions (cameras come first in both
+    # orders); a tied IOP's observations go to its source's column (`tie_source`).
+    camera_column = tie_source(problem)[:image_offset]
+    tied = unflatten(initial, np.isin(np.arange(flatten(initial).size),
+                                      [dependent for dependent, _ in problem.ties]))
     iop_columns = tuple(
-        tuple(int(c) for c in np.flatnonzero(np.any(np.asarray(problem.free.cameras[model]), 0)))
+        tuple(int(c) for c in np.flatnonzero(np.any(
+            np.asarray(problem.free.cameras[model]) | tied.cameras[model], 0)))
         for model in models
     )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
@@ -202,7 +212,8 @@ def bundle_structure(
         free_iop = np.asarray(iop_columns[model_index], dtype=np.int64)
         camera, image, point = (np.asarray(a) for a in (group.camera, group.image, group.point))
         block = np.full((camera.size, m), n_reduced, dtype=np.int64)
-        block[:, : free_iop.size] = offsets[model_index] + camera[:, None] * n_iop + free_iop
+        block[:, : free_iop.size] = camera_column[
+            offsets[model_index] + camera[:, None] * n_iop + free_iop]
         block[:, free_iop.size : free_iop.size + 6] = (
             image_offset + image[:, None] * 6 + np.arange(6)
         )
@@ -247,6 +258,7 @@ def bundle_structure(
         eliminated_points=jnp.asarray(eliminated_points),
         point_column=jnp.asarray(point_column),
         eliminated_index=jnp.asarray(eliminated_index),
+        camera_column=jnp.asarray(camera_column),
         models=models,
         iop_columns=iop_columns,
         camera_offsets=tuple(offsets),
@@ -444,10 +456,11 @@ def _block_columns(structure: BundleStructure, group: ParameterObservations) -> 
     width = group.observed.shape[1]
     if group.block == "images":
         start = structure.image_offset
-    else:
-        model = group.block.removeprefix("cameras/")
-        start = structure.camera_offsets[structure.models.index(model)]
-    return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
+        return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
+    model = group.block.removeprefix("cameras/")
+    start = structure.camera_offsets[structure.models.index(model)]
+    return structure.camera_column[start + jnp.asarray(group.rows)[:, None] * width
+                                   + jnp.arange(width)]
 
 
 def _distance_columns(structure: BundleStructure, group: Distances) -> Array:
