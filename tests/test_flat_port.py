@@ -16,6 +16,7 @@ from helpers import FD_ATOL, FD_RTOL, FD_STEP, central_difference
 from scipy.optimize import brentq
 
 import jaxba
+from jaxba import advanced
 from jaxba._io._synthetic import look_at, opk_from_rotation, smac_correction, solve_measured
 
 IMAGE_ATOL = 1e-9  # image units (mm or pixels): the projection against the traced ray
@@ -223,7 +224,7 @@ SIGMA = np.array([0.002, 0.002])
 
 
 def _residual(iop, eop, point):
-    return jaxba.collinearity_residual("smac+flat_port", iop, eop, point, jnp.asarray(MEASURED),
+    return advanced.collinearity_residual("smac+flat_port", iop, eop, point, jnp.asarray(MEASURED),
                                        jnp.asarray(SIGMA), jaxba.NoRefraction())
 
 

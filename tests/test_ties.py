@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba import advanced
 from jaxba._io._synthetic import DEFAULT_CAMERA, IOP_NAMES, PIXEL_SIZE, SENSOR
 
 DISTORTION = ("K1", "K2", "K3", "P1", "P2")
@@ -86,7 +87,7 @@ def test_shared_distortion_recovers_the_truth(shared):
     for name in DISTORTION:
         assert c2[name] == c1[name] and s2[name] == s1[name]
     model = project.camera_rows["C1"][0]
-    positions = jaxba.unflatten(problem.initial, np.arange(jaxba.flatten(problem.initial).size))
+    positions = advanced.unflatten(problem.initial, np.arange(advanced.flatten(problem.initial).size))
     k1 = jaxba.CAMERA_MODELS[model].parameter_names.index("K1")
     pair = np.asarray(positions.cameras[model])[:, k1]
     covariance = result.precision.covariance_of(pair)
@@ -97,10 +98,10 @@ def test_schur_agrees_with_dense(shared):
     _, project, dense = shared
     schur = jaxba.adjust(project.problem, solver="schur", check=False)
     assert schur.backend == "schur"
-    for a, b in zip(jaxba.flatten(schur.parameters), jaxba.flatten(dense.parameters)):
+    for a, b in zip(advanced.flatten(schur.parameters), advanced.flatten(dense.parameters)):
         assert a == pytest.approx(b, abs=1e-9)
-    np.testing.assert_allclose(jaxba.flatten(schur.precision.std),
-                               jaxba.flatten(dense.precision.std), rtol=1e-6, atol=1e-15)
+    np.testing.assert_allclose(advanced.flatten(schur.precision.std),
+                               advanced.flatten(dense.precision.std), rtol=1e-6, atol=1e-15)
     assert schur.precision.redundancy == dense.precision.redundancy
 
 
@@ -270,8 +271,8 @@ def test_jacobian_of_tied_slots_is_the_sum_of_their_columns(shared):
     problem = project.problem
     model = project.camera_rows["C1"][0]
     names = jaxba.CAMERA_MODELS[model].parameter_names
-    positions = np.asarray(jaxba.unflatten(
-        problem.initial, np.arange(jaxba.flatten(problem.initial).size)).cameras[model])
+    positions = np.asarray(advanced.unflatten(
+        problem.initial, np.arange(advanced.flatten(problem.initial).size)).cameras[model])
     p1, p2 = (int(positions[0, names.index(n)]) for n in ("P1", "P2"))
     ties = tuple((d, p1 if s == p2 else s) for d, s in problem.ties) + ((p2, p1),)
     free = problem.free.cameras[model].at[0, names.index("P2")].set(False)
