@@ -86,15 +86,25 @@ def test_unknown_group_is_rejected(block):
         bundle_structure(problem)
 
 
+@eqx.filter_jit
+def _damped_step(problem, structure, params, damping):
+    """One damped Schur step as Parameters and its predicted reduction, as one program: run
+    op by op, the four cases compiled ~2,500 small programs (38 s of CPU against 12 s)."""
+    normal = bundle_normal_equations(problem, structure, params)
+    x_r, x_e = solve_bundle_damped(structure, normal, damping)
+    step = _to_parameters(structure, params, x_r, x_e)
+    return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))
+
+
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])
 @pytest.mark.parametrize("damping", [1e-3, 1.0])
 def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     problem = block if variant == "plain" else _with_control_and_robust(block)
     params = problem.initial
     structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
-    normal = bundle_normal_equations(problem, structure, params)
-    x_r, x_e = solve_bundle_damped(structure, normal, jnp.asarray(damping))
-    step = flatten(_to_parameters(structure, params, x_r, x_e))[free_indices(problem)]
+    all_steps, predicted = _damped_step(problem, structure, params, jnp.asarray(damping))
+    all_steps = flatten(all_steps)
+    step = all_steps[free_indices(problem)]
 
     jacobian, residual = jacfwd_jacobian(problem, params)
     hessian = jacobian.T @ jacobian
@@ -104,11 +114,8 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
         step, expected, rtol=STEP_RTOL, atol=STEP_RTOL * np.abs(expected).max()
     )
     fixed = ~flatten(problem.free)
-    all_steps = flatten(_to_parameters(structure, params, x_r, x_e))
     assert np.all(all_steps[fixed] == 0.0)
     # The trust region's prediction for the step δ = -x: ½|r + Jδ|² - ½|r|².
-    delta = jax.tree.map(jnp.negative, _to_parameters(structure, params, x_r, x_e))
-    predicted = bundle_predicted_reduction(structure, normal, delta)
     model = 0.5 * np.sum((residual - jacobian @ step) ** 2) - 0.5 * np.sum(residual**2)
     assert model < 0
     assert float(predicted) == pytest.approx(float(model), rel=STEP_RTOL)
