@@ -147,13 +147,13 @@ def test_import_writes_the_conventions(scene):
     project = jaxba.build_project(jaxba.read_project(written.project_file))
     cameras = {cid: project.spec.cameras[cid] for cid in project.camera_rows}
     assert {c.model for c in cameras.values()} == {"opencv", "fisheye"}
-    # COLMAP's principal point (pixel-corner origin) moves by -0.5 px; f -> fx = fy.
+    # COLMAP's principal point (pixel-corner origin) moves by -0.5 px; f -> fx = fy, fy tied.
     assert cameras["1"].values["cx"] == 501.3 - 0.5 and cameras["1"].values["cy"] == 372.9 - 0.5
     assert cameras["3"].values["fx"] == cameras["3"].values["fy"] == 700.0
     assert cameras["3"].values["k1"] == -0.08
     assert cameras["2"].values["k4"] == -4e-4
-    assert cameras["3"].free == {"fx", "fy", "k1"}
-    assert cameras["1"].free == {"fx", "fy", "k1", "k2", "p1", "p2"}
+    assert cameras["3"].free == {"fx", "k1"} and cameras["3"].ties == {"fy": ("3", "fx")}
+    assert cameras["1"].free == {"fx", "fy", "k1", "k2", "p1", "p2"} and not cameras["1"].ties
     # Untriangulated 2D points are dropped; the rest shift by -0.5 px.
     assert len(project.spec.image_points) == written.n_image_points
     first = read_colmap_model(tmp_path / "colmap").images[1].points2d[1]
@@ -232,8 +232,8 @@ def test_adjusted_project_exports_its_adjusted_values(scene):
     write_colmap(project, tmp_path / "adjusted", result.parameters)
     again = write_colmap_project(tmp_path / "adjusted", tmp_path / "again")
     reimported = jaxba.build_project(jaxba.read_project(again.project_file))
-    # fx != fy after the adjustment: SIMPLE_RADIAL comes back as OPENCV, same values.
-    assert read_colmap_model(tmp_path / "adjusted").cameras[3].model == "OPENCV"
+    # fy tied to fx: SIMPLE_RADIAL's one focal length stays one, and the model comes back.
+    assert read_colmap_model(tmp_path / "adjusted").cameras[3].model == "SIMPLE_RADIAL"
     _assert_same_project_values(_project_values(project, result.parameters),
                                 _project_values(reimported))
 

@@ -178,8 +178,9 @@ def test_colmap_model_recovers_its_truth(colmap_block, case):
     estimate = dict(zip(names, np.asarray(result.parameters.cameras[jaxba_model][row])))
     std = dict(zip(names, np.asarray(result.precision.std.cameras[jaxba_model][row])))
     truth = dict.fromkeys(names, 0.0) | values
-    if "f" in values:
+    if "f" in values:  # COLMAP's one focal length: fy tied to fx
         truth["fx"] = truth["fy"] = values["f"]
+        assert estimate["fy"] == estimate["fx"] and std["fy"] == std["fx"]
     truth["cx"], truth["cy"] = values["cx"] - 0.5, values["cy"] - 0.5  # COLMAP's pixel origin
     expected = free or [n for n in COLMAP_NAMES[model] if n not in ("cx", "cy")]
     assert {n for n in names if std[n] > 0} == {

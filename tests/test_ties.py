@@ -87,7 +87,8 @@ def test_shared_distortion_recovers_the_truth(shared):
     for name in DISTORTION:
         assert c2[name] == c1[name] and s2[name] == s1[name]
     model = project.camera_rows["C1"][0]
-    positions = advanced.unflatten(problem.initial, np.arange(advanced.flatten(problem.initial).size))
+    positions = advanced.unflatten(problem.initial,
+                                   np.arange(advanced.flatten(problem.initial).size))
     k1 = jaxba.CAMERA_MODELS[model].parameter_names.index("K1")
     pair = np.asarray(positions.cameras[model])[:, k1]
     covariance = result.precision.covariance_of(pair)

@@ -23,10 +23,12 @@ Conventions, and how they map onto jaxba's (docs/conventions.md):
   cameras, FULL_OPENCV an "opencv_full" one, OPENCV_FISHEYE a "fisheye" one; the terms the
   COLMAP model lacks are fixed at 0 (skew; k3, p1, p2 as the model says; s1..s4). The
   distortion formulas are OpenCV's in both programs. A single COLMAP focal length f becomes
-  fx = fy = f; jaxba has no tied parameters, so adjusting such a camera with fx and fy free
-  estimates an aspect ratio that COLMAP's model does not have. By default the focal length(s)
-  and the distortion are free and the principal point fixed, as in COLMAP's bundle adjuster
-  (refine_focal_length, refine_extra_params, not refine_principal_point).
+  fx = fy = f with fy tied to fx (`ties = { fy = "fx" }`: one unknown, as in COLMAP). By
+  default the focal length(s) and the distortion are free and the principal point fixed, as
+  in COLMAP's bundle adjuster (refine_focal_length, refine_extra_params, not
+  refine_principal_point); FULL_OPENCV's k4..k6 are kept fixed at COLMAP's values: with k1..k6
+  all free the rational terms are numerically dependent over a normal field of view (the
+  datum check refuses them), so free them explicitly (`free=`) for a wide-angle lens.
 - **Points.** points3D become free tie points. COLMAP has no control: the datum of the
   imported project is the minimal constraint `datum="first_images"` (first image's six EOPs
   fixed, plus the largest coordinate difference of the second image's station: scale), or
@@ -61,7 +63,7 @@ COLMAP_CAMERA_MODELS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = 
                ("fx", "fy", "k1", "k2", "p1", "p2")),
     "FULL_OPENCV": ("opencv_full", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4",
                                     "k5", "k6"),
-                    ("fx", "fy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
+                    ("fx", "fy", "k1", "k2", "p1", "p2", "k3")),
     "OPENCV_FISHEYE": ("fisheye", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
                        ("fx", "fy", "k1", "k2", "k3", "k4")),
 }
@@ -320,7 +322,8 @@ def write_colmap_model(model: ColmapModel, directory: str | os.PathLike) -> None
 
 
 def camera_to_jaxba(camera: ColmapCamera) -> tuple[str, dict[str, float], tuple[str, ...]]:
-    """(jaxba model, parameter values in jaxba's pixel convention, default free list)."""
+    """(jaxba model, parameter values in jaxba's pixel convention, default free list: fx
+    alone for COLMAP's one focal length f, whose fy the project ties to fx)."""
     model, names, free = COLMAP_CAMERA_MODELS[camera.model]
     colmap = dict(zip(names, camera.params))
     values = {name: 0.0 for name in _JAXBA_PARAMETERS[model]}
@@ -331,7 +334,7 @@ def camera_to_jaxba(camera: ColmapCamera) -> tuple[str, dict[str, float], tuple[
             values[name] = value
     for name in _PIXEL_PARAMETERS:
         values[name] += PIXEL_ORIGIN_SHIFT
-    jaxba_free = tuple(n for f in free for n in (("fx", "fy") if f == "f" else (f,)))
+    jaxba_free = tuple("fx" if f == "f" else f for f in free)
     return model, values, jaxba_free
 
 
@@ -401,12 +404,14 @@ def write_colmap_project(
         jaxba_model, values, default_free = camera_to_jaxba(camera)
         camera_free = default_free if free is None or str(camera.id) not in free else tuple(
             free[str(camera.id)])
+        one_focal = "f" in COLMAP_CAMERA_MODELS[camera.model][1] and "fy" not in camera_free
         lines += [
             f"[{camera.id}]",
             f'model = "{jaxba_model}"  # COLMAP {camera.model}',
             f"sensor = [{camera.width}, {camera.height}]",
             *(f"{p} = {float(v)!r}" for p, v in values.items()),
             f"free = {json.dumps(list(camera_free))}",
+            *(['ties = { fy = "fx" }  # COLMAP\'s one focal length'] if one_focal else []),
             "",
         ]
     (out_dir / "cameras.toml").write_text("\n".join(lines))
