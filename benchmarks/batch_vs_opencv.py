@@ -62,10 +62,10 @@ def replicates(n: int, noise_px: float, seed: int):
 def run_jaxba(problem, measured, chunk: int):
     """All replicates in one `solve_batch` call (chunks of `chunk`, vmapped, one after the
     other); timed twice: compile = the first call less the second."""
-    plan = jaxba.linearisation_plan(problem)
+    plan = jaxba.advanced.linearisation_plan(problem)
     problems = jax.vmap(lambda m: eqx.tree_at(lambda p: p.groups[0].measured, problem, m))(
         jnp.asarray(measured))
-    plans = jaxba.broadcast_plan(plan, measured.shape[0])
+    plans = jaxba.advanced.broadcast_plan(plan, measured.shape[0])
 
     def run():
         return jax.block_until_ready(

@@ -1,17 +1,22 @@
 """jaxba: self-calibrating bundle adjustment in JAX, differentiable and batchable.
 
 Public names are imported from their modules when first used (`jaxba._lazy`), so that
-`import jaxba` does not load jax.
+`import jaxba` does not load jax. The parts behind them (plans, the flat vector of unknowns,
+the Schur backend's pieces) are in `jaxba.advanced`.
 """
 
 from importlib.metadata import version as _distribution_version
 
+from . import advanced as advanced
 from ._lazy import lazy_exports
 
 __version__ = _distribution_version(__name__)  # one source: pyproject.toml
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+_public, __dir__, __all__ = lazy_exports(__name__, {
     "._statistics._adjustment": ("Adjustment",),
+    "._statistics._by_id": ("ById", "Estimate", "Estimates", "PointEstimate"),
+    "._statistics._ids": ("Ids",),
+    "._timing": ("Timings",),
     "._approximations": (
         "RELATIVE_ORIENTATION_PARAMETERS", "SIMILARITY_PARAMETERS", "Dlt", "DltOrientation",
         "EssentialMatrix", "Intersection", "RelativeOrientation", "Resection", "Similarity",
@@ -22,16 +27,14 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     ),
     "._io._bal": ("BalFormatError", "BalProblem", "read_bal", "write_bal_project"),
     "._cli._bal": ("run_bal",),
-    "._adjust._batch": (
-        "PaddedBatch", "adjust_batch", "broadcast_plan", "check_datum_batch", "pad_problems",
-        "solve_batch",
-    ),
+    "._adjust._batch": ("adjust_batch", "check_datum_batch"),
     "._io._project._batch_run": ("run_batch",),
     "._models._cameras": (
         "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
         "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
-        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "PhotoModelerCamera", "PixelGrid",
-        "RadialSmac", "SmacCamera", "metrology_to_smac", "smac_to_metrology",
+        "MetrologyCamera", "NoRefraction", "OpenCVCamera", "OpenCVFullCamera",
+        "PhotoModelerCamera", "PixelGrid", "RadialSmac", "SmacCamera", "metrology_to_smac",
+        "smac_to_metrology",
         "AbstractRayRefraction", "CameraModelError", "FlatPort", "RefractedCamera",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),
@@ -41,23 +44,21 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     ),
     "._statistics._free_network": ("InnerConstraints", "inner_constraints"),
     "._io": (
-        "read_colmap_model", "write_colmap", "write_colmap_project", "write_dbat_project",
+        "ColmapModel", "ColmapProject", "DbatProject", "ZhangProject", "read_colmap_model",
+        "write_colmap", "write_colmap_project", "write_dbat_project",
         "write_opencv_yaml", "write_project_camera_yaml", "write_zhang_project",
     ),
+    "._io._camera_export": ("OpenCVExport", "export_camera_opencv", "fit_opencv"),
     "._adjust._initialise": (
         "BlockInitialisation", "IdealCoordinates", "ideal_coordinates", "image_residuals",
         "initialise_block",
     ),
-    "._solvers._levenberg_marquardt": ("NormalLevenbergMarquardt",),
-    "._problem._linearisation": ("LinearisationPlan", "linearisation_plan", "pad_plans"),
     "._adjust._montecarlo": ("Replicates", "bootstrap", "monte_carlo"),
     "._problem._observations": (
         "AbstractObservationGroup", "Distances", "ImagePoints", "ParameterObservations",
-        "collinearity_residual",
     ),
     "._problem._parameters": (
-        "IMAGE_PARAMETER_NAMES", "POINT_PARAMETER_NAMES", "Parameters", "flatten",
-        "parameter_labels", "unflatten",
+        "IMAGE_PARAMETER_NAMES", "POINT_PARAMETER_NAMES", "Parameters", "parameter_labels",
     ),
     "._report._plots": (
         "figure_set", "plot_correlation", "plot_coverage", "plot_distortion",
@@ -68,7 +69,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "point_covariances", "propagate",
     ),
     "._models._poses": ("POSE_MODELS", "AbstractPose", "OpkPose", "RodriguesPose"),
-    "._problem._bundle": ("BundleProblem", "free_indices"),
+    "._problem._bundle": ("BundleProblem",),
     "._solvers._progress": ("Iteration",),
     "._io._project": ("AdjustmentSettings", "ProjectError", "ProjectSpec", "read_project"),
     "._io._project._adjust": ("adjust_project",),
@@ -83,10 +84,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "quaternion_to_matrix", "quaternion_to_rodrigues", "rodrigues_to_matrix",
         "rodrigues_to_quaternion",
     ),
-    "._solvers._schur._bundle": ("solve_schur",),
-    "._statistics._schur_precision": ("BundleCofactors", "schur_cofactors", "schur_precision"),
-    "._statistics._schur_datum": ("check_datum_schur",),
-    "._statistics._schur_reliability": ("schur_redundancy_numbers",),
     "._adjust._adjust": ("NotConvergedError", "adjust"),
     "._solvers._solution": ("Solution",),
     "._adjust._snooping": ("Rejection", "data_snooping", "remove_observation", "restart_from"),
@@ -94,3 +91,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._io._synthetic": ("SyntheticTruth", "write_synthetic_project"),
     "._adjust._variance_components": ("VarianceComponent", "estimate_variance_components"),
 })
+
+
+def __getattr__(name: str) -> object:
+    if name in advanced.__all__:
+        raise AttributeError(f"jaxba.{name} is internal: it is jaxba.advanced.{name}")
+    return _public(name)

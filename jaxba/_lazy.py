@@ -11,8 +11,8 @@ from collections.abc import Callable, Mapping
 def lazy_exports(
     package: str, exports: Mapping[str, tuple[str, ...]]
 ) -> tuple[Callable[[str], object], Callable[[], list[str]], list[str]]:
-    """`__getattr__`, `__dir__` and `__all__` for `package`, whose `exports` map a relative
-    module name (".\\_solve") to the public names it defines."""
+    """`__getattr__`, `__dir__` and `__all__` for `package`, whose `exports` map a module
+    name, relative to `package` (".\\_solve") or absolute, to the public names it defines."""
     if any(isinstance(names, str) for names in exports.values()):
         raise TypeError("lazy_exports: each module maps to a tuple of names, not a string")
     where = {name: module for module, names in exports.items() for name in names}

@@ -224,7 +224,7 @@ def test_residual_jacobian_matches_finite_differences():
     joint = np.concatenate([camera, point])
 
     def residual(x):
-        return jaxba.collinearity_residual(
+        return jaxba.advanced.collinearity_residual(
             "bal", x[6:9], x[:6], x[9:], jnp.asarray(observed), jnp.ones(2), NoRefraction(),
             pose="rodrigues")
 
@@ -241,7 +241,7 @@ def test_row_jacobians_of_the_rodrigues_pose_match_forward_mode():
     values = group.local_values(problem.initial)
 
     def row(v, i):
-        return jaxba.collinearity_residual(
+        return jaxba.advanced.collinearity_residual(
             "bal", v[:3], v[3:9], v[9:], group.measured[i], group.stddev[i], NoRefraction(),
             pose="rodrigues")
 

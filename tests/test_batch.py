@@ -22,7 +22,7 @@ MC_STD_RTOL = 0.45  # empirical σ from 40 replicates: ±11 % (1σ) sampling err
 
 
 def _flat_close(a, b, rtol):
-    a, b = jaxba.flatten(a), jaxba.flatten(b)
+    a, b = jaxba.advanced.flatten(a), jaxba.advanced.flatten(b)
     scale = np.maximum(np.abs(b), 1e-12)
     return float(np.max(np.abs(a - b) / scale)) <= rtol
 
@@ -71,7 +71,7 @@ def test_problems_freeing_different_iops_batch_like_single_solves(projects):
     free[0, p2] = False
     problems[1] = eqx.tree_at(lambda p: p.free.cameras["smac"], problems[1], jnp.asarray(free))
     batch = pad_problems(problems)
-    solutions = jaxba.solve_batch(batch.problem, batch.plan)
+    solutions = jaxba.advanced.solve_batch(batch.problem, batch.plan)
     for k, problem in enumerate(problems):
         single = jaxba.solve(problem)
         padded = jax.tree.map(lambda leaf: leaf[k], solutions.parameters)
@@ -87,8 +87,8 @@ def test_chunked_batch_equals_one_vmapped_batch(projects):
     one short): the solutions are those of one vmapped call."""
     _, _, built = projects
     batch = pad_problems([p.problem for p in built])
-    whole = jaxba.solve_batch(batch.problem, batch.plan)
-    chunked = jaxba.solve_batch(batch.problem, batch.plan, chunk_size=2)
+    whole = jaxba.advanced.solve_batch(batch.problem, batch.plan)
+    chunked = jaxba.advanced.solve_batch(batch.problem, batch.plan, chunk_size=2)
     assert bool(jnp.all(whole.converged)) and bool(jnp.all(chunked.converged))
     np.testing.assert_array_equal(np.asarray(chunked.steps), np.asarray(whole.steps))
     for k in range(len(built)):
@@ -152,12 +152,12 @@ def test_monte_carlo_and_bootstrap_against_formal(projects):
     _, _, built = projects
     problem = built[1].problem
     formal = jaxba.adjust(problem, check=False)
-    index = jaxba.free_indices(problem)
-    formal_std = jaxba.flatten(formal.precision.std)[index]
+    index = jaxba.advanced.free_indices(problem)
+    formal_std = jaxba.advanced.flatten(formal.precision.std)[index]
     for replicates in (monte_carlo(problem, 40, jax.random.key(0)),
                        bootstrap(problem, 40, jax.random.key(1))):
         assert bool(np.all(replicates.solutions.converged))
-        empirical = jaxba.flatten(replicates.std)[index]
+        empirical = jaxba.advanced.flatten(replicates.std)[index]
         ratio = empirical / formal_std
         # Monte Carlo noise has σ; σ̂0 of this sample is ≈ 1, so formal ≈ empirical.
         assert np.median(ratio) == pytest.approx(1.0, rel=0.15)

@@ -17,9 +17,9 @@ from jaxba import (
     PixelGrid,
     RadialSmac,
     SmacCamera,
-    collinearity_residual,
     opk_to_matrix,
 )
+from jaxba.advanced import collinearity_residual
 
 FORMULA_ATOL = 1e-15  # mm, for corrections that vanish (at the principal point)
 REFRACTION_RTOL = 1e-12  # the refraction coefficient against the hand computation

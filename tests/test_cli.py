@@ -10,6 +10,7 @@ import io
 import json
 import math
 import pathlib
+import re
 import shutil
 import subprocess
 import sys
@@ -183,6 +184,15 @@ def test_out_file_sections(run):
     text = (run["folder"] / "lab.out").read_text()
     for part in ("Camera C1", "Exterior orientation", "Object points", "a posteriori sigma0"):
         assert part in text
+    # The run's facts in the header: backend, datum, the χ² test, outliers, seconds per phase.
+    header = text.split("\n\n")[1]
+    for pattern in (r"solver backend +dense", r"datum +control: 3 control points",
+                    r"variance test +chi-square test passed", r"outliers +0 with \|w\| > 4\.28",
+                    r"timings +seconds: read [\d.]+, start-up [\d.]+, datum check"):
+        assert re.search(pattern, header), pattern
+    results = json.loads((run["folder"] / "results.json").read_text())
+    assert results["variance_test"]["passed"] is True
+    assert results["outliers"]["count"] == 0 and results["datum"]["kind"] == "control"
 
 
 def test_progress_and_summary(run):
@@ -195,6 +205,9 @@ def test_progress_and_summary(run):
     for name in OUTPUTS + PLOTS + (HTML,):
         assert any(line.strip().endswith(name) for line in lines)
     assert any(line.startswith("converged after") and "dense backend" in line for line in lines)
+    assert any(line.startswith("  chi-square test passed: ") for line in lines)
+    assert any(line.startswith("datum: control: 3 control points") for line in lines)
+    assert any(line.startswith("outliers: 0 with |w| > 4.28") for line in lines)
 
 
 def test_timings_on_the_console_and_in_results_json(run):

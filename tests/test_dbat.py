@@ -105,7 +105,7 @@ def _dbat_iop():
 
 @functools.partial(jax.jit, static_argnums=0)
 def _residual(model, iop, eop, point, measured, sigma, refraction):
-    return jaxba.collinearity_residual(model, iop, eop, point, measured, sigma, refraction)
+    return jaxba.advanced.collinearity_residual(model, iop, eop, point, measured, sigma, refraction)
 
 
 # --------------------------------------------------------------------------- importer

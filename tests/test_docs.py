@@ -157,9 +157,18 @@ def test_cli_page_names_every_subcommand_and_option():
 
 
 def test_api_page_names_every_public_name():
-    spans = " ".join(re.findall(r"`([^`\n]+)`", (DOCS / "api.md").read_text("utf-8")))
+    page = (DOCS / "api.md").read_text("utf-8")
+    top, advanced = page.split("\n## jaxba.advanced")
+    spans = " ".join(re.findall(r"`([^`\n]+)`", top))
     missing = [name for name in jaxba.__all__ if not _named(name, spans)]
+    advanced = " ".join(re.findall(r"`([^`\n]+)`", advanced))
+    missing += [f"jaxba.advanced.{name}" for name in jaxba.advanced.__all__
+                if not _named(name, advanced)]
     assert not missing, f"public names not on the API page: {missing}"
+    # The two namespaces do not overlap; an internal name at the top names its new place.
+    assert not set(jaxba.__all__) & set(jaxba.advanced.__all__)
+    with pytest.raises(AttributeError, match="jaxba.advanced.flatten"):
+        jaxba.flatten  # noqa: B018
 
 
 def test_project_files_page_names_every_setting_and_camera_parameter():

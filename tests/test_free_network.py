@@ -12,6 +12,7 @@ from jaxba._statistics._free_network import (
     inner_constraint_group,
     to_inner_datum,
 )
+from jaxba.advanced import flatten, unflatten
 
 GAUGE_RTOL = 1e-6  # gauge-invariant quantities agree across minimal datums
 
@@ -90,8 +91,8 @@ def test_datum_points_subset_and_seven_parameter_defect(tmp_path):
     assert result.converged
     group = next(g for g in project.problem.groups if isinstance(g, jaxba.InnerConstraints))
     assert group.stddev.shape == (7, 1)  # no distances: scale is part of the defect
-    positions = np.asarray(jaxba.unflatten(result.parameters,
-                                           np.arange(jaxba.flatten(result.parameters).size))
+    positions = np.asarray(unflatten(result.parameters,
+                                           np.arange(flatten(result.parameters).size))
                            .points)
     datum_rows = [project.point_ids.index(p) for p in ("1", "10", "40", "71")]
     others = np.setdiff1d(np.arange(len(project.point_ids)), datum_rows)
@@ -125,17 +126,19 @@ def test_schur_free_network_solves_to_the_inner_constraint_datum(free_block):
     project, dense = free_block
     schur = jaxba.adjust_project(project, solver="schur")
     assert schur.converged and schur.backend == "schur"
+    datum = f"free network: inner constraints (7 conditions) over {len(project.point_ids)} points"
+    assert f"datum          {datum}\n" in schur.summary()
     assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-9)
     assert schur.precision.redundancy == dense.precision.redundancy
     group = inner_constraint_group(project.problem)
     violation = np.asarray(group.residuals(schur.parameters, project.problem.refraction))[:, 0]
     # Bᵀ(x - x₀) sums terms of up to ~1e7 here: zero to rounding relative to their sizes.
-    terms = np.abs(np.asarray(group.directions)) @ np.abs(jaxba.flatten(schur.parameters))
+    terms = np.abs(np.asarray(group.directions)) @ np.abs(flatten(schur.parameters))
     assert np.all(np.abs(violation) < 1e-13 * terms)
-    std = np.asarray(jaxba.flatten(dense.precision.std))
+    std = np.asarray(flatten(dense.precision.std))
     free = std > 0
-    difference = np.abs(np.asarray(jaxba.flatten(schur.parameters))
-                        - np.asarray(jaxba.flatten(dense.parameters)))
+    difference = np.abs(np.asarray(flatten(schur.parameters))
+                        - np.asarray(flatten(dense.parameters)))
     assert np.max(difference[free] / std[free]) < 1e-3  # two solves, each converged
 
 
@@ -143,7 +146,7 @@ def test_to_inner_datum_undoes_a_similarity(free_block):
     project, dense = free_block
     moved = _similar(dense.parameters, [0.3, -0.2, 0.1, 2e-3, -1e-3, 3e-3, 1e-3])
     back = to_inner_datum(project.problem, moved)
-    np.testing.assert_allclose(jaxba.flatten(back), jaxba.flatten(dense.parameters),
+    np.testing.assert_allclose(flatten(back), flatten(dense.parameters),
                                rtol=0, atol=1e-9)
 
 
@@ -155,7 +158,7 @@ def test_s_transformed_covariance_equals_the_bordered_inverse(free_block):
     problem, params = project.problem, dense.parameters
     transformed = free_network_precision(problem, params)
     bordered = jaxba.precision(problem, params)
-    np.testing.assert_allclose(jaxba.flatten(transformed.std), jaxba.flatten(bordered.std),
+    np.testing.assert_allclose(flatten(transformed.std), flatten(bordered.std),
                                rtol=1e-9, atol=0)
     np.testing.assert_allclose(transformed.schur.points, _point_blocks(bordered, params),
                                rtol=0, atol=1e-9 * np.abs(transformed.schur.points).max())
@@ -169,6 +172,6 @@ def test_s_transformed_covariance_equals_the_bordered_inverse(free_block):
 
 
 def _point_blocks(precision, params):
-    positions = np.asarray(jaxba.unflatten(params, np.arange(jaxba.flatten(params).size))
+    positions = np.asarray(unflatten(params, np.arange(flatten(params).size))
                            .points)
     return np.stack([precision.covariance_of(row) for row in positions])

@@ -51,8 +51,8 @@ def _imports(module: str, path: pathlib.Path) -> set[str]:
 def _layer(module: str) -> tuple[str, int]:
     """(folder, rank) of a module: its folder under jaxba, or the base helpers (rank 0)."""
     parts = module.split(".")
-    if len(parts) == 1 or parts[1] in {"__main__"}:
-        return "jaxba", 7  # the public face re-exports everything
+    if len(parts) == 1 or parts[1] in {"__main__", "advanced"}:
+        return "jaxba", 7  # the public face (and jaxba.advanced) re-exports everything
     top = parts[1]
     if top in BASE:
         return top, 0

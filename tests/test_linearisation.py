@@ -65,7 +65,7 @@ def test_normal_equations_match_a_dense_jacobian(problem):
     scale = np.where(np.abs(np.asarray(flat[index])) > 1, 1e-4, 1e-3)
     perturbation = np.random.default_rng(0).normal(size=index.size) * scale
     params = unravel(flat.at[index].add(perturbation))
-    plan = jaxba.linearisation_plan(problem)
+    plan = jaxba.advanced.linearisation_plan(problem)
     normal, gradient = jax.jit(normal_equations)(problem, params, plan)
     dense_normal, dense_gradient = _dense_normal_equations(problem, params)
     # Each entry in units of its columns' norms |J_i| |J_j| (and |J_i| |ẽ| for Jᵀẽ): a

@@ -10,6 +10,7 @@ import pytest
 import jaxba
 from jaxba._problem._bundle import free_indices
 from jaxba._statistics._covariance import Precision
+from jaxba.advanced import flatten, unflatten
 
 matplotlib = pytest.importorskip("matplotlib")
 matplotlib.use("Agg")
@@ -32,7 +33,7 @@ def _fake_result(project, *, seed: int = 0) -> jaxba.Adjustment:
     r = tuple(np.where(m, 0.5, np.nan) for m in masks)
     n, u = problem.n_observations(), problem.n_unknowns()
     factor = rng.normal(0.0, 1e-4, (u, u + 5))
-    std = jaxba.unflatten(problem.free, np.zeros(jaxba.flatten(problem.free).size))
+    std = unflatten(problem.free, np.zeros(flatten(problem.free).size))
     return jaxba.Adjustment(
         problem=problem, parameters=problem.initial,
         precision=Precision(1.0, n - u, n, u, free_indices(problem), factor @ factor.T, std),

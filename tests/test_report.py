@@ -10,10 +10,12 @@ import dataclasses
 import json
 import math
 import pathlib
+import re
 import shutil
 
 import numpy as np
 import pytest
+import scipy.stats
 
 import jaxba
 from jaxba._problem._bundle import free_indices
@@ -26,6 +28,8 @@ from jaxba._report import (
     results_dict,
     results_json,
     sigma_text,
+    summary_lines,
+    warning_lines,
     write_reports,
 )
 from jaxba._statistics._covariance import Precision
@@ -402,7 +406,7 @@ def test_statistics_in_json(lab, tmp_path):
     # The removed point: its residual at the solution (observed - computed, σ = 1), no r,
     # w as rejected (with the sign of v), an outlier.
     entry = image[removed]
-    unit = np.asarray(jaxba.collinearity_residual(
+    unit = np.asarray(jaxba.advanced.collinearity_residual(
         "smac", result.parameters.cameras["smac"][0],
         result.parameters.images[int(group.image[5])],
         result.parameters.points[int(group.point[5])], group.measured[5], np.ones(2),
@@ -473,3 +477,76 @@ def test_pixel_camera_model_reports(tmp_path):
     assert {len(row) for row in rows} == {11}
     out = out_text(project, result)
     assert "pixel units" in out and "mm based" not in out and "rms_vx_mm" not in out
+
+
+def test_datum_backend_variance_test_and_outliers_in_out_json_and_console(lab):
+    """NAME.out, results.json and the console name the datum, the backend, the χ² test of the
+    variance factor (here failed: σ̂0² = 1.5 at σ0 = 1) and the outliers (one |w| above the
+    critical value, one rejection)."""
+    project, result = lab
+    result = _with_statistics(project, result)
+    precision = dataclasses.replace(result.precision, sigma0_squared=1.5)
+    result = dataclasses.replace(result, precision=precision, backend="schur")
+    r = precision.redundancy
+    low, high = scipy.stats.chi2.ppf([0.025, 0.975], r)
+    assert not low <= 1.5 * r <= high
+    points = project.spec.points.values()
+    n_fixed = sum(s == 0 for p in points for s in p.sigma)
+    n_weighted = sum(s is not None and s > 0 for p in points for s in p.sigma)
+    n_control = sum(any(s is not None for s in p.sigma) for p in points)
+    datum = (f"control: {n_control} control points ({n_fixed} fixed, {n_weighted} weighted"
+             f" coordinates), {len(project.spec.distances)} distances")
+    group = result.problem.groups[0]
+    flagged = (f"image {project.image_ids[int(group.image[0])]}"
+               f" point {project.point_ids[int(group.point[0])]} y")
+    test = f"chi-square test FAILED: r sigma0^2/prior^2 = {1.5 * r:.1f} in [{low:.1f}, {high:.1f}]"
+    outliers = (f"1 with |w| > {CRITICAL:.2f} (alpha 0.001 per test): image_points:C1 {flagged}"
+                " |w| 4.50; 1 removed by data snooping")
+    header = out_text(project, result).split("\n\n")[1]
+    for key, value in (("variance test", test), ("datum", datum), ("solver backend", "schur"),
+                       ("outliers", outliers), ("timings", "not timed")):
+        assert re.search(rf"^  {key} +{re.escape(value)}", header, re.M), key
+    data = results_dict(project, result)
+    assert data["solver"] == "schur"
+    assert data["datum"] == {"kind": "control", "description": datum}
+    variance = data["variance_test"]
+    assert variance["passed"] is False and variance["redundancy"] == r
+    assert variance["statistic"] == pytest.approx(1.5 * r, rel=1e-12)
+    assert [variance["low"], variance["high"]] == pytest.approx([low, high], rel=1e-12)
+    assert variance["sigma0_high"] == pytest.approx(math.sqrt(high / r), rel=1e-12)
+    assert data["outliers"] == {
+        "critical_value": CRITICAL, "alpha": 0.001, "count": 1, "removed": 1,
+        "worst": [{"group": "image_points:C1", "observation": flagged, "abs_w": 4.5}],
+    }
+    lines = summary_lines(project, result)
+    assert f"  {test}" in [line[:len(test) + 2] for line in lines]
+    assert f"datum: {datum}" in lines and f"outliers: {outliers}" in lines
+    warning = next(line for line in warning_lines(project, result) if "chi-square" in line)
+    assert f"{math.sqrt(low / r):.4g} to {math.sqrt(high / r):.4g} expected" in warning
+
+
+def test_res_of_a_pixel_project_is_in_pixels():
+    """A pixel project with a mm camera model (DBAT's camcal): NAME.res in pixels as the image
+    points were given, x y the file's values, v turned into (col, row) pixels."""
+    project = jaxba.build_project(jaxba.read_project(CONFIGS / "dbat_camcal.toml"))
+    assert project.spec.image_units == "pixel"
+    result = _fake_result(project)
+    text = res_text(project, result)
+    assert "x y vx vy in pixels (col, row: row down)" in text
+    assert "vx_px" not in text and " mm" not in text
+    rows = _data_lines(text)
+    table = project.spec.image_points
+    given = {(i, p): xy for i, p, xy in zip(table.image, table.point, table.xy)}
+    group = result.problem.groups[0]
+    pixel = np.asarray(project.pixel_grids["C1"].pixel_size)
+    v = {(project.image_ids[i], project.point_ids[p]): result.residuals[0][k] for k, (i, p) in
+         enumerate(zip(np.asarray(group.image).tolist(), np.asarray(group.point).tolist()))}
+    assert len(rows) == len(given) == len(v)
+    printed = np.array([[float(x) for x in row[2:6]] for row in rows])
+    keys = [(row[0], row[1]) for row in rows]
+    np.testing.assert_allclose(printed[:, :2], [given[key] for key in keys], rtol=0, atol=5e-5)
+    expected = np.array([v[key] / pixel * [1.0, -1.0] for key in keys])
+    np.testing.assert_allclose(printed[:, 2:], expected, rtol=0, atol=5e-5)
+    rms = next(line for line in text.splitlines() if line.startswith("# RMS all")).split()
+    assert float(rms[rms.index("vy") + 1]) == pytest.approx(
+        math.sqrt(np.mean(expected[:, 1] ** 2)), abs=5e-4)

@@ -5,6 +5,7 @@ GNSS/INS, distances, a planted blunder)."""
 
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ import pytest
 import jaxba
 from jaxba._solvers._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
 from jaxba._statistics._covariance import SchurCovariance
+from jaxba.advanced import flatten
 
 SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ apart
 PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ
@@ -67,9 +69,9 @@ def test_parameters_sigma0_and_sigmas_agree(both):
     assert isinstance(schur.precision.schur, SchurCovariance)
     assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-8)
     assert schur.precision.redundancy == dense.precision.redundancy
-    std = jaxba.flatten(dense.precision.std)
-    np.testing.assert_allclose(jaxba.flatten(schur.precision.std), std, rtol=SIGMA_RTOL)
-    difference = np.abs(jaxba.flatten(schur.parameters) - jaxba.flatten(dense.parameters))
+    std = flatten(dense.precision.std)
+    np.testing.assert_allclose(flatten(schur.precision.std), std, rtol=SIGMA_RTOL)
+    difference = np.abs(flatten(schur.parameters) - flatten(dense.parameters))
     free = std > 0
     assert np.all(difference[free] <= PARAMETER_SIGMAS * std[free])
     assert np.all(difference[~free] == 0)
@@ -124,12 +126,42 @@ def test_reliability_variance_components_and_snooping_agree(both):
         assert other.redundancy == pytest.approx(component.redundancy, rel=1e-6), name
 
 
+def test_results_by_id_agree(both):
+    """The result by ID is NumPy on both backends and gives the same σ, point covariances,
+    statuses and observation table (data-snooping rejections included)."""
+    project, dense, schur = both
+    for result in (dense, schur):
+        assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(
+            (result.parameters, result.precision.std)))
+    for cid in project.camera_rows:
+        for name, estimate in dense.cameras[cid].items():
+            other = schur.cameras[cid][name]
+            assert other.status == estimate.status, (cid, name)
+            if estimate.sigma is not None:
+                assert other.sigma == pytest.approx(estimate.sigma, rel=SIGMA_RTOL), (cid, name)
+    statuses = {e.status for iid in project.image_ids for e in schur.images[iid].values()}
+    assert statuses == {"weighted"}  # GNSS/INS on every EOP
+    for pid in project.point_ids:
+        np.testing.assert_allclose(schur.points[pid].covariance, dense.points[pid].covariance,
+                                   rtol=SIGMA_RTOL, atol=1e-18, err_msg=pid)
+        assert schur.points[pid].kind == dense.points[pid].kind
+    table_d, table_s = (dense.observations, schur.observations)
+    rejected = {(r.group, r.row) for r in dense.rejections}
+    removed = table_s["removed"]
+    assert removed.sum() == len(rejected) >= 1
+    np.testing.assert_array_equal(removed, table_d["removed"])
+    np.testing.assert_allclose(table_s["wx"], table_d["wx"], rtol=0, atol=SIGMA_RTOL)
+    np.testing.assert_allclose(table_s["ry"], table_d["ry"], rtol=0, atol=REDUNDANCY_ATOL)
+    text = schur.summary()
+    assert "schur backend" in text and f"{len(rejected)} removed by data snooping" in text
+
+
 def test_redundancy_numbers_come_with_the_covariance(both):
     """The Schur adjustment's covariance holds its redundancy numbers (one program for both),
     the same as `schur_redundancy_numbers` computed apart at the solution."""
     _, _, schur = both
     cached_r, cached_e = schur.precision.schur.redundancy
-    r, e = jaxba.schur_redundancy_numbers(schur.problem, schur.parameters)
+    r, e = jaxba.advanced.schur_redundancy_numbers(schur.problem, schur.parameters)
     np.testing.assert_allclose(cached_r, r, rtol=0, atol=1e-12)
     np.testing.assert_allclose(cached_e, e, rtol=0, atol=1e-12)
 

@@ -138,15 +138,15 @@ def test_precision_matches_an_independent_scipy_adjustment(block, scipy_solution
 def test_covariance_matches_finite_difference_jacobian_and_numpy_inverse(block):
     _, project, result = block
     problem = result.problem
-    index = jaxba.free_indices(problem)
-    base = jaxba.flatten(result.parameters)
+    index = jaxba.advanced.free_indices(problem)
+    base = jaxba.advanced.flatten(result.parameters)
     rows = np.concatenate([np.ravel(np.asarray(g.mask())) for g in problem.groups])
     residuals = jax.jit(lambda values: problem.residuals(values))  # one compile, 700 calls
 
     def residual(x_free):
         flat = base.copy()
         flat[index] = x_free
-        values = jaxba.unflatten(result.parameters, flat)
+        values = jaxba.advanced.unflatten(result.parameters, flat)
         return np.concatenate([np.ravel(np.asarray(r)) for r in residuals(values)])[rows]
 
     x = base[index]
@@ -180,7 +180,7 @@ def test_propagation_of_a_distance(block):
     # Closed form: σ_d² = uᵀ (C_aa + C_bb - C_ab - C_ba) u with u the unit direction.
     u = (points[a] - points[b]) / np.linalg.norm(points[a] - points[b])
     full = jaxba.full_covariance(result)
-    positions = np.asarray(jaxba.unflatten(result.parameters,
+    positions = np.asarray(jaxba.advanced.unflatten(result.parameters,
                                            np.arange(full.shape[0])).points)
     pa, pb = positions[a], positions[b]
     block_ab = (full[np.ix_(pa, pa)] + full[np.ix_(pb, pb)]
@@ -282,7 +282,7 @@ def test_monte_carlo_precision_and_variance_factor(tmp_path):
     base = project.problem
     group = base.groups[0]
     sigma = np.asarray(group.stddev)
-    plan = jaxba.linearisation_plan(base)
+    plan = jaxba.advanced.linearisation_plan(base)
     noise = np.random.default_rng(2024).normal(size=(REPLICATES, *sigma.shape)) * sigma
 
     def solve_one(measured):

@@ -292,7 +292,7 @@ def test_printed_skew_and_k2_lie_in_the_flat_floor_of_the_optimum(zhang):
     project, result, values, _ = zhang
     model, row = project.camera_rows["C1"]
     held = [NAMES.index("skew"), NAMES.index("k2")]
-    start = result.parameters.cameras[model].at[row, jnp.asarray(held)].set(
+    start = jnp.asarray(result.parameters.cameras[model]).at[row, jnp.asarray(held)].set(
         jnp.asarray([float(PUBLISHED["skew"]), float(PUBLISHED["k2"])]))
     free = np.array(project.problem.free.cameras[model])
     free[row, held] = False

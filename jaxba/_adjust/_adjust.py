@@ -16,6 +16,7 @@ from .._statistics._backends import backend_for
 from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
 from .._statistics._covariance import Precision, precision_from_covariance
 from .._statistics._datum import nonfinite_start_error
+from .._statistics._ids import ids_from_labels
 from .._timing import Timings
 
 
@@ -66,7 +67,9 @@ def adjust(
     (`jaxba._statistics._backends`).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
-    `labels`, one per scalar unknown in `flatten` order; `check=False` skips it, e.g. when
+    `labels`, one per scalar unknown in `flatten` order as `parameter_labels` writes them;
+    the result's `cameras`, `images`, `points` are keyed by their IDs, by row numbers
+    without labels; `ValueError` for labels of another form); `check=False` skips it, e.g. when
     re-adjusting a checked bundle with new weights). `on_iteration` is called for
     every accepted iterate. With `throw=True` a non-converged solve raises
     `NotConvergedError`; otherwise `converged` and `message` say what happened. Where the
@@ -80,6 +83,7 @@ def adjust(
     `timings` (a new `Timings` when None), which the result holds.
     """
     require_float64("jaxba.adjust")
+    ids = ids_from_labels(problem.initial, labels) if labels is not None else None
     timings = Timings() if timings is None else timings
     backend = backend_for(problem, solver)
     if check:
@@ -132,4 +136,6 @@ def adjust(
         steps=int(steps),
         backend=backend.name,
         timings=timings,
+        sigma0_prior=float(sigma0),
+        ids=ids,
     )

@@ -395,6 +395,7 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
         converged=converged,
         message="converged" if converged else str(optx.RESULTS[solution.result]),
         steps=int(solution.steps),
+        sigma0_prior=float(sigma0),
     )
     if alpha is None:
         return result

@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._problem._bundle import BundleProblem
-from .._problem._observations import ImagePoints
 from .._statistics._adjustment import Adjustment
 from .._statistics._reliability import Reliability, reliability
 from ._adjust import adjust
@@ -26,10 +25,11 @@ class Rejection:
 def remove_observation(problem: BundleProblem, group_index: int, row: int, coordinate: int):
     """The problem with one observation switched off (σ = inf).
 
-    An image point is removed whole (x and y): a wrong measurement is wrong in both.
+    An image point is removed whole (x and y; the group's `removed_whole`): a wrong
+    measurement is wrong in both.
     """
     group = problem.groups[group_index]
-    columns = slice(None) if isinstance(group, ImagePoints) else coordinate
+    columns = slice(None) if group.removed_whole else coordinate
     stddev = group.stddev.at[row, columns].set(jnp.inf)
     groups = list(problem.groups)
     groups[group_index] = eqx.tree_at(lambda g: g.stddev, group, stddev)

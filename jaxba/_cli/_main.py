@@ -290,7 +290,7 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
 
     for line in _report.summary_lines(project, result):
         _say(line)
-    _say(_report.timing_line(timings))
+    _say(timings.text())
     _say("wrote")
     for path in written:
         _say(f"  {path}")

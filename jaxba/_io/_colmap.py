@@ -19,12 +19,13 @@ Conventions, and how they map onto jaxba's (docs/conventions.md):
   projection only through the principal point (u = fx x'' + cx), so the conversion is one
   shift of every pixel coordinate, image points *and* principal point:
   u_jaxba = u_colmap - 0.5, cx_jaxba = cx_colmap - 0.5 (and v, cy alike); export adds 0.5.
-- **Cameras.** SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV (with
-  k4 = k5 = k6 = 0) become "opencv" cameras; OPENCV_FISHEYE becomes "fisheye". The distortion
-  formulas are OpenCV's in both programs. A single COLMAP focal length f becomes fx = fy = f;
-  jaxba has no tied parameters, so adjusting such a camera with fx and fy free estimates an
-  aspect ratio that COLMAP's model does not have. By default the focal length(s) and the
-  distortion are free and the principal point fixed, as in COLMAP's bundle adjuster
+- **Cameras.** SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL and OPENCV become "opencv"
+  cameras, FULL_OPENCV an "opencv_full" one, OPENCV_FISHEYE a "fisheye" one; the terms the
+  COLMAP model lacks are fixed at 0 (skew; k3, p1, p2 as the model says; s1..s4). The
+  distortion formulas are OpenCV's in both programs. A single COLMAP focal length f becomes
+  fx = fy = f; jaxba has no tied parameters, so adjusting such a camera with fx and fy free
+  estimates an aspect ratio that COLMAP's model does not have. By default the focal length(s)
+  and the distortion are free and the principal point fixed, as in COLMAP's bundle adjuster
   (refine_focal_length, refine_extra_params, not refine_principal_point).
 - **Points.** points3D become free tie points. COLMAP has no control: the datum of the
   imported project is the minimal constraint `datum="first_images"` (first image's six EOPs
@@ -43,6 +44,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from .._models._cameras._names import CAMERA_PARAMETER_NAMES
+
 PIXEL_ORIGIN_SHIFT = -0.5  # COLMAP pixel (corner origin) -> jaxba/OpenCV pixel (centre origin)
 # The COLMAP camera frame (x right, y down, z forward) in the photogrammetric one: M = F R.
 _CV_TO_PHOTOGRAMMETRIC = np.diag([1.0, -1.0, -1.0])
@@ -56,15 +59,14 @@ COLMAP_CAMERA_MODELS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = 
     "RADIAL": ("opencv", ("f", "cx", "cy", "k1", "k2"), ("f", "k1", "k2")),
     "OPENCV": ("opencv", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
                ("fx", "fy", "k1", "k2", "p1", "p2")),
-    "FULL_OPENCV": ("opencv", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4",
-                               "k5", "k6"), ("fx", "fy", "k1", "k2", "p1", "p2", "k3")),
+    "FULL_OPENCV": ("opencv_full", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4",
+                                    "k5", "k6"),
+                    ("fx", "fy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
     "OPENCV_FISHEYE": ("fisheye", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
                        ("fx", "fy", "k1", "k2", "k3", "k4")),
 }
-_JAXBA_PARAMETERS = {
-    "opencv": ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"),
-    "fisheye": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
-}
+_JAXBA_PARAMETERS = {model: CAMERA_PARAMETER_NAMES[model]
+                     for model in ("opencv", "opencv_full", "fisheye")}
 _PIXEL_PARAMETERS = ("cx", "cy")  # shifted with the pixel origin
 
 
@@ -321,9 +323,6 @@ def camera_to_jaxba(camera: ColmapCamera) -> tuple[str, dict[str, float], tuple[
     """(jaxba model, parameter values in jaxba's pixel convention, default free list)."""
     model, names, free = COLMAP_CAMERA_MODELS[camera.model]
     colmap = dict(zip(names, camera.params))
-    if camera.model == "FULL_OPENCV" and any(colmap[k] != 0 for k in ("k4", "k5", "k6")):
-        raise ValueError(f"camera {camera.id}: FULL_OPENCV with k4, k5 or k6 != 0 (the "
-                         "rational model) has no jaxba equivalent")
     values = {name: 0.0 for name in _JAXBA_PARAMETERS[model]}
     for name, value in colmap.items():
         if name == "f":
@@ -405,7 +404,6 @@ def write_colmap_project(
         lines += [
             f"[{camera.id}]",
             f'model = "{jaxba_model}"  # COLMAP {camera.model}',
-            "pixel_size = [1.0, 1.0]  # unused by pixel models",
             f"sensor = [{camera.width}, {camera.height}]",
             *(f"{p} = {float(v)!r}" for p, v in values.items()),
             f"free = {json.dumps(list(camera_free))}",
@@ -467,21 +465,25 @@ def write_colmap_project(
 def camera_to_colmap(model: str, values: Mapping[str, float]) -> tuple[str, tuple[float, ...]]:
     """The smallest COLMAP model (and its parameters, COLMAP pixels) that holds a camera.
 
-    `model` is "opencv" or "fisheye", `values` its parameters in jaxba's pixel convention.
-    Raises `ValueError` for other models and for an "opencv" camera with skew (COLMAP has none).
+    `model` is "opencv", "opencv_full" or "fisheye", `values` its parameters in jaxba's pixel
+    convention. Raises `ValueError` for other models, for a skewed camera and for thin-prism
+    terms (COLMAP's pinhole models have neither).
     """
     if model not in _JAXBA_PARAMETERS:
-        raise ValueError(f"camera model {model!r} has no COLMAP equivalent (opencv, fisheye)")
+        raise ValueError(f"camera model {model!r} has no COLMAP equivalent "
+                         f"({', '.join(_JAXBA_PARAMETERS)})")
     v = {name: float(values.get(name, 0.0)) for name in _JAXBA_PARAMETERS[model]}
     for name in _PIXEL_PARAMETERS:
         v[name] -= PIXEL_ORIGIN_SHIFT
     if model == "fisheye":
         colmap = "OPENCV_FISHEYE"
     else:
-        if v["skew"] != 0:
-            raise ValueError(f"an opencv camera with skew {v['skew']} has no COLMAP equivalent")
+        for name in ("skew", "s1", "s2", "s3", "s4"):
+            if v.get(name, 0.0) != 0:
+                raise ValueError(f"an {model} camera with {name} = {v[name]} has no COLMAP "
+                                 "equivalent")
         square = v["fx"] == v["fy"]
-        if v["k3"] != 0:
+        if any(v.get(name, 0.0) != 0 for name in ("k3", "k4", "k5", "k6")):
             colmap = "FULL_OPENCV"
         elif v["p1"] != 0 or v["p2"] != 0 or not square and (v["k1"] != 0 or v["k2"] != 0):
             colmap = "OPENCV"
@@ -516,10 +518,10 @@ def _numeric_ids(ids: Sequence[str]) -> dict[str, int]:
 def project_to_colmap(project, parameters=None) -> ColmapModel:
     """A jaxba `Project` with `parameters` (default: its starting values) as a COLMAP model.
 
-    Cameras must be "opencv" (without skew) or "fisheye" and the project's image_units
-    "pixel". Image ids become COLMAP NAMEs (IMAGE_IDs 1, 2, ... in project order); numeric
-    camera and point ids are kept. Pixel coordinates are shifted by +0.5 (module docstring).
-    RGB is written as 0 0 0 and ERROR as -1 (jaxba keeps neither).
+    Cameras must be "opencv" or "opencv_full" (without skew or thin prism) or "fisheye" and
+    the project's image_units "pixel". Image ids become COLMAP NAMEs (IMAGE_IDs 1, 2, ... in
+    project order); numeric camera and point ids are kept. Pixel coordinates are shifted by
+    +0.5 (module docstring). RGB is written as 0 0 0 and ERROR as -1 (jaxba keeps neither).
     """
     if project.spec.image_units != "pixel":
         raise ValueError(f"{project.spec.name}: only image_units = \"pixel\" projects export "

@@ -15,6 +15,7 @@ cv2.FILE_STORAGE_READ)` reads back:
        data: [ ... ]
     distortion_coefficients: !!opencv-matrix
        rows: 1                              # "opencv": 1 x 5, (k1, k2, p1, p2, k3)
+                                            # "opencv_full": 1 x 12, (..., k4, k5, k6, s1..s4)
        cols: 5                              # "fisheye": 4 x 1, (k1, k2, k3, k4), cv2.fisheye's D
        dt: d
        data: [ ... ]
@@ -33,6 +34,8 @@ from collections.abc import Mapping
 import numpy as np
 
 _DISTORTION = {"opencv": (("k1", "k2", "p1", "p2", "k3"), (1, 5)),
+               "opencv_full": (("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2",
+                                "s3", "s4"), (1, 12)),
                "fisheye": (("k1", "k2", "k3", "k4"), (4, 1))}
 
 
@@ -43,9 +46,11 @@ def _matrix(name: str, values, shape: tuple[int, int]) -> list[str]:
 
 
 def opencv_camera_matrix(model: str, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(K 3x3, distortion coefficients) of an "opencv" or "fisheye" camera, OpenCV's order."""
+    """(K 3x3, distortion coefficients) of an "opencv", "opencv_full" or "fisheye" camera,
+    OpenCV's order."""
     if model not in _DISTORTION:
-        raise ValueError(f"camera model {model!r}: only 'opencv' and 'fisheye' write OpenCV YAML")
+        raise ValueError(f"camera model {model!r}: only {', '.join(map(repr, _DISTORTION))} "
+                         "write OpenCV YAML")
     value = lambda name: float(values.get(name, 0.0))  # noqa: E731
     k = np.array([[value("fx"), value("skew"), value("cx")], [0.0, value("fy"), value("cy")],
                   [0.0, 0.0, 1.0]])
@@ -64,7 +69,7 @@ def write_opencv_yaml(
     **Arguments:**
 
     - `path`: the file to write (`.yml` / `.yaml`).
-    - `model`: "opencv" or "fisheye".
+    - `model`: "opencv", "opencv_full" or "fisheye".
     - `values`: the model's parameters by name (pixels; missing ones 0).
     - `image_size`: (width, height) in pixels.
     """

@@ -184,9 +184,6 @@ def write_zhang_project(
     lines = [
         "[C1]",
         'model = "opencv"  # pixels, distortion applied forward (computer-vision convention)',
-        "# pixel_size is required for pixel projects but unused by the opencv model;",
-        "# 1 keeps the reports' pixel columns equal to the residuals.",
-        "pixel_size = [1.0, 1.0]",
         f"sensor = [{SENSOR[0]}, {SENSOR[1]}]",
         *(f"{p} = {float(initial.get(p, 0.0))!r}" for p in PARAMETER_NAMES),
         f"free = {json.dumps(list(FREE))}",

@@ -10,6 +10,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._custom_types import Vector2, Vector3
@@ -38,6 +39,15 @@ class AbstractObservationGroup(eqx.Module):
     # True for rows that fix a datum (inner constraints): counted as constraints, not
     # as observations, by the covariance.
     constraint: ClassVar[bool] = False
+    # True where a blunder in one entry of a row removes the whole row (data snooping):
+    # an image point's x and y are one measurement.
+    removed_whole: ClassVar[bool] = False
+
+    def prior_positions(self, positions: Parameters) -> np.ndarray:
+        """The `flatten` positions of the unknowns this group observes directly (priors:
+        control, GNSS/INS, IOP priors), given a Parameters of positions; none here."""
+        del positions
+        return np.zeros(0, dtype=int)
 
     def local_values(self, params: Parameters) -> Array | None:
         """(n, width): the values of the unknowns row i depends on, taken from `params`
@@ -144,6 +154,7 @@ class ImagePoints(AbstractObservationGroup):
     stddev: Float[Array, "n 2"]
     pose: str = eqx.field(static=True, default="opk")
     constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
+    removed_whole: ClassVar[bool] = True
 
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
         """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
@@ -209,6 +220,11 @@ class ParameterObservations(AbstractObservationGroup):
     def row_residual(self, values, row, refraction) -> Float[Array, " k"]:
         del refraction
         return (self.observed[row] - values) / self.stddev[row]
+
+    def prior_positions(self, positions: Parameters) -> np.ndarray:
+        """The positions of the observed entries (finite σ)."""
+        observed = np.isfinite(np.asarray(self.stddev))
+        return np.asarray(positions.block(self.block))[np.asarray(self.rows)][observed]
 
 
 class Distances(AbstractObservationGroup):

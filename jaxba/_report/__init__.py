@@ -10,8 +10,7 @@ from .._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._atomic": ("replace_files",),
-    "._console": ("iteration_line", "start_line", "summary_lines", "timing_line",
-                  "warning_lines"),
+    "._console": ("iteration_line", "start_line", "summary_lines", "warning_lines"),
     "._csv": ("observations_csv", "read_observations"),
     "._html": ("html_report", "png_bytes"),
     "._json": ("results_dict", "results_json"),

@@ -5,8 +5,8 @@ pixels for pixel-unit models such as "opencv"), EOP positions and object points 
 units, angles in decimal degrees, image residuals v = observed - computed in the camera model's
 image units (mm, or pixels) and, where the camera has a pixel size, in pixels; redundancy
 numbers r, normalised residuals w and outlier flags of every observation; IOP correlations and
-point error ellipsoids. Jax is called only to evaluate the residual of an observation removed
-by data snooping (its v at the final solution) and for the covariance helpers of `_precision`.
+point error ellipsoids. The per-observation statistics come by row numbers from
+`jaxba._statistics._observation_statistics`; this module names the rows by ID.
 """
 
 import contextlib
@@ -14,21 +14,25 @@ import dataclasses
 import functools
 import math
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 
 from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
-from .._problem._observations import (
-    AbstractObservationGroup,
-    Distances,
-    ImagePoints,
-    ParameterObservations,
-)
+from .._problem._observations import ImagePoints
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
+from .._statistics._ids import Ids
+from .._statistics._observation_statistics import (
+    GroupStatistics,
+    describe,
+    group_statistics as statistics_of_groups,
+    image_point_rows,
+    is_measurement,
+    name_rows,
+    observation_ids as ids_of_observation,
+    with_coordinate,
+)
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 CONSTANT = "constant"  # a constant of the camera model (e.g. the metrology model's r0), σ 0
@@ -79,27 +83,6 @@ class ImageResiduals:
     redundancy: np.ndarray
     w: np.ndarray
     removed: np.ndarray
-    outlier: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class GroupStatistics:
-    """Per-entry statistics of one observation group, arrays shaped like its residuals (n, k).
-
-    `observed`: a real observation before data snooping; `removed`: switched off by data
-    snooping; `v`: observed - computed in the observation's units (NaN where not observed;
-    removed entries: the residual at the final solution); `r`, `w`: redundancy numbers and
-    normalised residuals (NaN where unknown; a removed entry keeps the w it was rejected with);
-    `outlier`: removed, or |w| above the critical value.
-    """
-
-    group: AbstractObservationGroup
-    kind: str
-    observed: np.ndarray
-    removed: np.ndarray
-    v: np.ndarray
-    r: np.ndarray
-    w: np.ndarray
     outlier: np.ndarray
 
 
@@ -236,153 +219,69 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
     )
 
 
-def is_measurement(group: AbstractObservationGroup) -> bool:
-    """A group of real measurements (not constraints, such as a free network's inner
-    constraints: the group says which it is)."""
-    return not group.constraint
-
-
-def group_kind(group: AbstractObservationGroup) -> str:
-    """"image_points", "control", "gnss_ins", "camera_priors" or "distances"."""
-    if isinstance(group, ImagePoints):
-        return "image_points"
-    if isinstance(group, Distances):
-        return "distances"
-    if isinstance(group, ParameterObservations):
-        return {"points": "control", "images": "gnss_ins"}.get(group.block, "camera_priors")
-    return group.name.split(":")[0]
-
-
-def _coordinate_names(project: Project, group: AbstractObservationGroup) -> tuple[str, ...]:
-    if isinstance(group, ImagePoints):
-        return ("x", "y")
-    if isinstance(group, ParameterObservations):
-        if group.block == "points":
-            return POINT_PARAMETER_NAMES
-        if group.block == "images":
-            return IMAGE_PARAMETER_NAMES
-        return CAMERA_MODELS[group.block.removeprefix("cameras/")].parameter_names
-    return ("distance",)
-
-
-def _row_ids(project: Project, group, rows) -> list[dict[str, str]]:
-    """The IDs naming rows `rows` (k,) of `group`: image and point, the two points of a
-    distance, the point, image or camera of a parameter observation, else the row number."""
-    rows = np.asarray(rows, dtype=int)
-    images = np.asarray(project.image_ids, dtype=object)
-    points = np.asarray(project.point_ids, dtype=object)
-    if isinstance(group, ImagePoints):
-        pairs = zip(images[np.asarray(group.image)[rows]], points[np.asarray(group.point)[rows]])
-        return [{"image": image, "point": point} for image, point in pairs]
-    if isinstance(group, Distances):
-        pairs = zip(points[np.asarray(group.a)[rows]], points[np.asarray(group.b)[rows]])
-        return [{"point_a": a, "point_b": b} for a, b in pairs]
-    if not isinstance(group, ParameterObservations):
-        return [{"row": str(row)} for row in rows.tolist()]
-    block_rows = np.asarray(group.rows)[rows]
-    if group.block == "points":
-        key, names = "point", points[block_rows]
-    elif group.block == "images":
-        key, names = "image", images[block_rows]
-    else:
-        model = group.block.removeprefix("cameras/")
-        owners = {model_row: cid for cid, model_row in project.camera_rows.items()}
-        key, names = "camera", [owners[(model, row)] for row in block_rows.tolist()]
-    return [{key: name} for name in names]
-
-
-def _with_coordinate(project: Project, group, ids: dict[str, str], coordinate: int) -> dict:
-    """`ids` of a row and the name of its observed coordinate (none for a distance)."""
-    if isinstance(group, Distances):
-        return ids
-    if isinstance(group, ImagePoints | ParameterObservations):
-        return {**ids, "coordinate": _coordinate_names(project, group)[coordinate]}
-    return {**ids, "coordinate": str(coordinate)}
+def project_ids(project: Project) -> Ids:
+    """The project's IDs of the blocks' rows, as an adjustment's `Ids`."""
+    cameras: dict[str, list[str]] = {}
+    for cid, (model, row) in sorted(project.camera_rows.items(), key=lambda item: item[1]):
+        cameras.setdefault(model, []).append(cid)
+    return Ids({model: tuple(ids) for model, ids in cameras.items()},
+               tuple(project.image_ids), tuple(project.point_ids))
 
 
 def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
     """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
-    return _with_coordinate(project, group, _row_ids(project, group, [row])[0], coordinate)
-
-
-def _prior_groups(project: Project, result: Adjustment) -> list:
-    """The project's groups as built, matched by name to the result's (None if not found)."""
-    by_name = {group.name: group for group in project.problem.groups}
-    return [by_name.get(group.name) for group in result.problem.groups]
-
-
-def _unit_residuals(result: Adjustment, group: AbstractObservationGroup) -> np.ndarray:
-    """observed - computed of every entry of `group` at the solution (σ set to 1)."""
-    unit = eqx.tree_at(lambda g: g.stddev, group, jnp.ones_like(group.stddev))
-    return np.asarray(unit.residuals(result.parameters, result.problem.refraction), dtype=float)
+    return ids_of_observation(project_ids(project), group, row, coordinate)
 
 
 @_shared
 def group_statistics(project: Project, result: Adjustment) -> list[GroupStatistics]:
-    """v, r, w and outlier flags of every entry of every observation group of the result."""
-    reliability = result.reliability
-    critical = reliability.critical_value if reliability is not None else math.inf
-    rejected = {(rej.group, rej.row, rej.coordinate): rej.w for rej in result.rejections}
-    statistics = []
-    for k, (group, prior) in enumerate(zip(result.problem.groups, _prior_groups(project, result))):
-        final = np.isfinite(np.asarray(group.stddev))
-        observed = final if prior is None else final | np.isfinite(np.asarray(prior.stddev))
-        removed = observed & ~final
-        v = np.where(final, np.asarray(result.residuals[k], dtype=float), np.nan)
-        if removed.any():
-            v = np.where(removed, _unit_residuals(result, group), v)
-        if reliability is not None:
-            r = np.array(reliability.redundancy_numbers[k], dtype=float)
-            w = np.array(reliability.normalised_residuals[k], dtype=float)
-        else:
-            r, w = np.full(v.shape, np.nan), np.full(v.shape, np.nan)
-        r[~final], w[~final] = np.nan, np.nan
-        for (name, row, coordinate), size in rejected.items():
-            if name == group.name and removed[row, coordinate]:
-                w[row, coordinate] = math.copysign(size, v[row, coordinate])  # w has v's sign
-        with np.errstate(invalid="ignore"):
-            outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
-        statistics.append(GroupStatistics(
-            group, group_kind(group), observed, removed, v, r, w, outlier & observed))
-    return statistics
+    """v, r, w and outlier flags of every entry of every observation group of the result
+    (`jaxba._statistics._observation_statistics.group_statistics`, shared)."""
+    del project
+    return statistics_of_groups(result)
 
 
 @_shared
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
-    statistics = list(enumerate(group_statistics(project, result)))
-    parts = [(k, s) for k, s in statistics if isinstance(s.group, ImagePoints)]
-
-    def stack(get, shape=(0,)):
-        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
-
-    image = stack(lambda k, s: s.group.image).astype(int)
-    order = np.argsort(image, kind="stable")
-    image = image[order]
+    rows = image_point_rows(group_statistics(project, result))
+    image = rows.image
     cameras = [project.spec.images[iid].camera for iid in project.image_ids]
     units = [camera_units(project, cid) for cid in cameras]
     pixel_size = np.array([
         (1.0, 1.0) if unit == PIXEL else _pixel_size(project, cid)
         for cid, unit in zip(cameras, units)
     ]).reshape(-1, 2)
-    point = stack(lambda k, s: s.group.point).astype(int)[order]
-    v = stack(lambda k, s: s.v, (0, 2))[order]
     return ImageResiduals(
         image=image,
-        point=point,
-        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
+        point=rows.point,
+        group=rows.group,
         image_ids=np.asarray(project.image_ids, dtype=object)[image],
-        point_ids=np.asarray(project.point_ids, dtype=object)[point],
+        point_ids=np.asarray(project.point_ids, dtype=object)[rows.point],
         camera_ids=np.asarray(cameras, dtype=object)[image],
         units=np.asarray(units, dtype=object)[image],
-        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
-        v=v,
-        v_px=v / pixel_size[image],
-        redundancy=stack(lambda k, s: s.r, (0, 2))[order],
-        w=stack(lambda k, s: s.w, (0, 2))[order],
-        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
-        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
+        xy=rows.xy,
+        v=rows.v,
+        v_px=rows.v / pixel_size[image],
+        redundancy=rows.r,
+        w=rows.w,
+        removed=rows.removed,
+        outlier=rows.outlier,
     )
+
+
+def in_pixel_frame(project: Project, residuals: ImageResiduals) -> ImageResiduals:
+    """`residuals` with every row in pixels (col, row; row down), as the image points of a
+    pixel project are given: rows of mm cameras through their pixel grid (x, y to col, row;
+    v to (vx / ps_x, -vy / ps_y)), rows of pixel cameras as they are."""
+    mm = residuals.units == MM
+    xy, v = residuals.xy.copy(), residuals.v_px.copy()
+    v[mm, 1] = -v[mm, 1]  # y up -> row down
+    for cid in np.unique(residuals.camera_ids[mm]).tolist():
+        rows = mm & (residuals.camera_ids == cid)
+        xy[rows] = np.asarray(project.pixel_grids[cid].image_to_pixel(residuals.xy[rows]))
+    units = np.full(len(residuals.units), PIXEL, dtype=object)
+    return dataclasses.replace(residuals, xy=xy, v=v, v_px=v, units=units)
 
 
 @_shared
@@ -400,12 +299,12 @@ def other_observations(project: Project, result: Adjustment) -> list[ScalarObser
         if stats.kind == "gnss_ins":
             angles = np.isin(np.asarray(IMAGE_PARAMETER_NAMES)[coordinates], ANGLE_NAMES)
             v = np.where(angles, np.degrees(v), v)
-        ids = _row_ids(project, stats.group, rows)
+        ids = name_rows(project_ids(project), stats.group, rows)
         for k, coordinate in enumerate(coordinates.tolist()):
             observations.append(ScalarObservation(
                 kind=stats.kind,
                 group=stats.group.name,
-                ids=_with_coordinate(project, stats.group, ids[k], coordinate),
+                ids=with_coordinate(stats.group, ids[k], coordinate),
                 v=float(v[k]),
                 r=float(stats.r[rows[k], coordinate]),
                 w=float(stats.w[rows[k], coordinate]),
@@ -426,12 +325,6 @@ def rejections(project: Project, result: Adjustment) -> list[dict]:
         }
         for rej in result.rejections
     ]
-
-
-def describe(ids: dict[str, str]) -> str:
-    """`image img03 point 12 x`, `point_a 1 point_b 7`: IDs of an observation as text."""
-    words = [f"{key} {value}" for key, value in ids.items() if key != "coordinate"]
-    return " ".join(words + ([ids["coordinate"]] if "coordinate" in ids else []))
 
 
 @_shared

@@ -3,25 +3,21 @@ the warnings a user must not miss."""
 
 import math
 
-import numpy as np
-import scipy.stats
-
 from .._io._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
-from .._timing import Timings
+from .._statistics._summary import datum_description, outlier_summary, variance_test
 from ._collect import (
     CONSTANT,
     FIXED,
     camera_tables,
     describe,
     group_statistics,
-    observation_ids,
+    project_ids,
     rejections,
 )
 
-VARIANCE_TEST_ALPHA = 0.05  # two-sided χ² test of the variance factor
-LISTED = 5  # observations named in one warning, the largest |w| first
+LISTED = 5  # observations named in one warning
 
 
 def iteration_line(iteration: Iteration) -> str:
@@ -44,7 +40,9 @@ def start_line(project: Project) -> str:
 
 
 def summary_lines(project: Project, result: Adjustment) -> list[str]:
-    """Every free or weighted IOP with its σ, σ̂0 and the convergence state."""
+    """Every free or weighted IOP with its σ; σ̂0 with its χ² test, the datum and the outliers
+    (`jaxba._statistics._summary`); variance components and rejections; the convergence
+    state and the backend."""
     lines = []
     for cid, camera in camera_tables(project, result).items():
         lines.append(f"camera {cid} ({project.camera_rows[cid][0]})")
@@ -63,6 +61,14 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         f"sigma0 {math.sqrt(precision.sigma0_squared):.6g}"
         f" (sigma0^2 {precision.sigma0_squared:.6g}, redundancy {precision.redundancy})"
     )
+    test = variance_test(result)
+    if test is not None:
+        lines.append(f"  {test.text()}")
+    lines.append(f"datum: {datum_description(result.problem)}")
+    found_outliers = outlier_summary(result, project_ids(project),
+                                     group_statistics(project, result))
+    if found_outliers is not None:
+        lines.append(f"outliers: {found_outliers.text()}")
     if result.variance_components is not None:
         parts = ", ".join(
             f"{name} {component.sigma0:.3f}"
@@ -88,24 +94,12 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
     return lines
 
 
-def timing_line(timings: Timings) -> str:
-    """E.g. `seconds: read 0.02, start-up 1.1, solve 0.03, ...; compile 4.2 (31 programs,
-    29 from the cache)`: each phase's run seconds, compilation apart."""
-    summary = timings.summary()
-    phases = ", ".join(
-        f"{name} {seconds:.2f}" for name, seconds in summary.items()
-        if name not in ("compile", "total"))
-    return (
-        f"seconds: {phases}; compile {summary['compile']:.2f} ({timings.compilations}"
-        f" programs, {timings.cache_hits} from the cache); total {summary['total']:.2f}")
-
-
 def warning_lines(project: Project, result: Adjustment) -> list[str]:
     """What the numbers of a converged adjustment say about the data, one line each (none
     when all is well, or when the adjustment did not converge: its numbers mean nothing):
 
-    - σ̂0 rejected by the two-sided χ² test of the variance factor: r σ̂0² / σ0² against
-      the χ²(r) quantiles at `VARIANCE_TEST_ALPHA` / 2 and 1 - `VARIANCE_TEST_ALPHA` / 2;
+    - σ̂0 rejected by the two-sided χ² test of the variance factor (`variance_test`: r σ̂0² / σ0²
+      against the χ²(r) quantiles at α/2 and 1 - α/2, α 5 %);
     - observations whose normalised residual |w| exceeds the critical value of the
       reliability's w-test (the largest first, named by image, point or camera);
     - observations removed by data snooping.
@@ -117,45 +111,27 @@ def warning_lines(project: Project, result: Adjustment) -> list[str]:
 
 
 def _variance_factor(project: Project, result: Adjustment) -> list[str]:
-    precision = result.precision
-    r = precision.redundancy
-    if r <= 0 or not math.isfinite(precision.sigma0_squared):
-        return []
-    sigma0 = project.spec.settings.sigma0
-    ratio = precision.sigma0_squared / sigma0**2
-    low, high = scipy.stats.chi2.ppf([VARIANCE_TEST_ALPHA / 2, 1 - VARIANCE_TEST_ALPHA / 2], r)
-    if low <= r * ratio <= high:
+    test = variance_test(result)
+    if test is None or test.passed:
         return []
     cause = ("the a priori σ of the observations are too small, or there are blunders"
-             if r * ratio > high else "the a priori σ of the observations are too large")
+             if test.statistic > test.high else "the a priori σ of the observations are too large")
     return [
-        f"sigma0 {math.sqrt(precision.sigma0_squared):.4g} differs from its a priori value"
-        f" {sigma0:g}: the chi-square test of the variance factor rejects it (alpha"
-        f" {VARIANCE_TEST_ALPHA:g}, redundancy {r}: {sigma0 * math.sqrt(low / r):.4g} to"
-        f" {sigma0 * math.sqrt(high / r):.4g} expected); {cause}"
+        f"sigma0 {test.sigma0:.4g} differs from its a priori value {test.sigma0_prior:g}: the"
+        f" chi-square test of the variance factor rejects it (alpha {test.alpha:g}, redundancy"
+        f" {test.redundancy}: {test.sigma0_low:.4g} to {test.sigma0_high:.4g} expected); {cause}"
     ]
 
 
 def _large_residuals(project: Project, result: Adjustment) -> list[str]:
-    if result.reliability is None:
+    found = outlier_summary(result, project_ids(project), group_statistics(project, result))
+    if found is None or not found.count:
         return []
-    critical = result.reliability.critical_value
-    found = []
-    for stats in group_statistics(project, result):
-        with np.errstate(invalid="ignore"):
-            large = stats.observed & ~stats.removed & (np.abs(stats.w) > critical)
-        for row, coordinate in zip(*np.nonzero(large)):
-            found.append((abs(float(stats.w[row, coordinate])), stats.group, row, coordinate))
-    if not found:
-        return []
-    found.sort(key=lambda entry: -entry[0])
-    named = ", ".join(
-        f"{describe(observation_ids(project, group, row, coordinate))} |w| {w:.1f}"
-        for w, group, row, coordinate in found[:LISTED])
-    more = f" and {len(found) - LISTED} more" if len(found) > LISTED else ""
+    named = ", ".join(f"{name} |w| {abs_w:.1f}" for _, name, abs_w in found.worst)
+    more = f" and {found.count - len(found.worst)} more" if found.count > len(found.worst) else ""
     return [
-        f"{len(found)} observation(s) with a normalised residual |w| above the critical"
-        f" value {critical:.2f} (alpha {result.reliability.alpha:.2g} per test): {named}{more};"
+        f"{found.count} observation(s) with a normalised residual |w| above the critical"
+        f" value {found.critical_value:.2f} (alpha {found.alpha:.2g} per test): {named}{more};"
         " see the outlier column of observations.csv"
     ]
 

@@ -7,16 +7,19 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
+from .._statistics._summary import datum_description, outlier_summary, variance_test
 from ._collect import (
     ParameterTable,
     camera_correlations,
     camera_tables,
     camera_units,
+    group_statistics,
     group_summaries,
     image_residuals,
     image_table,
     point_ellipsoids,
     point_table,
+    project_ids,
     project_units,
     rejections,
     reliability_summary,
@@ -159,6 +162,31 @@ def _reliability(project: Project, result: Adjustment) -> dict | None:
     })
 
 
+def _variance_test(result: Adjustment) -> dict | None:
+    """The χ² test of the variance factor (`variance_test`), null without redundancy."""
+    test = variance_test(result)
+    if test is None:
+        return None
+    return _nulls({
+        "alpha": test.alpha, "redundancy": test.redundancy, "statistic": test.statistic,
+        "low": test.low, "high": test.high, "sigma0_low": test.sigma0_low,
+        "sigma0_high": test.sigma0_high, "passed": test.passed,
+    })
+
+
+def _outliers(project: Project, result: Adjustment) -> dict | None:
+    """|w| above the critical value: count and the worst few; null without a reliability."""
+    found = outlier_summary(result, project_ids(project), group_statistics(project, result))
+    if found is None:
+        return None
+    return _nulls({
+        "critical_value": found.critical_value, "alpha": found.alpha, "count": found.count,
+        "removed": found.removed,
+        "worst": [{"group": group, "observation": name, "abs_w": abs_w}
+                  for group, name, abs_w in found.worst],
+    })
+
+
 def _timings(result: Adjustment) -> dict:
     """{"seconds": {phase: run seconds, ..., "compile": s, "total": s}, "compilations": n,
     "cache_hits": n}: the phases timed before the reports are written (read, start-up, datum
@@ -190,7 +218,9 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     numbers, normalised residuals, outlier flags), rejections (data snooping, in order of
     removal), reliability (alpha, critical_value, redundancy_sum, ...; null when not computed)
     and per point with a free coordinate its 1σ "ellipsoid"; solver (the normal-equation
-    backend that ran: "dense" or "schur") and timings (seconds per phase up to the reports,
+    backend that ran: "dense" or "schur"), datum (the project's definition and what fixes
+    it), variance_test (the χ² test of σ̂0), outliers (|w| above the critical value: count,
+    the worst few) and timings (seconds per phase up to the reports,
     compilation apart; see `_timings`); initialisation (what `complete_project` computed,
     `Completion.summary()`), only when the approximations were computed; datum (how it is
     defined: `Project.datum`). Iteration 0 is the approximations.
@@ -205,10 +235,13 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "message": result.message,
         "steps": int(result.steps),
         "solver": result.backend,
+        # `datum_summary`: kind and what it fixes; the description as in NAME.out
+        "datum": {**project.datum, "description": datum_description(result.problem)},
         "timings": _timings(result),
         "sigma0": _number(math.sqrt(precision.sigma0_squared)),
         "sigma0_squared": _number(precision.sigma0_squared),
         "sigma0_prior": _number(project.spec.settings.sigma0),
+        "variance_test": _variance_test(result),
         "redundancy": int(precision.redundancy),
         "n_observations": int(precision.n_observations),
         "n_unknowns": int(precision.n_unknowns),
@@ -240,10 +273,10 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "observations_file": OBSERVATIONS_FILE,
         "rejections": _nulls(rejections(project, result)),
         "reliability": _reliability(project, result),
+        "outliers": _outliers(project, result),
     }
     if project.initialisation is not None:
         tree["initialisation"] = _nulls(project.initialisation)
-    tree["datum"] = project.datum  # `datum_summary`: kind, and what it fixes
     return tree
 
 

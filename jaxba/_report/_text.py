@@ -11,6 +11,7 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
+from .._statistics._summary import aligned, statistical_items
 from ._collect import (
     MM,
     PIXEL,
@@ -21,11 +22,14 @@ from ._collect import (
     camera_tables,
     camera_units,
     describe,
+    group_statistics,
     group_summaries,
     image_residuals,
     image_table,
+    in_pixel_frame,
     point_ellipsoids,
     point_table,
+    project_ids,
     project_units,
     rejections,
     reliability_summary,
@@ -128,18 +132,16 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("observations", str(precision.n_observations)),
         ("unknowns", str(precision.n_unknowns)),
         ("redundancy", str(precision.redundancy)),
+        ("solver backend", result.backend),
+        *statistical_items(result, project_ids(project), group_statistics(project, result)),
     ]
-    width = max(len(key) for key, _ in items)
-    return [
-        f"jaxba bundle adjustment: {project.spec.name}",
-        "",
-        *(f"  {key.ljust(width)}  {value}" for key, value in items),
-    ]
+    return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
 
 
 def _datum_section(project: Project) -> list[str]:
-    """How the datum is defined (`Project.datum`): which image and coordinate a dependent
-    relative orientation fixes, the points of a free network's inner constraints."""
+    """How a datum other than control is defined (`Project.datum`): which image and
+    coordinate a dependent relative orientation fixes, the points of a free network's inner
+    constraints (control: none; the header's datum line says what it fixes)."""
     datum = project.datum
     if datum["kind"] == "dependent":
         lines = ["datum: dependent relative orientation",
@@ -154,7 +156,7 @@ def _datum_section(project: Project) -> list[str]:
         points = datum["points"]
         which = "all points" if points == "all" else f"points {' '.join(points)}"
         return ["datum: free network", f"  inner constraints over {which}"]
-    return ["datum: control (the fixed and weighted values of the tables)"]
+    return []
 
 
 def _camera_section(project: Project, cid: str, camera: ParameterTable) -> list[str]:
@@ -333,7 +335,8 @@ def out_text(project: Project, result: Adjustment) -> str:
     w weighted.
     """
     lines = _header(project, result)
-    lines += ["", *_datum_section(project)]
+    datum = _datum_section(project)
+    lines += ["", *datum] if datum else []
     correlations = camera_correlations(project, result)
     for cid, camera in camera_tables(project, result).items():
         lines += ["", *_camera_section(project, cid, camera)]
@@ -372,14 +375,17 @@ def _rms_comment(label: str, summary: dict) -> str:
 def res_text(project: Project, result: Adjustment) -> str:
     """NAME.res: one line per measured image point, then RMS per image and overall.
 
-    Columns: image_id point_id x y vx vy, in mm (or in pixels when every camera model works in
-    pixels, e.g. "opencv"; the vx_px vy_px columns are then left out), vx_px vy_px (v / pixel
+    Columns: image_id point_id x y vx vy, in mm (or in pixels (col, row) when the project's
+    image units are pixels or every camera model works in pixels, e.g. "opencv"; the vx_px
+    vy_px columns are then left out), vx_px vy_px (v / pixel
     size, same axes as x, y; `-` for a camera without a pixel size), rx ry (redundancy
     numbers), wx wy (normalised residuals), outlier (1: rejected by data snooping or |w| above
     the critical value). v = observed - computed; `-` where a statistic is not available.
     """
     residuals = image_residuals(project, result)
     units = project_units(project)
+    if project.spec.image_units == PIXEL and units != PIXEL:  # as the image points were given
+        residuals, units = in_pixel_frame(project, residuals), PIXEL
     in_pixels = units == PIXEL
     if in_pixels:
         unit_line = "x y vx vy in pixels (col, row: row down)"

@@ -1,1 +1,2 @@
-"""Statistics of an adjusted bundle: covariance, datum, reliability, free networks, derivatives."""
+"""Statistics of an adjusted bundle: covariance, datum, reliability, free networks, derivatives;
+the result by ID and its summary."""

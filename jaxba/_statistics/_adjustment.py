@@ -1,14 +1,19 @@
 """The outcome of an adjustment: parameters, statistics, residuals and how the solve went."""
 
 import dataclasses
+import functools
 
+import jax
 import numpy as np
 
 from .._problem._bundle import BundleProblem
 from .._problem._parameters import Parameters
 from .._solvers._progress import Iteration
 from .._timing import Timings
+from ._by_id import ById, UnknownTables, observation_table
 from ._covariance import Precision
+from ._ids import Ids, index_ids
+from ._summary import brief_report
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,9 +30,16 @@ class Adjustment:
     - `backend`: the normal-equation backend that solved, "dense" or "schur";
     - `timings`: wall seconds per phase ("datum check", "solve", "statistics", ...) with
       the compilations inside each (`jaxba._timing.Timings`);
+    - `sigma0_prior`: the a priori σ0 the adjustment used;
+    - `ids`: the IDs of the blocks' rows (`Ids`, from the labels `adjust` was given), None
+      for row numbers;
     - filled in by `adjust_project` as the project asks: `reliability` (a `Reliability`),
       `variance_components` ({group: VarianceComponent}) with `variance_iterations`, and
       `rejections` (data snooping, in order of removal).
+
+    By ID: `cameras`, `images`, `points` (mappings of `Estimates` and `PointEstimate`),
+    `observations` (the image points as a table) and `summary()` (a short text). Arrays are
+    NumPy (`parameters` too, whatever the backend).
     """
 
     problem: BundleProblem
@@ -44,8 +56,48 @@ class Adjustment:
     variance_components: dict | None = None
     variance_iterations: int = 0
     rejections: tuple = ()
+    sigma0_prior: float = 1.0
+    ids: Ids | None = None
+
+    def __post_init__(self):
+        # The solvers return jax arrays, a batch NumPy: NumPy on every path.
+        object.__setattr__(self, "parameters", jax.device_get(self.parameters))
 
     @property
     def sigma0(self) -> float:
         """A posteriori σ̂0."""
         return float(np.sqrt(self.precision.sigma0_squared))
+
+    @functools.cached_property
+    def _unknowns(self) -> UnknownTables:
+        return UnknownTables(self, self._ids)
+
+    @property
+    def _ids(self) -> Ids:
+        return self.ids if self.ids is not None else index_ids(self.parameters)
+
+    @property
+    def cameras(self) -> ById:
+        """Camera ID -> `Estimates`: its parameters by name (`result.cameras["C1"]["c"]`)."""
+        return self._unknowns.cameras()
+
+    @property
+    def images(self) -> ById:
+        """Image ID -> `Estimates`: its pose parameters by name (X0 .. kappa, radians)."""
+        return self._unknowns.images()
+
+    @property
+    def points(self) -> ById:
+        """Point ID -> `PointEstimate`: X, Y, Z with σ, the 3 x 3 covariance and its kind."""
+        return self._unknowns.points()
+
+    @property
+    def observations(self):
+        """The image points as a table (`observation_columns`): a pandas DataFrame where
+        pandas is installed, else a dict of NumPy columns."""
+        return observation_table(self, self._ids)
+
+    def summary(self) -> str:
+        """A few lines: convergence, σ̂0 and its χ² test, redundancy, datum, backend,
+        outliers, timings (`jaxba._statistics._summary`)."""
+        return brief_report(self, self._ids)

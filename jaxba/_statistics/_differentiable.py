@@ -203,7 +203,7 @@ def iop_trace_gradient(
 @eqx.filter_jit  # once per problem structure (eagerly, every call took seconds)
 def _trace_and_gradient(problem, params, index, positions, w, sigma0):
     def objective(stations):
-        images = params.images.at[:, :3].set(stations)
+        images = jnp.asarray(params.images).at[:, :3].set(stations)
         moved = eqx.tree_at(lambda p: p.images, params, images)
         c = covariance(problem, moved, index, sigma0=sigma0)
         return jnp.sum(w * jnp.diag(c)[positions])

@@ -63,8 +63,8 @@ def write_bal_project(
     image_id = [f"img{k:0{width}d}" for k in range(bal.n_cameras)]
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    camera_lines = ["# BAL cameras: f (pixels), k1, k2; pixel_size and sensor are not used by",
-                    "# the bal model (BAL gives neither): the sensor spans the observations."]
+    camera_lines = ["# BAL cameras: f (pixels), k1, k2; the sensor is not used by the bal model",
+                    "# (BAL gives none): it spans the observations."]
     image_rows = []
     for k in cameras:
         r, t, intrinsics = bal.cameras[k, :3], bal.cameras[k, 3:6], bal.cameras[k, 6:]
@@ -75,7 +75,7 @@ def write_bal_project(
         extent = np.abs(bal.observed[bal.camera_index == k]).max(axis=0)
         sensor = [2 * int(np.ceil(e)) + 2 for e in extent]
         camera_lines += [
-            f"[C{k}]", 'model = "bal"', "pixel_size = [1.0, 1.0]",
+            f"[C{k}]", 'model = "bal"',
             f"sensor = [{sensor[0]}, {sensor[1]}]",
             *(f"{p} = {float(v)!r}" for p, v in zip(("f", "k1", "k2"), intrinsics)),
             'free = ["f", "k1", "k2"]', "",

@@ -65,7 +65,7 @@ def adjust_project(
     least_squares = dataclasses.replace(problem, robust=None)
     result = adjust(least_squares, labels=project.labels, on_iteration=on_iteration,
                     timings=timings, **options)
-    iterations = list(result.iterations)
+    iterations, ids = list(result.iterations), result.ids  # re-adjustments have no labels
     if problem.robust is not None and result.converged:
         result = adjust(restart_from(problem, result.parameters), check=False,
                         timings=timings, **options)
@@ -94,6 +94,7 @@ def adjust_project(
         final_reliability = _final_reliability(result, snooping)
     return dataclasses.replace(
         result,
+        ids=ids,
         timings=timings,
         iterations=iterations,
         reliability=final_reliability,

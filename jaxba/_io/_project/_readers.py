@@ -29,6 +29,7 @@ from ..._gc import paused_gc
 from ..._models._cameras._names import (
     CAMERA_CONSTANT_NAMES,
     CAMERA_PARAMETER_NAMES,
+    PIXEL_MODELS,
     PRINCIPAL_DISTANCES,
     RAY_REFRACTION_PARAMETER_NAMES,
     lens_model,
@@ -46,6 +47,7 @@ from ._spec import (
 )
 
 IMAGE_UNITS = ("mm", "pixel")
+IMAGE_UNIT_ALIASES = {"pixels": "pixel"}  # also accepted for [project] image_units
 DEFAULT_CAMERA_MODEL = "smac"
 
 _PROJECT_TABLES = ("project", "files", "adjustment")
@@ -160,6 +162,7 @@ def _read_project_table(table: dict, where: str, default_name: str) -> tuple[str
             f"{where}: [project] name: expected a file name without '/' or '\\', got {name!r}"
         )
     units = table.get("image_units", "mm")
+    units = IMAGE_UNIT_ALIASES.get(units, units)
     if units not in IMAGE_UNITS:
         raise ProjectError(
             f"{where}: [project] image_units: expected one of "
@@ -235,11 +238,14 @@ def _read_cameras(file: _File, image_units: str, project: str) -> dict[str, Came
             )
         camera = _read_camera(camera_id, table, file.name)
         if image_units == "pixel":
-            missing = [key for key in ("pixel_size", "sensor") if table.get(key) is None]
+            # A pixel model computes pixels itself: it needs no pixel size.
+            needed = ("sensor",) if camera.model in PIXEL_MODELS else ("pixel_size", "sensor")
+            missing = [key for key in needed if table.get(key) is None]
             if missing:
                 raise ProjectError(
                     f"{file.name}: [{camera_id}] {missing[0]}: missing; {project} has "
-                    f'image_units = "pixel", so every camera needs pixel_size and sensor'
+                    f'image_units = "pixel", so model {camera.model!r} needs '
+                    + " and ".join(needed)
                 )
         cameras[camera_id] = camera
     return cameras

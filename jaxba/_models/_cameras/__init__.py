@@ -17,6 +17,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._metrology": ("MetrologyCamera", "metrology_to_smac", "smac_to_metrology"),
     "._names": ("CAMERA_CONSTANT_NAMES", "CAMERA_PARAMETER_NAMES"),
     "._opencv": ("OpenCVCamera",),
+    "._opencv_full": ("OpenCVFullCamera",),
     "._photomodeler": ("PhotoModelerCamera",),
     "._pixel": ("PixelGrid",),
     "._radial": ("RadialSmac",),

@@ -9,6 +9,8 @@ AFFINE = ("A1", "A2")
 CAMERA_PARAMETER_NAMES: dict[str, tuple[str, ...]] = {
     "smac": ("xp", "yp", "c", *RADIAL_SMAC, *DECENTERING_SMAC, *AFFINE),
     "opencv": ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3"),
+    "opencv_full": ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "k4", "k5",
+                    "k6", "s1", "s2", "s3", "s4"),
     "photomodeler": ("xp", "yp", "c", "K1", "K2", "K3", "P1", "P2", "aspect", "skew"),
     "bal": ("f", "k1", "k2"),
     "fisheye": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
@@ -33,14 +35,18 @@ def lens_model(model: str) -> str:
     return lens if separator and refraction in RAY_REFRACTION_PARAMETER_NAMES else model
 
 
+PIXEL_MODELS = frozenset({"opencv", "opencv_full", "fisheye", "bal"})
+"""The built-in models whose image points are pixels (`image_units = "pixel"`): they need no
+pixel size (a mm model in a pixel project converts its image points with it)."""
+
 CAMERA_CONSTANT_NAMES: dict[str, tuple[str, ...]] = {"metrology": ("r0",)}
 """Per model, its constants: values of the camera that are never unknowns (cameras.toml
 keys, required for the model and refused for the others), e.g. the radius r0 (mm) where
 the metrology model's balanced radial distortion crosses zero."""
 
 PRINCIPAL_DISTANCES: dict[str, tuple[str, ...]] = {
-    "smac": ("c",), "opencv": ("fx", "fy"), "photomodeler": ("c",), "bal": ("f",),
-    "fisheye": ("fx", "fy"), "metrology": ("c",),
+    "smac": ("c",), "opencv": ("fx", "fy"), "opencv_full": ("fx", "fy"),
+    "photomodeler": ("c",), "bal": ("f",), "fisheye": ("fx", "fy"), "metrology": ("c",),
 }
 """Per model, the parameters that are a principal distance (focal length): > 0, or the
 model divides by 0 or mirrors the image (`read_project` refuses others)."""
@@ -54,6 +60,8 @@ when both are free without a prior), with the reason: `check_datum` refuses them
 DISTORTION_TERMS: dict[str, dict[str, tuple[str, ...]]] = {
     "smac": {"radial": RADIAL_SMAC, "decentering": DECENTERING_SMAC, "affine": AFFINE},
     "opencv": {"radial": ("k1", "k2", "k3"), "decentering": ("p1", "p2"), "affine": ("skew",)},
+    "opencv_full": {"radial": ("k1", "k2", "k3", "k4", "k5", "k6"), "decentering": ("p1", "p2"),
+                    "thin_prism": ("s1", "s2", "s3", "s4"), "affine": ("skew",)},
     "photomodeler": {"radial": ("K1", "K2", "K3"), "decentering": ("P1", "P2"),
                      "affine": ("aspect", "skew")},
     "bal": {"radial": ("k1", "k2")},

@@ -38,10 +38,22 @@ class OpenCVCamera(AbstractCamera):
 
     def image_point(self, p_camera: Vector3, measured: Vector2, refraction_k: Scalar) -> Vector2:
         del measured, refraction_k
-        # OpenCV camera frame (x right, y down, z forward): p_cv = (p[0], -p[1], -p[2]).
-        x, y = p_camera[0] / -p_camera[2], p_camera[1] / p_camera[2]
+        x, y = normalised(p_camera)
         r2 = x * x + y * y
         radial = 1 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
-        yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
+        xd, yd = decentered(x, y, r2, radial, self.p1, self.p2)
         return jnp.stack([self.fx * xd + self.skew * yd + self.cx, self.fy * yd + self.cy])
+
+
+def normalised(p_camera: Vector3) -> tuple[Scalar, Scalar]:
+    """OpenCV's normalised point (x', y') = (X_c, Y_c) / Z_c of p_camera = M (X - X0), with
+    p_cv = diag(1, -1, -1) p_camera (OpenCV's camera frame: x right, y down, z forward)."""
+    return p_camera[0] / -p_camera[2], p_camera[1] / p_camera[2]
+
+
+def decentered(x: Scalar, y: Scalar, r2: Scalar, radial: Scalar, p1: Scalar,
+               p2: Scalar) -> tuple[Scalar, Scalar]:
+    """(x'', y''): the normalised point (x, y), r² = x² + y², scaled by the radial factor and
+    shifted by OpenCV's tangential terms p1, p2."""
+    return (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+            y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)

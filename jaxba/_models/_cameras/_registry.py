@@ -9,6 +9,7 @@ from ._flat_port import FlatPort
 from ._metrology import MetrologyCamera
 from ._names import REFRACTION_SEPARATOR, lens_model
 from ._opencv import OpenCVCamera
+from ._opencv_full import OpenCVFullCamera
 from ._photomodeler import PhotoModelerCamera
 from ._refracted import refracted_camera
 from ._smac import SmacCamera
@@ -38,7 +39,8 @@ def _resolved(name: str) -> type[AbstractCamera]:
 
 
 CAMERA_MODELS: dict[str, type[AbstractCamera]] = _CameraModels({
-    "smac": SmacCamera, "opencv": OpenCVCamera, "photomodeler": PhotoModelerCamera,
+    "smac": SmacCamera, "opencv": OpenCVCamera, "opencv_full": OpenCVFullCamera,
+    "photomodeler": PhotoModelerCamera,
     "bal": BalCamera, "fisheye": FisheyeCamera, "metrology": MetrologyCamera,
 })
 """Camera model name -> class: the built-in ones listed; `CAMERA_MODELS[name]` also finds a

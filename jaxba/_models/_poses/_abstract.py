@@ -7,7 +7,7 @@ are the dataclass fields, named in `parameter_names`: the columns of `Parameters
 """
 
 import abc
-from typing import Self
+from typing import ClassVar, Self
 
 import equinox as eqx
 import jax
@@ -49,7 +49,11 @@ class AbstractPose(_Parametrised):
       parameters moved by `delta` (6,), exact in value and first derivative at delta = 0.
       A pose whose own formula is cheap per row passes its parameters (Rodrigues); one
       whose formula is dear passes its frame and its derivative (OPK's sines and cosines).
+
+    `parameter_names` name the six parameters; `angle_names` those among them in radians.
     """
+
+    angle_names: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def to_camera(self, point: Vector3) -> Vector3:

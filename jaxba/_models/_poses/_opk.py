@@ -27,6 +27,7 @@ class OpkPose(AbstractPose):
     phi: Scalar
     kappa: Scalar
     parameter_names = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+    angle_names = ("omega", "phi", "kappa")  # in radians
 
     def to_camera(self, point: Vector3) -> Vector3:
         return self.frame().to_camera(point)

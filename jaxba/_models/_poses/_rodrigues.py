@@ -27,6 +27,7 @@ class RodriguesPose(AbstractPose):
     t2: Scalar
     t3: Scalar
     parameter_names = ("r1", "r2", "r3", "t1", "t2", "t3")
+    angle_names = ("r1", "r2", "r3")  # the rotation vector, radians
 
     def to_camera(self, point: Vector3) -> Vector3:
         return rotate_point(self._r(), point) + self._t()

@@ -1,0 +1,245 @@
+"""Per-observation statistics of an adjustment, by row numbers: residuals v, redundancy
+numbers r, normalised residuals w, data-snooping removals and outlier flags of every group,
+the image points as one table, and the outliers largest |w| first.
+
+The reports (`jaxba._report._collect`) and the result's tables by ID
+(`jaxba._statistics._by_id`) both read them here. Jax is called only to evaluate the residual
+of an observation removed by data snooping (its v at the final solution).
+"""
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._models._cameras import CAMERA_MODELS
+from .._problem._observations import (
+    AbstractObservationGroup,
+    Distances,
+    ImagePoints,
+    ParameterObservations,
+)
+from .._problem._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from ._ids import Ids
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupStatistics:
+    """Per-entry statistics of one observation group, arrays shaped like its residuals (n, k).
+
+    `observed`: a real observation before data snooping; `removed`: switched off by data
+    snooping; `v`: observed - computed in the observation's units (NaN where not observed;
+    removed entries: the residual at the final solution); `r`, `w`: redundancy numbers and
+    normalised residuals (NaN where unknown; a removed entry keeps the w it was rejected with);
+    `outlier`: removed, or |w| above the critical value.
+    """
+
+    group: AbstractObservationGroup
+    kind: str
+    observed: np.ndarray
+    removed: np.ndarray
+    v: np.ndarray
+    r: np.ndarray
+    w: np.ndarray
+    outlier: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ImagePointRows:
+    """The image points of all image-point groups, sorted by image (file order within one).
+
+    `group` (n,): the row's group in `result.problem.groups`; `camera`, `image`, `point`
+    (n,): rows of the camera (within its group's model), image and point blocks; `xy`, `v`
+    (n, 2) in the image units of the row's camera model; `r`, `w` (n, 2) NaN where unknown;
+    `removed`: rejected by data snooping (v at the final solution, which did not use it);
+    `outlier`: removed, or |w| above the critical value on either coordinate.
+    """
+
+    group: np.ndarray
+    camera: np.ndarray
+    image: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+    v: np.ndarray
+    r: np.ndarray
+    w: np.ndarray
+    removed: np.ndarray
+    outlier: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Outlier:
+    """A used observation whose |w| exceeds the critical value: `group` (index into
+    `result.problem.groups`), `row`, `coordinate` and |w|."""
+
+    group: int
+    row: int
+    coordinate: int
+    abs_w: float
+
+
+def group_kind(group: AbstractObservationGroup) -> str:
+    """"image_points", "control", "gnss_ins", "camera_priors" or "distances"."""
+    if isinstance(group, ImagePoints):
+        return "image_points"
+    if isinstance(group, Distances):
+        return "distances"
+    if isinstance(group, ParameterObservations):
+        return {"points": "control", "images": "gnss_ins"}.get(group.block, "camera_priors")
+    return group.name.split(":")[0]
+
+
+def is_measurement(group: AbstractObservationGroup) -> bool:
+    """A group of real measurements (not constraints, such as a free network's inner
+    constraints: the group says which it is)."""
+    return not group.constraint
+
+
+def coordinate_names(group: AbstractObservationGroup) -> tuple[str, ...]:
+    """The names of the coordinates (columns) of `group`'s rows."""
+    if isinstance(group, ImagePoints):
+        return ("x", "y")
+    if isinstance(group, ParameterObservations):
+        if group.block == "points":
+            return POINT_PARAMETER_NAMES
+        if group.block == "images":
+            return IMAGE_PARAMETER_NAMES
+        return CAMERA_MODELS[group.block.removeprefix("cameras/")].parameter_names
+    return ("distance",)
+
+
+def name_rows(ids: Ids, group, rows) -> list[dict[str, str]]:
+    """The IDs (as text) naming rows `rows` (k,) of `group`: image and point, the two points
+    of a distance, the point, image or camera of a parameter observation, else the row
+    number."""
+    rows = np.asarray(rows, dtype=int)
+
+    def named(block_ids, index) -> list[str]:
+        return [str(block_ids[k]) for k in np.asarray(index)[rows].tolist()]
+
+    if isinstance(group, ImagePoints):
+        pairs = zip(named(ids.images, group.image), named(ids.points, group.point))
+        return [{"image": image, "point": point} for image, point in pairs]
+    if isinstance(group, Distances):
+        pairs = zip(named(ids.points, group.a), named(ids.points, group.b))
+        return [{"point_a": a, "point_b": b} for a, b in pairs]
+    if not isinstance(group, ParameterObservations):
+        return [{"row": str(row)} for row in rows.tolist()]
+    if group.block == "points":
+        key, names = "point", named(ids.points, group.rows)
+    elif group.block == "images":
+        key, names = "image", named(ids.images, group.rows)
+    else:
+        key = "camera"
+        names = named(ids.cameras[group.block.removeprefix("cameras/")], group.rows)
+    return [{key: name} for name in names]
+
+
+def with_coordinate(group, ids: dict[str, str], coordinate: int) -> dict:
+    """`ids` of a row and the name of its observed coordinate (none for a distance)."""
+    if isinstance(group, Distances):
+        return ids
+    if isinstance(group, ImagePoints | ParameterObservations):
+        return {**ids, "coordinate": coordinate_names(group)[coordinate]}
+    return {**ids, "coordinate": str(coordinate)}
+
+
+def observation_ids(ids: Ids, group, row: int, coordinate: int) -> dict[str, str]:
+    """The IDs of one scalar observation: image/point/camera and coordinate, or two points."""
+    return with_coordinate(group, name_rows(ids, group, [row])[0], coordinate)
+
+
+def describe(ids: dict[str, str]) -> str:
+    """`image img03 point 12 x`, `point_a 1 point_b 7`: IDs of an observation as text."""
+    words = [f"{key} {value}" for key, value in ids.items() if key != "coordinate"]
+    return " ".join(words + ([ids["coordinate"]] if "coordinate" in ids else []))
+
+
+def removed_entries(result) -> list[np.ndarray]:
+    """Per group of `result.problem`, (n, k) True on the entries data snooping switched off:
+    the rejected coordinate, or its whole row where the group removes rows whole."""
+    groups = result.problem.groups
+    removed = [np.zeros(np.shape(group.stddev), dtype=bool) for group in groups]
+    index = {group.name: k for k, group in enumerate(groups)}
+    for rejection in result.rejections:
+        k = index[rejection.group]
+        columns = slice(None) if groups[k].removed_whole else rejection.coordinate
+        removed[k][rejection.row, columns] = True
+    return removed
+
+
+def _unit_residuals(result, group: AbstractObservationGroup) -> np.ndarray:
+    """observed - computed of every entry of `group` at the solution (σ set to 1)."""
+    unit = eqx.tree_at(lambda g: g.stddev, group, jnp.ones_like(group.stddev))
+    return np.asarray(unit.residuals(result.parameters, result.problem.refraction), dtype=float)
+
+
+def group_statistics(result) -> list[GroupStatistics]:
+    """v, r, w and outlier flags of every entry of every observation group of `result` (an
+    `Adjustment`)."""
+    reliability = result.reliability
+    critical = reliability.critical_value if reliability is not None else math.inf
+    rejected = {(rej.group, rej.row, rej.coordinate): rej.w for rej in result.rejections}
+    statistics = []
+    for k, (group, removed) in enumerate(zip(result.problem.groups, removed_entries(result))):
+        final = np.isfinite(np.asarray(group.stddev))
+        observed = final | removed
+        v = np.where(final, np.asarray(result.residuals[k], dtype=float), np.nan)
+        if removed.any():
+            v = np.where(removed, _unit_residuals(result, group), v)
+        if reliability is not None:
+            r = np.array(reliability.redundancy_numbers[k], dtype=float)
+            w = np.array(reliability.normalised_residuals[k], dtype=float)
+        else:
+            r, w = np.full(v.shape, np.nan), np.full(v.shape, np.nan)
+        r[~final], w[~final] = np.nan, np.nan
+        for (name, row, coordinate), size in rejected.items():
+            if name == group.name and removed[row, coordinate]:
+                w[row, coordinate] = math.copysign(size, v[row, coordinate])  # w has v's sign
+        with np.errstate(invalid="ignore"):
+            outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
+        statistics.append(GroupStatistics(
+            group, group_kind(group), observed, removed, v, r, w, outlier & observed))
+    return statistics
+
+
+def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
+    """The image points of `group_statistics`, one row per measured point (removed ones
+    included), sorted by image."""
+    parts = [(k, s) for k, s in enumerate(statistics) if isinstance(s.group, ImagePoints)]
+
+    def stack(get, shape=(0,)):
+        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
+
+    image = stack(lambda k, s: s.group.image).astype(int)
+    order = np.argsort(image, kind="stable")
+    return ImagePointRows(
+        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
+        camera=stack(lambda k, s: s.group.camera).astype(int)[order],
+        image=image[order],
+        point=stack(lambda k, s: s.group.point).astype(int)[order],
+        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
+        v=stack(lambda k, s: s.v, (0, 2))[order],
+        r=stack(lambda k, s: s.r, (0, 2))[order],
+        w=stack(lambda k, s: s.w, (0, 2))[order],
+        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
+        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
+    )
+
+
+def outliers(result, statistics: list[GroupStatistics]) -> list[Outlier]:
+    """The observations the final solution used whose |w| exceeds the reliability's critical
+    value, largest |w| first (none without a reliability)."""
+    if result.reliability is None:
+        return []
+    critical = result.reliability.critical_value
+    found = []
+    for k, stats in enumerate(statistics):
+        with np.errstate(invalid="ignore"):
+            large = stats.observed & ~stats.removed & (np.abs(stats.w) > critical)
+        rows, coordinates = np.nonzero(large)
+        found += [Outlier(k, int(row), int(coordinate), abs(float(stats.w[row, coordinate])))
+                  for row, coordinate in zip(rows, coordinates)]
+    return sorted(found, key=lambda outlier: -outlier.abs_w)

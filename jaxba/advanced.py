@@ -1,0 +1,20 @@
+"""The parts behind jaxba's public calls, for work on the engine: linearisation plans and
+padding for `jit`/`vmap`, the flat vector of unknowns, the Schur backend's pieces, the optimistix
+solver and the residual of one image point. Imported from their modules when first used, as
+`jaxba` (`jaxba._lazy`; absolute module names: this is a module, not a package)."""
+
+from ._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "jaxba._adjust._batch": ("PaddedBatch", "broadcast_plan", "pad_problems", "solve_batch"),
+    "jaxba._problem._bundle": ("free_indices",),
+    "jaxba._problem._linearisation": ("LinearisationPlan", "linearisation_plan", "pad_plans"),
+    "jaxba._problem._observations": ("collinearity_residual",),
+    "jaxba._problem._parameters": ("flatten", "unflatten"),
+    "jaxba._solvers._levenberg_marquardt": ("NormalLevenbergMarquardt",),
+    "jaxba._solvers._schur._bundle": ("solve_schur",),
+    "jaxba._statistics._covariance": ("SchurCovariance",),
+    "jaxba._statistics._schur_datum": ("check_datum_schur",),
+    "jaxba._statistics._schur_precision": ("BundleCofactors", "schur_cofactors", "schur_precision"),
+    "jaxba._statistics._schur_reliability": ("schur_redundancy_numbers",),
+})
