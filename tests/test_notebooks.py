@@ -18,9 +18,10 @@ PLOTTING = {"01_calibrate_lab.ipynb", "02_statistics.ipynb", "03_batch.ipynb",
     "01_calibrate_lab.ipynb",
     "02_statistics.ipynb",
     "05_zhang_vs_opencv.ipynb",
-    pytest.param("06_dbat_camcal.ipynb", marks=pytest.mark.slow),  # ~2 min: 4148 observations
-    pytest.param("03_batch.ipynb", marks=pytest.mark.slow),  # ~1 min: 8 projects, one batch
-    pytest.param("04_differentiable.ipynb", marks=pytest.mark.slow),  # ~1.5 min: gradients
+    pytest.param("06_dbat_camcal.ipynb", marks=pytest.mark.slow),  # ~10 s: 4148 observations
+    pytest.param("03_batch.ipynb", marks=pytest.mark.slow),  # ~15 s: 8 projects, one batch
+    pytest.param("04_differentiable.ipynb", marks=pytest.mark.slow),  # ~20 s: 3 compilations
+    pytest.param("07_start_from_nothing.ipynb", marks=pytest.mark.slow),  # ~12 s: 2 compiles
 ])
 def test_notebook_runs(name):
     notebook = nbformat.read(NOTEBOOKS / name, as_version=4)

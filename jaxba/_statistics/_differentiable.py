@@ -197,7 +197,11 @@ def iop_trace_gradient(
     positions, _ = camera_positions(problem, model, row)
     positions = jnp.asarray(positions)
     w = jnp.ones(positions.shape[0]) if weights is None else jnp.asarray(weights)
+    return _trace_and_gradient(problem, params, index, positions, w, jnp.asarray(sigma0))
 
+
+@eqx.filter_jit  # once per problem structure (eagerly, every call took seconds)
+def _trace_and_gradient(problem, params, index, positions, w, sigma0):
     def objective(stations):
         images = jnp.asarray(params.images).at[:, :3].set(stations)
         moved = eqx.tree_at(lambda p: p.images, params, images)
