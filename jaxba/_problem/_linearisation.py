@@ -113,9 +113,8 @@ def linearisation_plan(
             key_rows.append(None)
             key_columns.append(None)
             continue
-        # Rows that are no observation at all (padding, rejected blunders) add nothing and
-        # join no key: all padded rows repeat row 0, and would make its key hundreds long.
-        observed = np.flatnonzero(np.asarray(group.mask()).any(axis=1))
+        observed = _planned_rows(np.asarray(group.mask()).any(axis=1),
+                                 column_of[depends[:, list(slots)]])
         columns = column_of[depends[observed][:, list(slots)]]
         unique, key = np.unique(columns, axis=0, return_inverse=True)
         rows = _rows_by_key(key.ravel(), unique.shape[0])
@@ -123,6 +122,23 @@ def linearisation_plan(
         key_columns.append(jnp.asarray(unique))
     return LinearisationPlan(jnp.asarray(free_index), tuple(key_rows), tuple(key_columns),
                              tuple(live))
+
+
+def _planned_rows(observed: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """The rows of a group that the plan keeps: every observed one, and of the rows that
+    observe nothing (a blunder switched off, batch padding) the first of each key no
+    observed row has. They add nothing (σ = inf), but a blunder switched off keeps its key,
+    so that the re-adjustments of data snooping have the shapes of the first adjustment
+    (and its compiled programs); padded rows, copies of row 0, join row 0's key only where
+    it is unobserved itself, once (hundreds of them made its key hundreds long)."""
+    _, key = np.unique(columns, axis=0, return_inverse=True)
+    key = key.ravel()
+    unobserved = np.flatnonzero(~observed)
+    _, first = np.unique(key[unobserved], return_index=True)
+    first = unobserved[first]
+    keep = observed.copy()
+    keep[first[~np.isin(key[first], key[observed])]] = True
+    return np.flatnonzero(keep)
 
 
 def _rows_by_key(key: np.ndarray, n_keys: int) -> np.ndarray:
@@ -249,22 +265,25 @@ def _column_norms(problem, params, index, columns):
 
 def dense_jacobian(
     problem: BundleProblem, params: Parameters
-) -> tuple[Float[Array, "n_obs n_free"], Float[Array, " n_obs"]]:
+) -> tuple[Float[np.ndarray, "n_obs n_free"], Float[np.ndarray, " n_obs"]]:
     """Whitened Jacobian dẽ/dx_free and residuals ẽ (`problem.residuals`), real observations
-    only, in the order of the raveled residuals; columns in `free_indices` order.
+    only, in the order of the raveled residuals; columns in `free_indices` order (NumPy).
 
     Dense: for problems of up to a few thousand unknowns (statistics, datum check). Built
     from the per-row reverse-mode blocks the solver uses (`row_jacobians`), scattered into
     their free columns; groups that are not row-local are differentiated whole.
     """
     index = free_indices(problem)
-    rows = jnp.asarray(np.flatnonzero(observation_mask(problem)))
-    return _dense_jacobian(problem, params, jnp.asarray(index), _group_columns(problem, index),
-                           rows)
+    # All rows compiled, the real ones selected after: an observation switched off (data
+    # snooping) keeps the compiled program's shapes.
+    jacobian, residuals = _dense_jacobian(problem, params, jnp.asarray(index),
+                                          _group_columns(problem, index))
+    rows = np.flatnonzero(observation_mask(problem))
+    return np.asarray(jacobian)[rows], np.asarray(residuals)[rows]
 
 
 @eqx.filter_jit
-def _dense_jacobian(problem, params, index, columns, rows):
+def _dense_jacobian(problem, params, index, columns):
     n = index.shape[0]
     jacobians, residuals = [], []
     for group, group_columns in zip(problem.groups, columns):
@@ -279,7 +298,7 @@ def _dense_jacobian(problem, params, index, columns, rows):
             jacobian = jacobian.reshape(n_rows * k, n + 1)[:, :n]
         jacobians.append(jacobian)
         residuals.append(jnp.ravel(e))
-    return jnp.concatenate(jacobians)[rows], jnp.concatenate(residuals)[rows]
+    return jnp.concatenate(jacobians), jnp.concatenate(residuals)
 
 
 def _whole_group_jacobian(problem, params, index, groups) -> tuple[Array, Array]:
