@@ -25,6 +25,7 @@ import os
 import pickle
 import re
 import threading
+import warnings
 from collections.abc import Callable, Iterator
 
 DASK_EXTRA = "pip install 'jaxba[dask]'"
@@ -99,8 +100,9 @@ class OnDask:
 
     @property
     def description(self) -> str:
-        return (f"Dask scheduler {self.client.scheduler.address} ({self.workers} workers,"
-                f" dashboard {self.client.dashboard_link})")
+        dashboard = self.client.scheduler_info().get("services", {}).get("dashboard")
+        where = f", dashboard {self.client.dashboard_link}" if dashboard else ""
+        return f"Dask scheduler {self.client.scheduler.address} ({self.workers} workers{where})"
 
     def map(self, function: Callable, tasks: list) -> Iterator[tuple[int, object]]:
         """(k, result of function(tasks[k])) as the tasks finish; an exception a task
@@ -193,5 +195,9 @@ def _on_worker(function: Callable, task):
             from ._jax_setup import setup_jax
 
             setup_jax()
+            # Workers sharing a cache folder: one may read an entry another is still
+            # writing (jax writes in place); jax then compiles the program itself.
+            warnings.filterwarnings(
+                "ignore", "Error reading persistent compilation cache entry", UserWarning)
             _set_up = True
     return numpy_copy(function(task))

@@ -126,20 +126,22 @@ def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | No
 
 @dataclasses.dataclass(frozen=True)
 class BatchShape:
-    """The padded shape of a batch: rows per camera model, images, points (the spare one
-    included), rows per observation group and the length of the free-index vector."""
+    """The padded shape of a batch, all that its compiled programs depend on: rows per
+    camera model, images, points (the spare one included), rows per observation group, the
+    length of the free-index vector and, per group of the linearisation plan, its live
+    slots and (keys, rows per key) (None for a group that is not row-local)."""
 
     cameras: dict[str, int]
     images: int
     points: int
     rows: tuple[int, ...]
     free: int
+    live: tuple[tuple[int, ...] | None, ...] | None = None
+    keys: tuple[tuple[int, int] | None, ...] | None = None
 
 
-def batch_shape(problems) -> BatchShape:
-    """The smallest shape that holds every one of `problems` (bundles of one kind): the
-    largest of every block, one spare point row."""
-    problems = tuple(problems)
+def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
+    """The largest of every block and group, one spare point row; no plan yet."""
     return BatchShape(
         cameras={m: max(p.initial.cameras[m].shape[0] for p in problems)
                  for m in problems[0].initial.cameras},
@@ -149,6 +151,62 @@ def batch_shape(problems) -> BatchShape:
                    for g in range(len(problems[0].groups))),
         free=max(p.n_unknowns() for p in problems),
     )
+
+
+def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list]:
+    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices
+    and the live slots of the plans (`shape.live`, or the union over these problems)."""
+    shapes = Parameters(
+        cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
+                 for m, n in shape.cameras.items()},
+        images=np.zeros((shape.images, 6)),
+        points=np.zeros((shape.points, 3)),
+    )
+    names = [g.name for g in problems[0].groups]
+    padded, indices = [], []
+    for problem in problems:
+        initial = _pad_parameters(problem.initial, shapes, None)
+        free = _pad_parameters(problem.free, shapes, False)
+        groups = tuple(_pad_group(g, n, name)
+                       for g, n, name in zip(problem.groups, shape.rows, names))
+        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust)
+        padded.append(one)
+        indices.append(free_indices(one))
+    spare = flatten(padded[0].initial).size - 3  # X of the spare (last) point
+    free_index = np.full((len(problems), shape.free), spare)
+    for k, index in enumerate(indices):
+        free_index[k, : len(index)] = index
+    if shape.live is not None:
+        return padded, free_index, list(shape.live)
+    # One set of live slots for all: problems may free different IOPs.
+    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
+    live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
+    return padded, free_index, live
+
+
+def _check_kind(problems) -> None:
+    reference = _signature(problems[0])
+    for k, problem in enumerate(problems):
+        if _signature(problem) != reference:
+            raise ValueError(
+                f"problem {k} has another structure than problem 0 (observation groups, camera"
+                " models, refraction or robust loss); pad only problems of one kind"
+            )
+
+
+def batch_shape(problems) -> BatchShape:
+    """The smallest shape that holds every one of `problems` (bundles of one kind), their
+    plans included: chunks of them padded to it (`pad_problems(chunk, shape)`) share one
+    compiled program. Pads every problem once to find the plans' sizes."""
+    problems = tuple(problems)
+    _check_kind(problems)
+    blocks = _block_shape(problems)
+    padded, free_index, live = _pad_each(problems, blocks)
+    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
+    keys = tuple(None if slots is None else
+                 tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
+                 for g, slots in enumerate(live))
+    return dataclasses.replace(blocks, live=tuple(live), keys=keys)
 
 
 def _holds(shape: BatchShape, own: BatchShape) -> bool:
@@ -166,53 +224,24 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     `shape`: the shape to pad to (`batch_shape` of these problems and maybe others: chunks
     of one larger batch padded alike share one compiled program); default the problems'
     own. Raises ValueError naming the first problem whose structure differs from the first
-    one, or that `shape` cannot hold.
+    one, or when `shape` cannot hold them.
     """
     problems = tuple(problems)
     if not problems:
         raise ValueError("pad_problems: no problems")
-    reference = _signature(problems[0])
-    for k, problem in enumerate(problems):
-        if _signature(problem) != reference:
-            raise ValueError(
-                f"problem {k} has another structure than problem 0 (observation groups, camera"
-                " models, refraction or robust loss); pad only problems of one kind"
-            )
-    own = batch_shape(problems)
+    _check_kind(problems)
+    own = _block_shape(problems)
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
-    shapes = Parameters(
-        cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
-                 for m, n in shape.cameras.items()},
-        images=np.zeros((shape.images, 6)),
-        points=np.zeros((shape.points, 3)),
-    )
-    names = [g.name for g in problems[0].groups]
-    padded, indices = [], []
-    for problem in problems:
-        initial = _pad_parameters(problem.initial, shapes, None)
-        free = _pad_parameters(problem.free, shapes, False)
-        groups = tuple(_pad_group(g, n, name)
-                       for g, n, name in zip(problem.groups, shape.rows, names))
-        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust)
-        padded.append(one)
-        indices.append(free_indices(one))
-    n_free = np.array([len(i) for i in indices])
-    spare = flatten(padded[0].initial).size - 3  # X of the spare (last) point
-    free_index = np.full((len(problems), shape.free), spare)
-    for k, index in enumerate(indices):
-        free_index[k, : len(index)] = index
-    # One set of live slots for all: problems may free different IOPs.
-    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
-    live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
+    padded, free_index, live = _pad_each(problems, shape)
+    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
     stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
     return PaddedBatch(
         problem=stacked,
-        plan=pad_plans([linearisation_plan(one, index, live)
-                        for one, index in zip(padded, free_index)]),
+        plan=pad_plans(plans, shape.keys),
         problems=problems,
-        n_free=n_free,
+        n_free=np.array([p.n_unknowns() for p in problems]),
         n_observations=np.array([p.n_observations() for p in problems]),
     )
 

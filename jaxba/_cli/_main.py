@@ -489,14 +489,15 @@ def _bal_locked(args: argparse.Namespace, bal) -> int:
 def _add_batch(subparsers) -> None:
     parser = subparsers.add_parser(
         "batch",
-        help="adjust many projects in one padded, vmapped solve",
+        help="adjust many projects in padded, vmapped solves, here or on a Dask cluster",
         description=(
             "Adjust every PROJECT.toml (projects of one kind share one compiled, vmapped solve),"
             " write each project's reports into DIR/<project name>/ and summary.csv and"
             " summary.json into DIR. A failing project is reported in the summary and does"
-            " not stop the others. Exit codes: 0 all converged, 1 some project failed or did"
-            " not converge, 2 bad usage (or a report would overwrite an input), 3 internal"
-            " error, 130 interrupted."
+            " not stop the others. With --scheduler the solves run as tasks on the workers of"
+            " a Dask cluster (pip install 'jaxba[dask]'). Exit codes: 0 all converged, 1 some"
+            " project failed or did not converge, 2 bad usage (or a report would overwrite"
+            " an input, or the scheduler cannot be used), 3 internal error, 130 interrupted."
         ),
         parents=[_common_options()],
     )
@@ -505,13 +506,33 @@ def _add_batch(subparsers) -> None:
                         help="folder for the per-project reports and the summary")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="a bar over the projects (default: only on a terminal)")
+    parser.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS|local[:N]",
+        help="solve on Dask: a scheduler's address (tcp://host:8786), or local:N for N worker"
+             " processes on this machine (local: one per CPU); default: in this process")
+    parser.add_argument(
+        "--chunk", type=int, default=None, metavar="N",
+        help="projects per vmapped solve, one Dask task (default 10); the results do not"
+             " depend on where the solves run, only (to rounding) on N")
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="skip projects whose reports are all in DIR already (an earlier, interrupted"
+             " run); their summary rows are read from their results.json")
     parser.set_defaults(run=_batch)
 
 
 def _batch(args: argparse.Namespace) -> int:
+    from jaxba._dask import SchedulerError, check_scheduler
     from jaxba._io._project._batch_read import read_batch
     from jaxba._report import output_lock
 
+    if args.chunk is not None and args.chunk < 1:
+        raise _UsageError(f"--chunk {args.chunk}: must be at least 1")
+    try:
+        if args.scheduler is not None:  # before anything is read: Dask installed?
+            check_scheduler(args.scheduler)
+    except SchedulerError as error:
+        raise _UsageError(str(error)) from None
     entries = read_batch(args.projects, args.out)  # checks every report against every input
     with output_lock(args.out):
         _setup_jax()
@@ -519,8 +540,13 @@ def _batch(args: argparse.Namespace) -> int:
         from jaxba._io._project._batch_run import run_batch
 
         with project_progress(len(args.projects), _say, bar=args.progress) as progress:
-            rows = run_batch(args.projects, args.out, progress=progress.say,
-                             advance=progress.advance, entries=entries)
+            try:
+                rows = run_batch(args.projects, args.out, progress=progress.say,
+                                 advance=progress.advance, entries=entries,
+                                 scheduler=args.scheduler, chunk_size=args.chunk,
+                                 resume=args.resume)
+            except SchedulerError as error:
+                raise _UsageError(str(error)) from None
     ok = sum(row["status"] == "ok" for row in rows)
     _say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED

@@ -4,10 +4,10 @@ Plain Python around the jitted core. Projects are read and their outputs checked
 (`_batch_read.read_batch`, no jax); with `resume`, those whose reports are all there are
 skipped. The others are built one by one; a file or datum error marks that project failed
 and the others go on. Projects of one kind (same observation groups, camera models,
-iteration settings) are padded to one shape and solved in vmapped chunks (`_batch_solve`):
-one compilation for all of them. A project that asks for a robust loss, variance components
-or data snooping is adjusted alone with `adjust_project` (those are sequential
-re-adjustments); its summary row says so.
+iteration settings) are padded to one shape and solved in vmapped chunks of `CHUNK`
+(`_batch_solve`): one compilation for all of them. A project that asks for a robust loss,
+variance components or data snooping is adjusted alone with `adjust_project` (those are
+sequential re-adjustments); its summary row says so.
 
 The chunks run on an executor (`jaxba._dask`): in this process, one after the other, or on
 the workers of a Dask cluster, all at once; everything else (grouping, failures, reports,
@@ -35,7 +35,7 @@ from . import ProjectError, build_project
 from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
 from ._batch_solve import Chunk, Outcome, solve_chunk
 
-DASK_CHUNK = 10  # projects per task on Dask, by default
+CHUNK = 10  # projects per vmapped solve (one Dask task), by default
 
 
 def _needs_single(project) -> bool:
@@ -69,10 +69,10 @@ def run_batch(
     `scheduler`: where the chunks are solved: None in this process; "local" or "local:N"
     (a Dask cluster of N worker processes started for the run), a Dask scheduler's address
     or a `distributed.Client` (`jaxba._dask.executor`; `SchedulerError` when it cannot be
-    used, before anything is built). `chunk_size`: projects per vmapped solve (default: a
-    whole group in this process, `DASK_CHUNK` on Dask). `resume`: a project whose reports
-    all exist is not adjusted again; its row is read from its results.json (mode
-    "resumed").
+    used, before anything is built). `chunk_size`: projects per vmapped solve (one task;
+    default `CHUNK`): chunks are the same wherever they run, and so are the results (to
+    rounding, they depend on the chunk length). `resume`: a project whose reports all
+    exist is not adjusted again; its row is read from its results.json (mode "resumed").
 
     `progress` receives one line per stage and per project; `advance()` is called once per
     project when it is finished (failed, skipped, or adjusted and its reports written).
@@ -104,8 +104,7 @@ def run_batch(
         ready = [e for e in entries if e.status == "pending"]
         say(f"read {len(entries)} projects ({len(ready)} to adjust) in"
             f" {time.perf_counter() - started:.1f} s")
-        size = chunk_size or (None if scheduler is None else DASK_CHUNK)
-        _solve(run, _chunks(ready, size), say, finished, len(ready))
+        _solve(run, _chunks(ready, chunk_size or CHUNK), say, finished, len(ready))
     rows = [_summary_row(entry) for entry in entries]
     _write_summary(rows, out_dir)
     say(f"wrote {out_dir / 'summary.csv'} and summary.json"
@@ -113,9 +112,9 @@ def run_batch(
     return rows
 
 
-def _chunks(ready: list[BatchEntry], size: int | None) -> list[tuple[list[BatchEntry], Chunk]]:
-    """Projects of one kind grouped, each group cut into chunks of `size` (None: one),
-    padded to the group's shape; a project adjusted alone is its own chunk."""
+def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], Chunk]]:
+    """Projects of one kind grouped, each group cut into chunks of `size` padded to the
+    group's shape; a project adjusted alone is its own chunk."""
     groups: dict[tuple, list[BatchEntry]] = {}
     for entry in ready:
         if _needs_single(entry.project):
@@ -130,8 +129,9 @@ def _chunks(ready: list[BatchEntry], size: int | None) -> list[tuple[list[BatchE
         if key[0] == "single":
             chunks.append((members, Chunk((members[0].project,), single=True)))
             continue
-        shape = batch_shape([e.project.problem for e in members])
-        step = min(size or len(members), len(members))
+        step = min(size, len(members))
+        # Chunks of one group padded alike: one compiled program for all of them.
+        shape = batch_shape([e.project.problem for e in members]) if step < len(members) else None
         for start in range(0, len(members), step):
             part = members[start:start + step]
             chunks.append((part, Chunk(tuple(e.project for e in part), shape=shape, size=step)))
