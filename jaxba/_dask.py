@@ -17,6 +17,7 @@ loses nothing: the scheduler runs its tasks again on the others (distributed's
 Dask (`distributed`) is an optional extra, imported only when a scheduler is named.
 """
 
+import asyncio
 import contextlib
 import dataclasses
 import importlib.util
@@ -117,7 +118,7 @@ class OnDask:
                 k = futures.pop(future)
                 try:
                     result = future.result()
-                except Exception as error:
+                except (Exception, asyncio.CancelledError) as error:  # the scheduler gone
                     result = error
                 future.release()
                 yield k, result

@@ -97,7 +97,7 @@ def _solve_all(problem, measured, options, scheduler, chunk_size) -> Solution:
     with executor(scheduler) as run:
         tasks = [(problem, [m[r] for m in measured], options) for r in rows]
         for k, solution in run.map(_solve_chunk, tasks):
-            if isinstance(solution, Exception):
+            if isinstance(solution, BaseException):
                 raise solution
             parts[k] = solution
     return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[:n],

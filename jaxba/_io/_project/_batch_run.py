@@ -28,7 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..._adjust._batch import _signature, batch_shape
-from ..._dask import executor
+from ..._dask import check_scheduler, executor
 from ..._models._cameras import CAMERA_MODELS
 from ..._report._atomic import replace_files
 from . import ProjectError, build_project
@@ -69,7 +69,8 @@ def run_batch(
     `scheduler`: where the chunks are solved: None in this process; "local" or "local:N"
     (a Dask cluster of N worker processes started for the run), a Dask scheduler's address
     or a `distributed.Client` (`jaxba._dask.executor`; `SchedulerError` when it cannot be
-    used, before anything is built). `chunk_size`: projects per vmapped solve (one task;
+    used: Dask missing or a malformed name before anything is built, no answer from the
+    address before anything is solved). `chunk_size`: projects per vmapped solve (one task;
     default `CHUNK`): chunks are the same wherever they run, and so are the results (to
     rounding, they depend on the chunk length). `resume`: a project whose reports all
     exist is not adjusted again; its row is read from its results.json (mode "resumed").
@@ -84,27 +85,30 @@ def run_batch(
     entries = read_batch(paths, out_dir) if entries is None else entries
     if chunk_size is not None and chunk_size < 1:
         raise ValueError(f"chunk_size {chunk_size}: must be at least 1")
-    with executor(scheduler) as run:
-        if scheduler is not None:
-            say(f"solving on {run.description}")
-        for entry in entries:
-            if resume and entry.status == "pending":
-                _resume(entry)
-            if entry.status == "pending":
-                try:
-                    entry.project = build_project(entry.spec)
-                except (ProjectError, ValueError, OSError) as error:
-                    entry.status, entry.reason = "failed", str(error)
-            if entry.status == "failed":
-                say(f"failed  {entry.path}: {entry.reason}")
-                finished()
-            elif entry.mode == "resumed":
-                say(f"skipped {entry.path}: its reports are in {entry.out_dir}")
-                finished()
-        ready = [e for e in entries if e.status == "pending"]
-        say(f"read {len(entries)} projects ({len(ready)} to adjust) in"
-            f" {time.perf_counter() - started:.1f} s")
-        _solve(run, _chunks(ready, chunk_size or CHUNK), say, finished, len(ready))
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    for entry in entries:
+        if resume and entry.status == "pending":
+            _resume(entry)
+        if entry.status == "pending":
+            try:
+                entry.project = build_project(entry.spec)
+            except (ProjectError, ValueError, OSError) as error:
+                entry.status, entry.reason = "failed", str(error)
+        if entry.status == "failed":
+            say(f"failed  {entry.path}: {entry.reason}")
+            finished()
+        elif entry.mode == "resumed":
+            say(f"skipped {entry.path}: its reports are in {entry.out_dir}")
+            finished()
+    ready = [e for e in entries if e.status == "pending"]
+    say(f"read {len(entries)} projects ({len(ready)} to adjust) in"
+        f" {time.perf_counter() - started:.1f} s")
+    if ready:
+        with executor(scheduler) as run:
+            if scheduler is not None:
+                say(f"solving on {run.description}")
+            _solve(run, _chunks(ready, chunk_size or CHUNK), say, finished, len(ready))
     rows = [_summary_row(entry) for entry in entries]
     _write_summary(rows, out_dir)
     say(f"wrote {out_dir / 'summary.csv'} and summary.json"
@@ -152,7 +156,7 @@ def _solve(run, chunks, say, finished, total: int) -> None:
         again = []
         for k, outcomes in run.map(solve_chunk, [chunk for _, chunk in chunks]):
             members, chunk = chunks[k]
-            if isinstance(outcomes, Exception):
+            if isinstance(outcomes, BaseException):
                 if len(members) > 1:
                     say(f"a batch of {len(members)} failed ({type(outcomes).__name__});"
                         " trying its projects one by one")
