@@ -9,11 +9,13 @@ import signal
 import sys
 import time
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 
 import jaxba
+from jaxba._adjust._batch import batch_shape, pad_problems
 from jaxba._adjust._montecarlo import monte_carlo
 from jaxba._cli._main import main
 from jaxba._io._project._batch_run import run_batch
@@ -96,6 +98,27 @@ def _assert_reports_equal(out, expected_out):
         got = _numbers(json.loads((out / folder.name / "results.json").read_text()))
         want = _numbers(json.loads((folder / "results.json").read_text()))
         np.testing.assert_allclose(got, want, rtol=EQUAL_RTOL, atol=0, err_msg=folder.name)
+
+
+def _abstract(batch):
+    """What the compiled programs of a padded batch depend on: the static structure of its
+    problem and plan, and the shape and dtype of every array."""
+    arrays, static = eqx.partition((batch.problem, batch.plan), eqx.is_array)
+    return (jax.tree_util.tree_structure(static), jax.tree_util.tree_leaves(static),
+            [(a.shape, a.dtype) for a in jax.tree_util.tree_leaves(arrays)])
+
+
+def test_chunks_of_a_group_share_one_compiled_shape(projects):
+    """Two chunks of different projects, padded to their group's `batch_shape`, are alike
+    to the compiler (one compilation per group and worker): blocks, observation rows, free
+    indices and the linearisation plans' keys."""
+    problems = [jaxba.build_project(jaxba.read_project(p)).problem for p in projects[:8]]
+    shape = batch_shape(problems)
+    first, second = (pad_problems(problems[:4], shape), pad_problems(problems[4:], shape))
+    assert _abstract(first) == _abstract(second)
+    assert list(second.n_free) == [p.n_unknowns() for p in problems[4:]]
+    with pytest.raises(ValueError, match="cannot hold"):
+        pad_problems(problems, batch_shape(problems[:1]))
 
 
 def test_dask_batch_equals_the_in_process_batch(local, on_dask):
