@@ -10,10 +10,13 @@ inherit it, as `jaxba batch --scheduler local` on one machine does):
 - on a LocalCluster of `--workers` single-threaded worker processes (`--scheduler local:N`),
   started once: `run_batch(..., scheduler=client)` twice (the first: each worker imports jax
   and loads the programs from the cache; the second: warm workers);
+- the CPU time per project of each step, on one chunk (little changed by other load, unlike
+  the wall times): reading and building (client), the task's NumPy copy (client), solving
+  the chunk (worker), the results' NumPy copy (worker), the reports (client);
 - the scheduling overhead: `--empty` tasks that do nothing, submitted at once and gathered
   (seconds per task at the client), and, for the warm Dask batch, the workers' busy time
   (the task stream's compute spans) between the first task's start and the last one's end:
-  overhead per task = (workers x that window - busy) / tasks.
+  workers idle per task = (workers x that window - busy) / tasks.
 
 Reports are written by the client in both modes (the same code). Prints a Markdown table.
 
@@ -61,6 +64,41 @@ def write_projects(root: pathlib.Path, n: int, noise: float, seed: int) -> list[
         path.write_text(toml.replace('name = "zhang"', f'name = "{name}"'))
         paths.append(path)
     return paths
+
+
+def cpu_per_project(paths: list[pathlib.Path], out: pathlib.Path) -> dict[str, float]:
+    """CPU ms per project (this process's CPU time: little changed by other load) of each
+    step of a batch for one chunk of `paths`, the programs compiled already; and the KB per
+    project a task sends to its worker and gets back."""
+    import pickle
+
+    import jaxba
+    from jaxba._dask import numpy_copy
+    from jaxba._io._project._batch_solve import Chunk, solve_chunk
+    from jaxba._report import write_reports
+
+    n, cpu = len(paths), {}
+
+    def step(name, function):
+        start = time.process_time()
+        value = function()
+        cpu[name] = (time.process_time() - start) / n * 1e3
+        return value
+
+    specs = step("read (client)", lambda: [jaxba.read_project(p) for p in paths])
+
+    def build():  # jax computes the arrays asynchronously: their copy waits for them
+        projects = [jaxba.build_project(s) for s in specs]
+        return projects, numpy_copy(Chunk(tuple(projects), size=n))
+
+    projects, task = step("build, task to NumPy (client)", build)
+    outcomes = step("solve the chunk (worker)", lambda: solve_chunk(task))
+    back = step("results to NumPy (worker)", lambda: numpy_copy(outcomes))
+    step("reports (client)", lambda: [write_reports(p, o.result, out / p.spec.name)
+                                      for p, o in zip(projects, back)])
+    cpu["KB sent per project"] = len(pickle.dumps(task)) / n / 1024
+    cpu["KB back per project"] = len(pickle.dumps(back)) / n / 1024
+    return cpu
 
 
 def timed(function):
@@ -121,6 +159,7 @@ def run(args):
             n_tasks = len(stream.data)
             _, empty_seconds = timed(lambda: client.gather(client.map(
                 _noop, range(args.empty), pure=False)))
+        cpu = cpu_per_project(paths[:CHUNK], root / "cpu")
         load.append(os.getloadavg()[0])
     for name, summary in rows.items():
         bad = [r["name"] for r in summary if r["status"] != "ok"]
@@ -142,13 +181,16 @@ def run(args):
     print(f"LocalCluster start: {cluster_seconds:.2f} s")
     print(f"warm Dask batch: {n_tasks} tasks, {busy / n_tasks * 1e3:.0f} ms compute each;"
           f" from the first task's start to the last one's end {window:.2f} s, workers busy"
-          f" {busy:.2f} s of {args.workers} x {window:.2f} s: overhead"
+          f" {busy:.2f} s of {args.workers} x {window:.2f} s: idle"
           f" {(args.workers * window - busy) / n_tasks * 1e3:.0f} ms per task; the client"
           f" alone (reading and building before, the last reports after)"
           f" {dask_warm - window:.2f} s")
     print(f"empty tasks: {args.empty} in {empty_seconds:.2f} s,"
           f" {empty_seconds / args.empty * 1e3:.2f} ms each")
     print(f"Dask against in-process (warm runs): largest relative difference {worst:.1e}")
+    print(f"per project, one chunk of {CHUNK}, compiled: " + ", ".join(
+        f"{name} {value:.1f}" + ("" if name.startswith("KB") else " ms CPU")
+        for name, value in cpu.items()))
 
 
 if __name__ == "__main__":
