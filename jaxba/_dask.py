@@ -65,7 +65,7 @@ def check_scheduler(scheduler) -> None:
     if not isinstance(scheduler, str) or not scheduler.strip():
         raise SchedulerError(f"scheduler {scheduler!r}: give 'local', 'local:N' or a Dask"
                              " scheduler's address (tcp://host:8786)")
-    if scheduler.startswith("local"):
+    if scheduler == "local" or scheduler.startswith("local:"):  # not "localhost:8786"
         match = _LOCAL.fullmatch(scheduler)
         if match is None or (match.group(1) is not None and int(match.group(1)) < 1):
             raise SchedulerError(f"scheduler {scheduler!r}: 'local' or 'local:N' with N >= 1"

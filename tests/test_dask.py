@@ -18,6 +18,7 @@ import jaxba
 from jaxba._adjust._batch import batch_shape, pad_problems
 from jaxba._adjust._montecarlo import monte_carlo
 from jaxba._cli._main import main
+from jaxba._dask import check_scheduler, local_workers
 from jaxba._io._project._batch_run import run_batch
 
 N_PROJECTS = 20
@@ -216,5 +217,7 @@ def test_scheduler_refused_before_any_work(projects, tmp_path, monkeypatch, caps
     for bad in ("local:0", "local:x", "   "):
         assert main(["batch", str(projects[0]), "--out", str(out), "--scheduler", bad]) == 2
         assert "scheduler" in capsys.readouterr().err
+    check_scheduler("localhost:8786")  # an address, not "local"
+    assert (local_workers("local:3"), local_workers("localhost:8786")) == (3, None)
     assert main(["batch", str(projects[0]), "--out", str(out), "--chunk", "0"]) == 2
     assert not out.exists()
