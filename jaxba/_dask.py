@@ -39,8 +39,10 @@ class SchedulerError(ValueError):
 
 
 def _is_client(scheduler) -> bool:
-    return type(scheduler).__name__ == "Client" and type(scheduler).__module__.startswith(
-        "distributed")
+    """Whether `scheduler` is a `distributed.Client` (Dask installed)."""
+    from distributed import Client
+
+    return isinstance(scheduler, Client)
 
 
 def local_workers(scheduler: str) -> int | None:
