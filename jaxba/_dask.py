@@ -103,7 +103,9 @@ class OnDask:
 
     @property
     def description(self) -> str:
-        dashboard = self.client.scheduler_info().get("services", {}).get("dashboard")
+        # The dashboard shows only where bokeh is installed (not in the dask extra).
+        dashboard = (self.client.scheduler_info().get("services", {}).get("dashboard")
+                     and importlib.util.find_spec("bokeh") is not None)
         where = f", dashboard {self.client.dashboard_link}" if dashboard else ""
         return f"Dask scheduler {self.client.scheduler.address} ({self.workers} workers{where})"
 
