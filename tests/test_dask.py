@@ -136,7 +136,7 @@ def test_dask_batch_equals_the_in_process_batch(local, on_dask):
 def test_a_killed_worker_loses_no_project(cluster, projects, local, tmp_path):
     """A worker process killed (SIGKILL) while it solves a chunk, after the first results
     came back: its chunks run again on the other worker (or its restarted successor)."""
-    the_cluster, client = cluster
+    _, client = cluster
     killed = []
 
     def kill_a_busy_worker():
