@@ -134,35 +134,44 @@ def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
     return tuple((int(position[d]), int(position[s])) for d, s in problem.ties)
 
 
-def pad_problems(problems) -> PaddedBatch:
-    """Pad bundles of one kind (same observation groups in the same order, same camera
-    models, refraction and robust loss) to a common shape and stack them.
+@dataclasses.dataclass(frozen=True)
+class BatchShape:
+    """The padded shape of a batch, all that its compiled programs depend on: rows per
+    camera model, images, points (the spare one included), rows per observation group, the
+    length of the free-index vector and, per group of the linearisation plan, its live
+    slots and (keys, rows per key) (None for a group that is not row-local)."""
 
-    Raises ValueError naming the first problem whose structure differs from the first one.
-    """
-    problems = tuple(problems)
-    if not problems:
-        raise ValueError("pad_problems: no problems")
-    reference = _signature(problems[0])
-    for k, problem in enumerate(problems):
-        if _signature(problem) != reference:
-            raise ValueError(
-                f"problem {k} has another structure than problem 0 (observation groups, camera"
-                " models, refraction or robust loss); pad only problems of one kind"
-            )
-    # Target shapes: the largest of every block, one spare point row.
-    n_cameras = {m: max(p.initial.cameras[m].shape[0] for p in problems)
-                 for m in problems[0].initial.cameras}
-    n_images = max(p.initial.images.shape[0] for p in problems)
-    n_points = max(p.initial.points.shape[0] for p in problems) + 1
+    cameras: dict[str, int]
+    images: int
+    points: int
+    rows: tuple[int, ...]
+    free: int
+    live: tuple[tuple[int, ...] | None, ...] | None = None
+    keys: tuple[tuple[int, int] | None, ...] | None = None
+
+
+def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
+    """The largest of every block and group, one spare point row; no plan yet."""
+    return BatchShape(
+        cameras={m: max(p.initial.cameras[m].shape[0] for p in problems)
+                 for m in problems[0].initial.cameras},
+        images=max(p.initial.images.shape[0] for p in problems),
+        points=max(p.initial.points.shape[0] for p in problems) + 1,
+        rows=tuple(max(np.shape(p.groups[g].stddev)[0] for p in problems)
+                   for g in range(len(problems[0].groups))),
+        free=max(p.n_unknowns() for p in problems),
+    )
+
+
+def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list]:
+    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices
+    and the live slots of the plans (`shape.live`, or the union over these problems)."""
     shapes = Parameters(
         cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
-                 for m, n in n_cameras.items()},
-        images=np.zeros((n_images, 6)),
-        points=np.zeros((n_points, 3)),
+                 for m, n in shape.cameras.items()},
+        images=np.zeros((shape.images, 6)),
+        points=np.zeros((shape.points, 3)),
     )
-    n_rows = [max(np.shape(p.groups[g].stddev)[0] for p in problems)
-              for g in range(len(problems[0].groups))]
     names = [g.name for g in problems[0].groups]
     padded, indices = [], []
     ties = {_padded_ties(problem, shapes) for problem in problems}
@@ -172,26 +181,82 @@ def pad_problems(problems) -> PaddedBatch:
     for problem in problems:
         initial = _pad_parameters(problem.initial, shapes, None)
         free = _pad_parameters(problem.free, shapes, False)
-        groups = tuple(_pad_group(g, n, name) for g, n, name in zip(problem.groups, n_rows, names))
+        groups = tuple(_pad_group(g, n, name)
+                       for g, n, name in zip(problem.groups, shape.rows, names))
         one = BundleProblem(initial, free, groups, problem.refraction, problem.robust,
                             ties=next(iter(ties)))
         padded.append(one)
         indices.append(free_indices(one))
-    n_free = np.array([len(i) for i in indices])
     spare = flatten(padded[0].initial).size - 3  # X of the spare (last) point
-    free_index = np.full((len(problems), n_free.max()), spare)
+    free_index = np.full((len(problems), shape.free), spare)
     for k, index in enumerate(indices):
         free_index[k, : len(index)] = index
+    if shape.live is not None:
+        return padded, free_index, list(shape.live)
     # One set of live slots for all: problems may free different IOPs.
     lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
     live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
+    return padded, free_index, live
+
+
+def _check_kind(problems) -> None:
+    reference = _signature(problems[0])
+    for k, problem in enumerate(problems):
+        if _signature(problem) != reference:
+            raise ValueError(
+                f"problem {k} has another structure than problem 0 (observation groups, camera"
+                " models, refraction or robust loss); pad only problems of one kind"
+            )
+
+
+def batch_shape(problems) -> BatchShape:
+    """The smallest shape that holds every one of `problems` (bundles of one kind), their
+    plans included: chunks of them padded to it (`pad_problems(chunk, shape)`) share one
+    compiled program. Pads every problem once to find the plans' sizes."""
+    problems = tuple(problems)
+    _check_kind(problems)
+    blocks = _block_shape(problems)
+    padded, free_index, live = _pad_each(problems, blocks)
+    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
+    keys = tuple(None if slots is None else
+                 tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
+                 for g, slots in enumerate(live))
+    return dataclasses.replace(blocks, live=tuple(live), keys=keys)
+
+
+def _holds(shape: BatchShape, own: BatchShape) -> bool:
+    return (shape.cameras.keys() == own.cameras.keys()
+            and all(shape.cameras[m] >= n for m, n in own.cameras.items())
+            and shape.images >= own.images and shape.points >= own.points
+            and len(shape.rows) == len(own.rows)
+            and all(a >= b for a, b in zip(shape.rows, own.rows)) and shape.free >= own.free)
+
+
+def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
+    """Pad bundles of one kind (same observation groups in the same order, same camera
+    models, refraction and robust loss) to a common shape and stack them.
+
+    `shape`: the shape to pad to (`batch_shape` of these problems and maybe others: chunks
+    of one larger batch padded alike share one compiled program); default the problems'
+    own. Raises ValueError naming the first problem whose structure differs from the first
+    one, or when `shape` cannot hold them.
+    """
+    problems = tuple(problems)
+    if not problems:
+        raise ValueError("pad_problems: no problems")
+    _check_kind(problems)
+    own = _block_shape(problems)
+    shape = own if shape is None else shape
+    if not _holds(shape, own):
+        raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
+    padded, free_index, live = _pad_each(problems, shape)
+    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
     stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
     return PaddedBatch(
         problem=stacked,
-        plan=pad_plans([linearisation_plan(one, index, live)
-                        for one, index in zip(padded, free_index)]),
+        plan=pad_plans(plans, shape.keys),
         problems=problems,
-        n_free=n_free,
+        n_free=np.array([p.n_unknowns() for p in problems]),
         n_observations=np.array([p.n_observations() for p in problems]),
     )
 
@@ -323,11 +388,12 @@ def _real_rows(padded_problem: BundleProblem, problem: BundleProblem) -> np.ndar
 
 
 def check_datum_batch(
-    problems, *, labels: list | None = None, rtol: float = 1e-9
+    problems, *, labels: list | None = None, rtol: float = 1e-9, shape: BatchShape | None = None
 ) -> list[DatumError | None]:
     """`check_datum` of every problem, with one vmapped Jacobian for all (one compilation):
-    per problem None, or the `DatumError` that `check_datum` would raise."""
-    batch = pad_problems(problems)
+    per problem None, or the `DatumError` that `check_datum` would raise. `shape`: as
+    `pad_problems`'."""
+    batch = pad_problems(problems, shape)
     jacobian, _ = jax.device_get(
         batch_jacobian(batch.problem, batch.problem.initial, batch.free_index)
     )
@@ -354,6 +420,7 @@ def adjust_batch(
     atol: float = 1e-8,
     alpha: float | list[float] | None = None,
     familywise: bool | list[bool] = False,
+    shape: BatchShape | None = None,
 ) -> list[Adjustment]:
     """Adjust bundles of one kind in one padded, jitted, vmapped solve; then their
     statistics in one vmapped call.
@@ -363,9 +430,9 @@ def adjust_batch(
     hold only the start and the solution (no per-step report inside a batch). With `alpha`
     (one per problem or one for all) `reliability` is filled in as `reliability(result,
     alpha=..., familywise=...)` would. No datum check: call `check_datum` first (the CLI's
-    `run_batch` does).
+    `run_batch` does). `shape`: the padded shape (`pad_problems`).
     """
-    batch = pad_problems(problems)
+    batch = pad_problems(problems, shape)
     n = batch.n_batch
     sigma0s = [sigma0] * n if np.ndim(sigma0) == 0 else list(sigma0)
     alphas = [alpha] * n if alpha is None or np.ndim(alpha) == 0 else list(alpha)
@@ -425,6 +492,6 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
 
 
 __all__ = [
-    "PaddedBatch", "adjust_batch", "batch_statistics", "check_datum_batch", "pad_problems",
-    "solve_batch",
+    "BatchShape", "PaddedBatch", "adjust_batch", "batch_shape", "batch_statistics",
+    "check_datum_batch", "pad_problems", "solve_batch",
 ]

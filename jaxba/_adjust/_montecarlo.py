@@ -1,5 +1,5 @@
 """Empirical precision on the batch API: Monte Carlo and bootstrap replicates of one bundle,
-all solved in one vmapped call (`_batch.solve_batch`: one compilation, no padding needed).
+solved in vmapped chunks (`_batch.solve_batch`: one compilation, no padding needed).
 
 - `monte_carlo`: fresh Gaussian noise N(0, σ²) on every image coordinate (σ of each
   observation from its group's `stddev`), added to the computed image coordinates at the
@@ -14,6 +14,12 @@ all solved in one vmapped call (`_batch.solve_batch`: one compilation, no paddin
 
 Both return the stacked solutions and the empirical covariance of the free unknowns, to
 compare with the formal `Precision.covariance`.
+
+The replicates are drawn here and solved in vmapped chunks of `chunk_size` (default
+`CHUNK`), all of one length (the last filled up with copies of its last replicate, dropped
+after): one compiled program. The chunks run one after the other in this process, or, with a
+`scheduler` (as `jaxba batch --scheduler`: "local[:N]", an address or a `distributed.Client`),
+as tasks on the workers of a Dask cluster; the results are the same.
 """
 
 import dataclasses
@@ -24,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
+from .._dask import executor
 from .._problem._bundle import BundleProblem
 from .._problem._linearisation import linearisation_plan
 from .._problem._observations import ImagePoints
@@ -67,13 +74,42 @@ def _replicate(problem: BundleProblem, measured: list[Array]) -> BundleProblem:
     return eqx.tree_at(lambda p: [p.groups[k].measured for k in ks], problem, measured)
 
 
-def _solve_replicates(problem, measured, *, max_steps, rtol, atol) -> Replicates:
+CHUNK = 10  # replicates per vmapped solve (one Dask task), by default
+
+
+def _solve_chunk(task) -> Solution:
+    """The replicates of `task` = (problem, measured per image group, solver options)."""
+    problem, measured, options = task
     n = measured[0].shape[0]
     stacked = jax.vmap(lambda m: _replicate(problem, m))(measured)
     plan = linearisation_plan(problem)
-    index = np.asarray(plan.free_index)
-    solutions = solve_batch(stacked, broadcast_plan(plan, n), max_steps=max_steps, rtol=rtol,
-                            atol=atol)
+    return solve_batch(stacked, broadcast_plan(plan, n), **options)
+
+
+def _solve_all(problem, measured, options, scheduler, chunk_size) -> Solution:
+    """All replicates, in chunks of `chunk_size`, here (no scheduler) or on Dask."""
+    if chunk_size is not None and chunk_size < 1:
+        raise ValueError(f"chunk_size {chunk_size}: must be at least 1")
+    n = measured[0].shape[0]
+    size = min(chunk_size or CHUNK, n)
+    rows = [np.minimum(np.arange(start, start + size), n - 1) for start in range(0, n, size)]
+    parts = {}
+    with executor(scheduler) as run:
+        tasks = [(problem, [m[r] for m in measured], options) for r in rows]
+        for k, solution in run.map(_solve_chunk, tasks):
+            if isinstance(solution, BaseException):
+                raise solution
+            parts[k] = solution
+    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[:n],
+                        *(parts[k] for k in range(len(rows))))
+
+
+def _solve_replicates(problem, measured, *, max_steps, rtol, atol, scheduler=None,
+                      chunk_size=None) -> Replicates:
+    n = measured[0].shape[0]
+    options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
+    solutions = _solve_all(problem, measured, options, scheduler, chunk_size)
+    index = np.asarray(linearisation_plan(problem).free_index)
     flat = np.stack([flatten(jax.tree.map(lambda leaf: leaf[r], solutions.parameters))
                      for r in range(n)])
     free = flat[:, index]
@@ -93,8 +129,11 @@ def monte_carlo(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    scheduler=None,
+    chunk_size: int | None = None,
 ) -> Replicates:
-    """`n` replicates with simulated image noise N(0, σ²), solved in one vmapped call.
+    """`n` replicates with simulated image noise N(0, σ²), solved in vmapped chunks of
+    `chunk_size`, here or on a Dask `scheduler` (module docstring).
 
     The replicates start from `problem.initial`. `at`: the parameters the noise-free image
     coordinates are computed at (default: `adjust(problem)`'s solution).
@@ -107,7 +146,8 @@ def monte_carlo(
         sigma = jnp.where(group.mask(), group.stddev, 0.0)
         noise = jax.random.normal(key_k, (n, *computed.shape)) * sigma
         measured.append(computed + noise)
-    return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol)
+    return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol,
+                             scheduler=scheduler, chunk_size=chunk_size)
 
 
 def bootstrap(
@@ -118,8 +158,10 @@ def bootstrap(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    scheduler=None,
+    chunk_size: int | None = None,
 ) -> Replicates:
-    """`n` residual-bootstrap replicates (module docstring), solved in one vmapped call.
+    """`n` residual-bootstrap replicates (module docstring), solved as `monte_carlo`'s.
 
     Whitened image residuals are pooled over all image groups and resampled per coordinate
     with replacement, scaled by sqrt(n_obs / r).
@@ -140,7 +182,8 @@ def bootstrap(
         draws = jax.random.choice(key_k, jnp.asarray(pool), (n, *computed.shape))
         sigma = jnp.where(group.mask(), group.stddev, 0.0)
         measured.append(computed + sigma * draws)
-    return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol)
+    return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol,
+                             scheduler=scheduler, chunk_size=chunk_size)
 
 
 __all__ = ["Replicates", "bootstrap", "monte_carlo"]

@@ -29,7 +29,6 @@ EXIT_CODES = (
     "Exit codes: 0 converged, 1 not converged (reports written), 2 bad input, 3 internal"
     " error, 130 interrupted."
 )
-CACHE_DIR = pathlib.Path("~/.cache/jaxba/jax")
 
 
 class _UsageError(Exception):
@@ -91,35 +90,10 @@ def _say(message: str = "") -> None:
 
 
 def _setup_jax() -> None:
-    """float64 (never set by the library at import), one BLAS thread, a persistent
-    compilation cache and a C heap that gives freed memory back (`jaxba._memory`).
+    """jax as every jaxba command runs it (`jaxba._jax_setup.setup_jax`)."""
+    from jaxba._jax_setup import setup_jax
 
-    OpenBLAS threads and XLA's own threads oversubscribe small machines (the dense QR of
-    the LM step ran 3x slower), so BLAS is limited to one thread for the run. The cache is
-    `~/.cache/jaxba/jax`, or jax's own `JAX_COMPILATION_CACHE_DIR` where that is set; best
-    effort: if its folder cannot be made or written, jax runs without it.
-    """
-    import jax
-    import threadpoolctl
-
-    from jaxba._memory import tune_allocator
-
-    tune_allocator()  # freed compiler and buffer memory back to the system, not kept
-    threadpoolctl.threadpool_limits(1, user_api="blas")
-    jax.config.update("jax_enable_x64", True)
-    try:
-        cache = pathlib.Path(os.environ.get("JAX_COMPILATION_CACHE_DIR") or CACHE_DIR)
-        cache = cache.expanduser()
-        cache.mkdir(parents=True, exist_ok=True)
-        if not os.access(cache, os.W_OK):
-            return
-        jax.config.update("jax_compilation_cache_dir", str(cache))
-        # Every program, however small: loading one is several times faster than compiling
-        # it, even for the few small eager operations of a run.
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    except (OSError, RuntimeError, ValueError):
-        pass
+    setup_jax()
 
 
 # --- jaxba adjust ---------------------------------------------------------------------------
@@ -516,14 +490,15 @@ def _bal_locked(args: argparse.Namespace, bal) -> int:
 def _add_batch(subparsers) -> None:
     parser = subparsers.add_parser(
         "batch",
-        help="adjust many projects in one padded, vmapped solve",
+        help="adjust many projects in padded, vmapped solves, here or on a Dask cluster",
         description=(
             "Adjust every PROJECT.toml (projects of one kind share one compiled, vmapped solve),"
             " write each project's reports into DIR/<project name>/ and summary.csv and"
             " summary.json into DIR. A failing project is reported in the summary and does"
-            " not stop the others. Exit codes: 0 all converged, 1 some project failed or did"
-            " not converge, 2 bad usage (or a report would overwrite an input), 3 internal"
-            " error, 130 interrupted."
+            " not stop the others. With --scheduler the solves run as tasks on the workers of"
+            " a Dask cluster (pip install 'jaxba[dask]'). Exit codes: 0 all converged, 1 some"
+            " project failed or did not converge, 2 bad usage (or a report would overwrite"
+            " an input, or the scheduler cannot be used), 3 internal error, 130 interrupted."
         ),
         parents=[_common_options()],
     )
@@ -532,13 +507,33 @@ def _add_batch(subparsers) -> None:
                         help="folder for the per-project reports and the summary")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="a bar over the projects (default: only on a terminal)")
+    parser.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS|local[:N]",
+        help="solve on Dask: a scheduler's address (tcp://host:8786), or local:N for N worker"
+             " processes on this machine (local: one per CPU); default: in this process")
+    parser.add_argument(
+        "--chunk", type=int, default=None, metavar="N",
+        help="projects per vmapped solve, one Dask task (default 10); the results do not"
+             " depend on where the solves run, only (to rounding) on N")
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="skip projects whose reports are all in DIR already (an earlier, interrupted"
+             " run); their summary rows are read from their results.json")
     parser.set_defaults(run=_batch)
 
 
 def _batch(args: argparse.Namespace) -> int:
+    from jaxba._dask import SchedulerError, check_scheduler
     from jaxba._io._project._batch_read import read_batch
     from jaxba._report import output_lock
 
+    if args.chunk is not None and args.chunk < 1:
+        raise _UsageError(f"--chunk {args.chunk}: must be at least 1")
+    try:
+        if args.scheduler is not None:  # before anything is read: Dask installed?
+            check_scheduler(args.scheduler)
+    except SchedulerError as error:
+        raise _UsageError(str(error)) from None
     entries = read_batch(args.projects, args.out)  # checks every report against every input
     with output_lock(args.out):
         _setup_jax()
@@ -546,8 +541,13 @@ def _batch(args: argparse.Namespace) -> int:
         from jaxba._io._project._batch_run import run_batch
 
         with project_progress(len(args.projects), _say, bar=args.progress) as progress:
-            rows = run_batch(args.projects, args.out, progress=progress.say,
-                             advance=progress.advance, entries=entries)
+            try:
+                rows = run_batch(args.projects, args.out, progress=progress.say,
+                                 advance=progress.advance, entries=entries,
+                                 scheduler=args.scheduler, chunk_size=args.chunk,
+                                 resume=args.resume)
+            except SchedulerError as error:
+                raise _UsageError(str(error)) from None
     ok = sum(row["status"] == "ok" for row in rows)
     _say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED

@@ -151,9 +151,11 @@ def _rows_by_key(key: np.ndarray, n_keys: int) -> np.ndarray:
     return out
 
 
-def pad_plans(plans: list[LinearisationPlan]) -> LinearisationPlan:
+def pad_plans(plans: list[LinearisationPlan], keys: tuple | None = None) -> LinearisationPlan:
     """Stack plans of padded problems (same free-index length, rows and live slots) along
-    a leading batch axis, padding every group's keys and key rows with empty ones."""
+    a leading batch axis, padding every group's keys and key rows with empty ones: to the
+    largest of these plans, or per group to `keys` (n_keys, max_rows) where given (None
+    for a group that is not row-local), which must hold them."""
 
     def pad(array, shape, fill):
         out = np.full(shape, fill)
@@ -170,6 +172,11 @@ def pad_plans(plans: list[LinearisationPlan]) -> LinearisationPlan:
                 continue
             n_keys = max(p.key_rows[g].shape[0] for p in plans)
             max_rows = max(p.key_rows[g].shape[1] for p in plans)
+            if keys is not None:
+                if keys[g][0] < n_keys or keys[g][1] < max_rows:
+                    raise ValueError(f"pad_plans: group {g} has {n_keys} keys of up to"
+                                     f" {max_rows} rows; more than {keys[g]}")
+                n_keys, max_rows = keys[g]
             rows.append(pad(key_rows, (n_keys, max_rows), -1))
             columns.append(pad(key_columns, (n_keys, key_columns.shape[1]), plan.n_free))
         padded.append(LinearisationPlan(plan.free_index, tuple(rows), tuple(columns), plan.live))

@@ -40,8 +40,7 @@ from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._schur._bundle import BundleStructure, bundle_structure, schur_solve
 from ._covariance import Precision, SchurCovariance, with_ties
 from ._datum import DatumError, network_centre, similarity_directions, similarity_transform
-from ._schur_precision import schur_precision
-from ._schur_reliability import schur_redundancy_numbers
+from ._schur_reliability import schur_precision_and_redundancy, schur_redundancy_numbers
 
 STIFFNESS = 100.0
 # A similarity motion is unobservable when the observations see less than this fraction
@@ -225,7 +224,8 @@ def free_network_precision(
     group = inner_constraint_group(problem)
     minimal = minimal_constraints(problem, params)
     structure = structure or bundle_structure(minimal)
-    base = schur_precision(minimal, params, sigma0=sigma0, structure=structure)
+    # With the redundancy numbers (gauge invariant: from the minimal datum) in one program.
+    base = schur_precision_and_redundancy(minimal, params, sigma0=sigma0, structure=structure)
     variance_factor = base.sigma0_squared / sigma0**2
     null = group.null_space(params, problem.free)  # G (d, n_all)
     constraint = np.asarray(group.directions)  # C
@@ -255,7 +255,8 @@ def free_network_precision(
         free_index=index,
         covariance=None,
         std=unflatten(jax.tree.map(np.asarray, params), std * flatten(problem.free)),
-        schur=SchurCovariance(reduced_positions, reduced, points),
+        schur=SchurCovariance(reduced_positions, reduced, points,
+                              _with_constraint_rows(problem, params, *base.schur.redundancy)),
     ), problem)
 
 
@@ -265,7 +266,12 @@ def free_network_redundancy_numbers(
     """(r_i, e_i) of a free network's real observations at `params`, as
     `schur_redundancy_numbers` (gauge invariant: from the minimal datum); the inner
     constraints' rows have r = 0."""
-    group = inner_constraint_group(problem)
     r, e = schur_redundancy_numbers(minimal_constraints(problem, params), params)
+    return _with_constraint_rows(problem, params, r, e)
+
+
+def _with_constraint_rows(problem, params, r, e) -> tuple[np.ndarray, np.ndarray]:
+    """The minimal datum's (r_i, e_i) with the inner constraints' rows appended (r = 0)."""
+    group = inner_constraint_group(problem)
     constraint_e = np.ravel(np.asarray(group.residuals(params, problem.refraction)))
     return np.concatenate([r, np.zeros(constraint_e.size)]), np.concatenate([e, constraint_e])

@@ -6,9 +6,10 @@ be written, stops the whole batch before anything is computed (`OutputError`).
 """
 
 import dataclasses
+import json
 import pathlib
 
-from ..._report._paths import check_folder, check_outputs, check_targets
+from ..._report._paths import check_folder, check_outputs, check_targets, report_paths
 from . import ProjectError, read_project
 from ._spec import ProjectSpec
 
@@ -21,11 +22,12 @@ class BatchEntry:
     name: str
     status: str = "pending"  # ok | not converged | failed
     reason: str = ""
-    mode: str = ""  # batch | single
+    mode: str = ""  # batch | single | resumed
     spec: ProjectSpec | None = None
     project: object = None
     result: object = None
     out_dir: pathlib.Path | None = None
+    previous: dict | None = None  # resumed: its results.json
 
 
 def summary_paths(out_dir) -> dict[str, pathlib.Path]:
@@ -71,3 +73,24 @@ def read_batch(paths, out_dir) -> list[BatchEntry]:
         if entry.spec is not None:
             check_outputs(entry.spec, entry.out_dir, inputs=inputs)
     return entries
+
+
+RESUMED_KEYS = {"converged", "message", "sigma0", "redundancy", "cameras"}
+
+
+def finished_results(entry: BatchEntry) -> dict | None:
+    """The results.json of `entry`'s earlier run when all its reports exist (they are
+    written together, so all or none) and results.json can be read; None otherwise."""
+    if entry.spec is None:
+        return None
+    paths = report_paths(entry.spec, entry.out_dir)
+    if not all(path.is_file() for path in paths.values()):
+        return None
+    try:
+        results = json.loads(paths["json"].read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if (not isinstance(results, dict) or results.get("project") != entry.spec.name
+            or not RESUMED_KEYS <= results.keys()):
+        return None
+    return results

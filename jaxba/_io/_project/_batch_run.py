@@ -1,12 +1,20 @@
 """`jaxba batch`: adjust many project files in padded batches, write reports and a summary.
 
-Plain Python around the jitted core (`_batch.adjust_batch`). Projects are read and their
-outputs checked first (`_batch_read.read_batch`, no jax), then built one by one; a file or
-datum error marks that project failed and the others go on. Projects of
-one kind (same observation groups, camera models, iteration settings) share one padded,
-vmapped solve: one compilation for all of them. A project that asks for a robust loss,
+Plain Python around the jitted core. Projects are read and their outputs checked first
+(`_batch_read.read_batch`, no jax); with `resume`, those whose reports are all there are
+skipped. The others are built one by one; a file or datum error marks that project failed
+and the others go on. Projects of one kind (same observation groups, camera models,
+iteration settings) are padded to one shape and solved in vmapped chunks of `CHUNK`
+(`_batch_solve`): one compilation for all of them. A project that asks for a robust loss,
 variance components or data snooping is adjusted alone with `adjust_project` (those are
 sequential re-adjustments); its summary row says so.
+
+The chunks run on an executor (`jaxba._dask`): in this process, one after the other, or on
+the workers of a Dask cluster, all at once; everything else (grouping, failures, reports,
+summary) is the same code for both. Reports are written here as each chunk's results come
+back. A chunk whose task raised (a worker that kept dying under it, a bug) is tried again
+one project at a time, so that only the project at fault fails, with the exception as its
+reason.
 """
 
 import csv
@@ -19,13 +27,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..._adjust._adjust import NotConvergedError
-from ..._adjust._batch import _signature, adjust_batch, check_datum_batch
+from ..._adjust._batch import _signature, batch_shape
+from ..._dask import check_scheduler, executor
 from ..._models._cameras import CAMERA_MODELS
 from ..._report._atomic import replace_files
-from ..._statistics._datum import DatumError
-from . import ProjectError, adjust_project, build_project
-from ._batch_read import BatchEntry, read_batch, summary_paths
+from . import ProjectError, build_project
+from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
+from ._batch_solve import Chunk, Outcome, solve_chunk
+
+CHUNK = 10  # projects per vmapped solve (one Dask task), by default
 
 
 def _needs_single(project) -> bool:
@@ -41,6 +51,9 @@ def run_batch(
     progress: Callable[[str], None] | None = None,
     entries: list[BatchEntry] | None = None,
     advance: Callable[[], None] | None = None,
+    scheduler=None,
+    chunk_size: int | None = None,
+    resume: bool = False,
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
@@ -48,20 +61,35 @@ def run_batch(
     Nothing is computed when a report would overwrite an input file or DIR cannot be
     written (`OutputError`, from `read_batch`; `entries`: its result, if already read).
 
-    Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch" or
-    "single"), converged, sigma0, redundancy, and per camera parameter `<camera>.<name>` and
-    `<camera>.<name>.std` (the model's units: mm for mm-models, pixels for "opencv").
-    `progress` receives one line per stage and per project; `advance()` is called once per
-    project when it is finished (failed, or adjusted and its reports written), for a bar.
-    """
-    from ..._report import write_reports
+    Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch",
+    "single" or "resumed"), converged, sigma0, redundancy, and per camera parameter
+    `<camera>.<name>` and `<camera>.<name>.std` (the model's units: mm for mm-models,
+    pixels for "opencv").
 
+    `scheduler`: where the chunks are solved: None in this process; "local" or "local:N"
+    (a Dask cluster of N worker processes started for the run), a Dask scheduler's address
+    or a `distributed.Client` (`jaxba._dask.executor`; `SchedulerError` when it cannot be
+    used: Dask missing or a malformed name before anything is built, no answer from the
+    address before anything is solved). `chunk_size`: projects per vmapped solve (one task;
+    default `CHUNK`): chunks are the same wherever they run, and so are the results (to
+    rounding, they depend on the chunk length). `resume`: a project whose reports all
+    exist is not adjusted again; its row is read from its results.json (mode "resumed").
+
+    `progress` receives one line per stage and per project; `advance()` is called once per
+    project when it is finished (failed, skipped, or adjusted and its reports written).
+    """
     say = progress or (lambda line: None)
     finished = advance or (lambda: None)
     out_dir = pathlib.Path(out_dir)
     started = time.perf_counter()
     entries = read_batch(paths, out_dir) if entries is None else entries
+    if chunk_size is not None and chunk_size < 1:
+        raise ValueError(f"chunk_size {chunk_size}: must be at least 1")
+    if scheduler is not None:
+        check_scheduler(scheduler)
     for entry in entries:
+        if resume and entry.status == "pending":
+            _resume(entry)
         if entry.status == "pending":
             try:
                 entry.project = build_project(entry.spec)
@@ -70,9 +98,27 @@ def run_batch(
         if entry.status == "failed":
             say(f"failed  {entry.path}: {entry.reason}")
             finished()
+        elif entry.mode == "resumed":
+            say(f"skipped {entry.path}: its reports are in {entry.out_dir}")
+            finished()
     ready = [e for e in entries if e.status == "pending"]
-    say(f"read {len(entries)} projects ({len(ready)} ok) in {time.perf_counter() - started:.1f} s")
+    say(f"read {len(entries)} projects ({len(ready)} to adjust) in"
+        f" {time.perf_counter() - started:.1f} s")
+    if ready:
+        with executor(scheduler) as run:
+            if scheduler is not None:
+                say(f"solving on {run.description}")
+            _solve(run, _chunks(ready, chunk_size or CHUNK), say, finished, len(ready))
+    rows = [_summary_row(entry) for entry in entries]
+    _write_summary(rows, out_dir)
+    say(f"wrote {out_dir / 'summary.csv'} and summary.json"
+        f" ({time.perf_counter() - started:.1f} s in all)")
+    return rows
 
+
+def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], Chunk]]:
+    """Projects of one kind grouped, each group cut into chunks of `size` padded to the
+    group's shape; a project adjusted alone is its own chunk."""
     groups: dict[tuple, list[BatchEntry]] = {}
     for entry in ready:
         if _needs_single(entry.project):
@@ -82,76 +128,84 @@ def run_batch(
         key = (_signature(entry.project.problem), settings.max_iterations, settings.rtol,
                settings.atol)
         groups.setdefault(key, []).append(entry)
-
-    done = 0
+    chunks = []
     for key, members in groups.items():
         if key[0] == "single":
-            _run_single(members[0])
-        else:
-            say(f"solving {len(members)} project(s) in one padded batch")
-            _run_group(members)
-        for entry in members:
-            if entry.result is not None:
-                try:
-                    write_reports(entry.project, entry.result, entry.out_dir)
-                except (ValueError, OSError) as error:
-                    entry.status, entry.reason = "failed", f"reports not written: {error}"
-            done += 1
-            sigma0 = f"sigma0 {entry.result.sigma0:.4f}" if entry.result is not None else ""
-            say(f"[{done:{len(str(len(ready)))}d}/{len(ready)}] {entry.name}: {entry.status}"
-                f" {sigma0} {entry.reason}".rstrip())
-            finished()
-    rows = [_summary_row(entry) for entry in entries]
-    _write_summary(rows, out_dir)
-    say(f"wrote {out_dir / 'summary.csv'} and summary.json"
-        f" ({time.perf_counter() - started:.1f} s in all)")
-    return rows
+            chunks.append((members, Chunk((members[0].project,), single=True)))
+            continue
+        step = min(size, len(members))
+        # Chunks of one group padded alike: one compiled program for all of them.
+        shape = batch_shape([e.project.problem for e in members]) if step < len(members) else None
+        for start in range(0, len(members), step):
+            part = members[start:start + step]
+            chunks.append((part, Chunk(tuple(e.project for e in part), shape=shape, size=step)))
+    return chunks
 
 
-def _set_result(entry: BatchEntry, result) -> None:
+def _solve(run, chunks, say, finished, total: int) -> None:
+    """Solve `chunks` on `run`, record the outcomes and write the reports as they come; a
+    chunk of several projects whose task raised is tried again one project at a time."""
+    from ..._report import write_reports
+
+    done = 0
+    while chunks:
+        batched = sum(len(members) for members, chunk in chunks if not chunk.single)
+        if batched:
+            n_batches = sum(not chunk.single for _, chunk in chunks)
+            say(f"solving {batched} project(s) in {n_batches} padded batch(es)")
+        again = []
+        for k, outcomes in run.map(solve_chunk, [chunk for _, chunk in chunks]):
+            members, chunk = chunks[k]
+            if isinstance(outcomes, BaseException):
+                if len(members) > 1:
+                    say(f"a batch of {len(members)} failed ({type(outcomes).__name__});"
+                        " trying its projects one by one")
+                    again += [([e], Chunk((e.project,), chunk.single, chunk.shape, 1))
+                              for e in members]
+                    continue
+                reason = f"{type(outcomes).__name__}: {outcomes}".strip()
+                outcomes = [Outcome("single" if chunk.single else "", reason=reason)]
+            for entry, outcome in zip(members, outcomes):
+                _record(entry, outcome, write_reports)
+                done += 1
+                sigma0 = f"sigma0 {entry.result.sigma0:.4f}" if entry.result is not None else ""
+                say(f"[{done:{len(str(total))}d}/{total}] {entry.name}: {entry.status}"
+                    f" {sigma0} {entry.reason}".rstrip())
+                finished()
+        chunks = again
+
+
+def _record(entry: BatchEntry, outcome: Outcome, write_reports) -> None:
+    """The outcome into `entry`; the reports written for an adjusted project."""
+    entry.mode = outcome.mode
+    if outcome.result is None:
+        entry.status, entry.reason = "failed", outcome.reason
+        return
+    result = outcome.result
     entry.result = result
     entry.status = "ok" if result.converged else "not converged"
     entry.reason = "" if result.converged else result.message
-
-
-def _run_single(entry: BatchEntry) -> None:
-    entry.mode = "single"
     try:
-        _set_result(entry, adjust_project(entry.project))
-    except (DatumError, NotConvergedError) as error:
-        entry.status, entry.reason = "failed", str(error)
+        write_reports(entry.project, result, entry.out_dir)
+    except (ValueError, OSError) as error:
+        entry.status, entry.reason = "failed", f"reports not written: {error}"
 
 
-def _run_group(members: list[BatchEntry]) -> None:
-    errors = check_datum_batch([e.project.problem for e in members],
-                               labels=[e.project.labels for e in members])
-    for entry, error in zip(members, errors):
-        if error is not None:
-            entry.status, entry.reason = "failed", f"{entry.path}: {error}"
-    good = [e for e, error in zip(members, errors) if error is None]
-    if not good:
+def _resume(entry: BatchEntry) -> None:
+    """Mark `entry` resumed, with the row of its results.json, if all its reports exist."""
+    results = finished_results(entry)
+    if results is None:
         return
-    settings = [e.project.spec.settings for e in good]
-    results = adjust_batch(
-        [e.project.problem for e in good],
-        sigma0=[s.sigma0 for s in settings],
-        max_steps=settings[0].max_iterations,
-        rtol=settings[0].rtol,
-        atol=settings[0].atol,
-        alpha=[s.snooping_alpha for s in settings],
-        familywise=[s.snooping_familywise for s in settings],
-    )
-    for entry, result in zip(good, results):
-        entry.mode = "batch"
-        if not math.isfinite(result.precision.sigma0_squared):
-            entry.status, entry.reason = "failed", "non-finite residuals (NaN or inf)"
-            continue
-        _set_result(entry, result)
+    entry.mode, entry.previous = "resumed", results
+    entry.status = "ok" if results["converged"] else "not converged"
+    entry.reason = "" if results["converged"] else results.get("message", "")
 
 
 def _summary_row(entry: BatchEntry) -> dict:
     row = {"path": str(entry.path), "name": entry.name, "status": entry.status,
            "reason": entry.reason, "mode": entry.mode}
+    if entry.previous is not None:
+        return row | _previous_row(entry.previous)
     result = entry.result
     row["converged"] = bool(result.converged) if result is not None else False
     row["sigma0"] = result.sigma0 if result is not None else None
@@ -164,6 +218,18 @@ def _summary_row(entry: BatchEntry) -> dict:
         for name, value, std in zip(CAMERA_MODELS[model].parameter_names, values, stds):
             row[f"{camera_id}.{name}"] = float(value)
             row[f"{camera_id}.{name}.std"] = float(std)
+    return row
+
+
+def _previous_row(results: dict) -> dict:
+    """The summary columns of a project from its results.json (null: a non-finite number)."""
+    row = {"converged": bool(results["converged"]), "sigma0": results["sigma0"],
+           "redundancy": results["redundancy"]}
+    for camera_id, parameters in results["cameras"].items():
+        for name, entry in parameters.items():
+            if entry["status"] != "constant":
+                row[f"{camera_id}.{name}"] = entry["value"]
+                row[f"{camera_id}.{name}.std"] = entry["std"]
     return row
 
 
