@@ -10,6 +10,7 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import opk_to_matrix
 from ._common import (
     Correction,
     Fit,
@@ -21,7 +22,6 @@ from ._common import (
     levenberg_marquardt,
     per_item,
     reduced_coordinates,
-    rotation,
     same_count,
 )
 
@@ -113,7 +113,7 @@ def forward_intersection(
     check_principal_distance(c, what)
     principal_point = per_item(principal_point, n, (2,), what, "principal_point")
     reduced = reduced_coordinates(image_points, principal_point, correction)
-    matrices = np.stack([rotation(eop[3:]) for eop in eops])
+    matrices = opk_to_matrix(eops[:, 3:])
     stations = eops[:, :3]
     directions = np.einsum("nji,nj->ni", matrices, image_rays(reduced, c))  # Mᵀ (x̄, ȳ, -c)
     closest = closest_point(stations, directions, what)

@@ -14,8 +14,6 @@ twice, re-selecting the inliers in between.
 
 import dataclasses
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..._approximations import (
@@ -25,10 +23,7 @@ from ..._approximations import (
     space_resection,
 )
 from ..._approximations._intersection import closest_point
-from ..._models._rotation import matrix_to_opk, opk_to_matrix
-
-_OPK_TO_MATRIX = jax.jit(opk_to_matrix)
-_MATRIX_TO_OPK = jax.jit(matrix_to_opk)
+from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 
 MAD_TO_SIGMA = 1.4826
 """σ of a normal distribution per median absolute deviation (1D residuals)."""
@@ -46,16 +41,6 @@ SIGMA_FLOOR = 1e-9
 PAIR_ANGLE = np.radians(5.0)
 """A pair whose median intersection angle reaches this scores by its inlier count alone;
 below it, the count is weighted down in proportion."""
-
-
-def rotation(opk) -> np.ndarray:
-    """M (3, 3) of (omega, phi, kappa) (radians), jaxba's `opk_to_matrix`."""
-    return np.asarray(_OPK_TO_MATRIX(jnp.asarray(opk, dtype=jnp.float64)))
-
-
-def angles(m) -> np.ndarray:
-    """(omega, phi, kappa) (radians) of a rotation matrix, jaxba's `matrix_to_opk`."""
-    return np.asarray(_MATRIX_TO_OPK(jnp.asarray(m, dtype=jnp.float64)))
 
 
 def rays(q: np.ndarray) -> np.ndarray:
@@ -171,13 +156,13 @@ def _independent_start(m, base):
     M1's first column is the base, so that the model's x axis runs along it."""
     phi1 = np.arcsin(np.clip(base[2], -1.0, 1.0))
     kappa1 = np.arctan2(-base[1], base[0])
-    m1 = rotation(np.array([0.0, phi1, kappa1]))
-    return np.r_[phi1, kappa1, angles(m @ m1)]
+    m1 = opk_to_matrix(np.array([0.0, phi1, kappa1]))
+    return np.r_[phi1, kappa1, matrix_to_opk(m @ m1)]
 
 
 def _pair_frame(orientation):
     """(M, unit base) of image 2 in image 1's frame from a `RelativeOrientation`."""
-    m1, m2 = rotation(orientation.eops[0, 3:]), rotation(orientation.eops[1, 3:])
+    m1, m2 = opk_to_matrix(orientation.eops[0, 3:]), opk_to_matrix(orientation.eops[1, 3:])
     base = m1 @ orientation.eops[1, :3]
     return m2 @ m1.T, base / np.linalg.norm(base)
 
@@ -247,7 +232,7 @@ def _refine_pair(q1, q2, r1, r2, m, base, sigma) -> "Pair":
         1 + 5 / max(len(finite) - 8, 1))
     inliers = sampson <= SAMPSON_K * max(spread, SIGMA_FLOOR)
     eops = np.zeros((2, 6))
-    eops[1] = np.r_[base, angles(m)]
+    eops[1] = np.r_[base, matrix_to_opk(m)]
     return Pair(eops=eops, inliers=inliers, sampson=sampson, sigma=float(spread),
                 angles=intersection, hypotheses=0)
 
@@ -361,7 +346,7 @@ def _space_resection(q, points, **options):
 
 
 def _errors(eop, points, q):
-    return reprojection(rotation(eop[3:]), eop[:3], points, q)
+    return reprojection(opk_to_matrix(eop[3:]), eop[:3], points, q)
 
 
 def resect(q, points, rng, *, threshold=None, start=None, min_samples=20, max_samples=200,
