@@ -15,23 +15,23 @@ def _sines_cosines(opk) -> tuple[np.ndarray, ...]:
     opk = np.asarray(opk, dtype=np.float64)
     if opk.shape[-1:] != (3,):
         raise ValueError(f"omega, phi, kappa must have shape (..., 3), got {opk.shape}")
-    sines, cosines = np.sin(opk), np.cos(opk)
-    return (*np.moveaxis(sines, -1, 0), *np.moveaxis(cosines, -1, 0))
+    s, c = np.sin(opk), np.cos(opk)
+    return s[..., 0], s[..., 1], s[..., 2], c[..., 0], c[..., 1], c[..., 2]
 
 
-def _matrices(entries: list[list[np.ndarray]]) -> np.ndarray:
-    """Rows of entries (each of one leading shape) as matrices (..., rows, columns)."""
-    return np.stack([np.stack(row, axis=-1) for row in entries], axis=-2)
+def _array(entries: list, shape: tuple[int, ...]) -> np.ndarray:
+    """Entries (each of one leading shape), in row-major order, as an array (..., *shape)."""
+    return np.stack(entries, axis=-1).reshape(*entries[0].shape, *shape)
 
 
 def opk_to_matrix(opk) -> np.ndarray:
     """M = R3(kappa) R2(phi) R1(omega) (..., 3, 3) of (omega, phi, kappa) (..., 3), radians."""
     so, sp, sk, co, cp, ck = _sines_cosines(opk)
-    return _matrices([
-        [cp * ck, co * sk + so * sp * ck, so * sk - co * sp * ck],
-        [-cp * sk, co * ck - so * sp * sk, so * ck + co * sp * sk],
-        [sp, -so * cp, co * cp],
-    ])
+    return _array([
+        cp * ck, co * sk + so * sp * ck, so * sk - co * sp * ck,
+        -cp * sk, co * ck - so * sp * sk, so * ck + co * sp * sk,
+        sp, -so * cp, co * cp,
+    ], (3, 3))
 
 
 def opk_derivatives(opk) -> np.ndarray:
@@ -54,7 +54,9 @@ def opk_derivatives(opk) -> np.ndarray:
         [-cp * ck, -co * sk - so * sp * ck, -so * sk + co * sp * ck],
         [zero, zero, zero],
     ]
-    return np.stack([_matrices(d) for d in (d_omega, d_phi, d_kappa)], axis=-1)
+    by_angle = (d_omega, d_phi, d_kappa)
+    return _array([by_angle[k][i][j] for i in range(3) for j in range(3) for k in range(3)],
+                  (3, 3, 3))
 
 
 def matrix_to_opk(m) -> np.ndarray:

@@ -22,7 +22,7 @@ from ..._approximations import (
     relative_orientation,
     space_resection,
 )
-from ..._approximations._intersection import closest_point
+from ..._approximations._intersection import closest_points
 from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 
 MAD_TO_SIGMA = 1.4826
@@ -41,6 +41,11 @@ SIGMA_FLOOR = 1e-9
 PAIR_ANGLE = np.radians(5.0)
 """A pair whose median intersection angle reaches this scores by its inlier count alone;
 below it, the count is weighted down in proportion."""
+RAY_PAIRS = 2000
+"""Most pairs of rays a robust intersection tries: all of them up to 63 rays, a seeded random
+sample beyond (with half the rays blunders, no clean pair among 2000 has odds 0.75^2000)."""
+ERRORS_PER_CHUNK = 200_000
+"""Reprojection errors evaluated at once when scoring pair points (memory bound)."""
 
 
 def rays(q: np.ndarray) -> np.ndarray:
@@ -450,24 +455,36 @@ def _largest_angle(directions):
     return float(np.max(np.arccos(np.clip(units @ units.T, -1.0, 1.0))))
 
 
+def _ray_pairs(k):
+    """(i, j) (p,) each: every pair i < j of k rays in order, or `RAY_PAIRS` random pairs
+    i != j (seeded by k: deterministic) when there are more."""
+    if k * (k - 1) // 2 <= RAY_PAIRS:
+        return np.triu_indices(k, 1)
+    rng = np.random.default_rng(k)
+    first = rng.integers(k, size=RAY_PAIRS)
+    return first, (first + rng.integers(1, k, size=RAY_PAIRS)) % k
+
+
 def intersect(q, eops, matrices, threshold, min_angle) -> RobustIntersection:
     """A robust forward intersection of one point from k >= 2 rays (normalised coordinates q
     (k, 2) in images `eops` (k, 6) with rotations `matrices` (k, 3, 3)).
 
     All rays first (`forward_intersection`); when some misses by more than `threshold` (k,)
-    and k >= 3, every pair of rays proposes a point (the point closest to both rays), the
-    one that most rays fit wins and is refined on them. The point needs two inlier rays
+    and k >= 3, every pair of rays (or `RAY_PAIRS` of them, `_ray_pairs`) proposes a point
+    (the point closest to both rays), the one that most rays fit (then the least truncated
+    squares) wins and is refined on them. The point needs two inlier rays
     meeting at `min_angle` (radians) or more.
     """
     k = len(q)
     directions = np.einsum("kji,kj->ki", matrices, rays(q))  # Mᵀ r
     threshold = np.broadcast_to(np.asarray(threshold, dtype=np.float64), (k,))
 
-    def errors_of(point):
-        uvw = np.einsum("kij,kj->ki", matrices, point - eops[:, :3])
+    def errors_of(points):
+        """|v| (..., k) of every ray at points (..., 3); inf behind an image."""
+        uvw = np.einsum("kij,...kj->...ki", matrices, points[..., None, :] - eops[:, :3])
         with np.errstate(divide="ignore", invalid="ignore"):
-            errors = np.linalg.norm(q + uvw[:, :2] / uvw[:, 2:], axis=1)
-        return np.where((uvw[:, 2] < 0) & np.isfinite(errors), errors, np.inf)
+            errors = np.linalg.norm(q + uvw[..., :2] / uvw[..., 2:], axis=-1)
+        return np.where((uvw[..., 2] < 0) & np.isfinite(errors), errors, np.inf)
 
     def fit(index):
         try:
@@ -481,16 +498,18 @@ def intersect(q, eops, matrices, threshold, min_angle) -> RobustIntersection:
     inliers = errors <= threshold
     if not np.all(inliers) and k >= 3:
         best = (np.sum(inliers), -np.sum(np.minimum(errors, threshold) ** 2), point)
-        for i in range(k):
-            for j in range(i + 1, k):
-                try:
-                    candidate = closest_point(eops[[i, j], :3], directions[[i, j]], "")
-                except (ValueError, np.linalg.LinAlgError):
-                    continue
-                e = errors_of(candidate)
-                key = (np.sum(e <= threshold), -np.sum(np.minimum(e, threshold) ** 2))
-                if key > best[:2]:
-                    best = (*key, candidate)
+        pairs = np.stack(_ray_pairs(k), axis=-1)
+        candidates, parallel = closest_points(eops[:, :3][pairs], directions[pairs])
+        candidates = candidates[~parallel]
+        chunk = max(1, ERRORS_PER_CHUNK // k)
+        for start in range(0, len(candidates), chunk):
+            e = errors_of(candidates[start:start + chunk])
+            counts = np.sum(e <= threshold, axis=1)
+            scores = -np.sum(np.minimum(e, threshold) ** 2, axis=1)
+            top = np.flatnonzero(counts == counts.max())
+            winner = top[np.argmax(scores[top])]  # the first of the best, as a loop over pairs
+            if (counts[winner], scores[winner]) > best[:2]:
+                best = (counts[winner], scores[winner], candidates[start + winner])
         if best[2] is not None and best[0] >= 2:
             chosen = np.flatnonzero(errors_of(best[2]) <= threshold)
             refined = fit(chosen)
