@@ -40,6 +40,23 @@ def test_angles_equal_jax(opk):
     np.testing.assert_allclose(found[general], opk[general], rtol=0, atol=1e-13)
 
 
+def test_matrix_is_the_product_of_the_elementary_rotations(opk):
+    """M = R3(kappa) R2(phi) R1(omega), R1(a) = [[1, 0, 0], [0, c, s], [0, -s, c]], R2 and R3
+    alike about y and z (docs/conventions.md)."""
+    def elementary(axis, a):
+        c, s = np.cos(a), np.sin(a)
+        r = np.eye(3)
+        i, j = [n for n in range(3) if n != axis]
+        r[i, i] = r[j, j] = c
+        r[i, j], r[j, i] = (s, -s) if axis != 1 else (-s, s)
+        return r
+
+    for omega, phi, kappa in opk[::10]:
+        product = elementary(2, kappa) @ elementary(1, phi) @ elementary(0, omega)
+        np.testing.assert_allclose(rn.opk_to_matrix([omega, phi, kappa]), product, rtol=0,
+                                   atol=EXACT)
+
+
 def test_derivatives_equal_jax_jacfwd(opk):
     expected = np.asarray(jax.jit(jax.vmap(jax.jacfwd(jaxba.opk_to_matrix)))(jnp.asarray(opk)))
     found = rn.opk_derivatives(opk)
