@@ -15,15 +15,13 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import matrix_to_opk, opk_derivatives, opk_to_matrix
 from ._common import (
     Fit,
-    angles,
     check_float64,
     covariance,
     flatness,
     levenberg_marquardt,
-    rotation,
-    rotation_derivatives,
     same_count,
     wrap_angles,
 )
@@ -68,7 +66,7 @@ class Similarity:
     @property
     def rotation(self) -> np.ndarray:
         """R (3, 3), rotating model-frame vectors into the ground frame."""
-        return rotation(self.parameters[3:6]).T
+        return opk_to_matrix(self.parameters[3:6]).T
 
     @property
     def scale(self) -> float:
@@ -85,8 +83,8 @@ class Similarity:
         the projection unchanged). Angles in radians."""
         eops = np.asarray(eops, dtype=np.float64)
         rows = np.atleast_2d(eops)
-        turned = [angles(rotation(row[3:]) @ self.rotation.T) for row in rows]
-        out = np.c_[self.transform(rows[:, :3]), np.array(turned).reshape(-1, 3)]
+        turned = matrix_to_opk(opk_to_matrix(rows[:, 3:]) @ self.rotation.T)
+        out = np.c_[self.transform(rows[:, :3]), turned]
         return out.reshape(eops.shape)
 
 
@@ -161,12 +159,12 @@ def absolute_orientation(
                          "coordinates; the closed-form start needs 3 non-collinear ones")
     count = int(np.sum(given))
     scale, r, t = umeyama(model_points[full], ground_points[full], what)
-    start = np.r_[t, angles(r.T), scale]
+    start = np.r_[t, matrix_to_opk(r.T), scale]
     observed = ground_points[given] / sigma[given]
 
     def model(parameters):
         opk, s = parameters[3:6], parameters[6]
-        rot, d_rot = rotation(opk).T, np.transpose(rotation_derivatives(opk), (1, 0, 2))
+        rot, d_rot = opk_to_matrix(opk).T, np.transpose(opk_derivatives(opk), (1, 0, 2))
         turned = model_points @ rot.T  # R X_M
         computed = parameters[:3] + s * turned
         jacobian = np.zeros((*model_points.shape, 7))

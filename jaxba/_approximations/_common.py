@@ -1,42 +1,20 @@
-"""What the approximation modules share: input checks, image rays, jaxba's rotation in NumPy,
-Hartley normalisation, the nearest rotation and a small Levenberg-Marquardt.
+"""What the approximation modules share: input checks, image rays, Hartley normalisation, the
+nearest rotation and a small Levenberg-Marquardt.
 
 The closed-form tools are plain NumPy in float64 (they run once, before any adjustment, on
-small arrays). Rotations are jaxba's own (`jaxba._models._rotation`, docs/conventions.md), so
-that every orientation found here is exactly the one jaxba's projection uses; they are evaluated
-by jax, which must therefore compute in float64 (`require_float64`, the caller's choice).
+small arrays). Rotations are jaxba's own in NumPy (`jaxba._models._rotation_numpy`,
+docs/conventions.md), so that every orientation found here is exactly the one jaxba's
+projection uses.
 """
 
 import dataclasses
 from collections.abc import Callable, Sequence
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._float64 import require_float64
-from .._models._rotation import matrix_to_opk, opk_to_matrix
-
-_OPK_TO_MATRIX = jax.jit(opk_to_matrix)
-_OPK_DERIVATIVES = jax.jit(jax.jacfwd(opk_to_matrix))
-_MATRIX_TO_OPK = jax.jit(matrix_to_opk)
 
 Correction = Callable[[np.ndarray], np.ndarray]
-
-
-def rotation(opk: np.ndarray) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega) (3, 3) of `opk` (3,) in radians, jaxba's `opk_to_matrix`."""
-    return np.asarray(_OPK_TO_MATRIX(jnp.asarray(opk, dtype=jnp.float64)))
-
-
-def rotation_derivatives(opk: np.ndarray) -> np.ndarray:
-    """dM/d(omega, phi, kappa) (3, 3, 3): entry [i, j, k] is dM_ij / d angle_k (per radian)."""
-    return np.asarray(_OPK_DERIVATIVES(jnp.asarray(opk, dtype=jnp.float64)))
-
-
-def angles(m: np.ndarray) -> np.ndarray:
-    """(omega, phi, kappa) (3,) in radians of the rotation matrix `m`, jaxba's `matrix_to_opk`."""
-    return np.asarray(_MATRIX_TO_OPK(jnp.asarray(m, dtype=jnp.float64)))
 
 
 def wrap_angles(values: np.ndarray) -> np.ndarray:
@@ -45,7 +23,8 @@ def wrap_angles(values: np.ndarray) -> np.ndarray:
 
 
 def check_float64(what: str) -> None:
-    """`require_float64`: the tools that use jaxba's rotations need jax in float64."""
+    """`require_float64`: the tools' EOPs and points start a jaxba adjustment, which needs jax
+    in float64; they refuse to run without it (the parallax relations excepted)."""
     require_float64(what)
 
 

@@ -20,8 +20,8 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import matrix_to_opk
 from ._common import (
-    angles,
     as_points,
     check_float64,
     flatness,
@@ -173,5 +173,5 @@ def decompose_dlt(matrix) -> DltOrientation:
     return DltOrientation(
         c=float(c), xp=float(k[0, 2]), yp=float(k[1, 2]),
         A1=float(c / cx - 1), A2=float(-skew * c / (cx * cy)),
-        eop=np.r_[station, angles(m)],
+        eop=np.r_[station, matrix_to_opk(m)],
     )

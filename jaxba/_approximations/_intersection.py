@@ -10,6 +10,7 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import opk_to_matrix
 from ._common import (
     Correction,
     Fit,
@@ -21,7 +22,6 @@ from ._common import (
     levenberg_marquardt,
     per_item,
     reduced_coordinates,
-    rotation,
     same_count,
 )
 
@@ -56,19 +56,34 @@ class Intersection:
         return np.sqrt(np.diag(self.covariance))
 
 
-def closest_point(stations: np.ndarray, directions: np.ndarray, what: str) -> np.ndarray:
-    """The point (3,) minimising Σ distance² to the rays stations_i + λ directions_i (n, 3):
-    Σ (I - dᵢdᵢᵀ) X = Σ (I - dᵢdᵢᵀ) X0ᵢ with unit dᵢ. Raises ValueError for parallel rays."""
-    units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    projectors = np.eye(3) - units[:, :, None] * units[:, None, :]
-    normal = projectors.sum(axis=0)
+def closest_points(stations: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points (..., 3) minimising Σ distance² to the rays stations_i + λ directions_i
+    (..., n, 3), each set of n rays on its own: Σ (I - dᵢdᵢᵀ) X = Σ (I - dᵢdᵢᵀ) X0ᵢ with unit
+    dᵢ; and (...,) True where the rays are parallel or not finite (the point is then NaN)."""
+    units = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+    projectors = np.eye(3) - units[..., :, None] * units[..., None, :]
+    normal = projectors.sum(axis=-3)
+    finite = np.all(np.isfinite(normal), axis=(-2, -1))
+    normal = np.where(finite[..., None, None], normal, np.eye(3))
     eigenvalues = np.linalg.eigvalsh(normal)
-    if eigenvalues[0] <= PARALLEL_RATIO * eigenvalues[-1]:
+    parallel = ~finite | (eigenvalues[..., 0] <= PARALLEL_RATIO * eigenvalues[..., -1])
+    right = np.einsum("...nij,...nj->...i", projectors, stations)
+    points = np.linalg.solve(np.where(parallel[..., None, None], np.eye(3), normal),
+                             right[..., None])[..., 0]
+    return np.where(parallel[..., None], np.nan, points), parallel
+
+
+def closest_point(stations: np.ndarray, directions: np.ndarray, what: str) -> np.ndarray:
+    """The point (3,) closest to the rays (n, 3) (`closest_points`). Raises ValueError for
+    parallel rays."""
+    point, parallel = closest_points(stations, directions)
+    if parallel:
+        units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
         cosines = np.clip(units @ units.T, -1.0, 1.0)
         largest = float(np.max(np.arccos(cosines)))
         raise ValueError(f"{what}: the {len(units)} rays are parallel (largest angle between "
                          f"them {largest:.1e} rad); they do not fix the point's distance")
-    return np.linalg.solve(normal, np.einsum("nij,nj->i", projectors, stations))
+    return point
 
 
 def forward_intersection(
@@ -113,7 +128,7 @@ def forward_intersection(
     check_principal_distance(c, what)
     principal_point = per_item(principal_point, n, (2,), what, "principal_point")
     reduced = reduced_coordinates(image_points, principal_point, correction)
-    matrices = np.stack([rotation(eop[3:]) for eop in eops])
+    matrices = opk_to_matrix(eops[:, 3:])
     stations = eops[:, :3]
     directions = np.einsum("nji,nj->ni", matrices, image_rays(reduced, c))  # Mᵀ (x̄, ȳ, -c)
     closest = closest_point(stations, directions, what)

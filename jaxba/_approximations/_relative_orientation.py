@@ -18,9 +18,9 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import matrix_to_opk, opk_derivatives, opk_to_matrix
 from ._common import (
     Correction,
-    angles,
     as_callables,
     as_points,
     check_float64,
@@ -34,8 +34,6 @@ from ._common import (
     null_vector,
     per_item,
     reduced_coordinates,
-    rotation,
-    rotation_derivatives,
     same_count,
     wrap_angles,
 )
@@ -204,16 +202,16 @@ def _frames(parameters: np.ndarray, parameterisation: str, bx: float):
     """M1, M2 (3, 3), b (3,) and their derivatives by the five parameters (3, 3, 5), (3, 5)."""
     dm1, dm2, db = np.zeros((3, 3, 5)), np.zeros((3, 3, 5)), np.zeros((3, 5))
     opk2 = parameters[2:]
-    m2 = rotation(opk2)
-    dm2[:, :, 2:] = rotation_derivatives(opk2)
+    m2 = opk_to_matrix(opk2)
+    dm2[:, :, 2:] = opk_derivatives(opk2)
     if parameterisation == "dependent":
         m1 = np.eye(3)
         base = np.array([bx, parameters[0], parameters[1]])
         db[1, 0] = db[2, 1] = 1.0
     else:
         opk1 = np.array([0.0, parameters[0], parameters[1]])
-        m1 = rotation(opk1)
-        dm1[:, :, :2] = rotation_derivatives(opk1)[:, :, 1:]
+        m1 = opk_to_matrix(opk1)
+        dm1[:, :, :2] = opk_derivatives(opk1)[:, :, 1:]
         base = np.array([bx, 0.0, 0.0])
     return m1, m2, base, dm1, dm2, db
 
@@ -262,12 +260,12 @@ def _start(essential: EssentialMatrix, parameterisation: str, bx: float, what: s
                              f" x side of image 1 (unit base {np.round(u, 4).tolist()}): "
                              f"fix bx = {-bx} instead of {bx}")
         base = u * bx / u[0]
-        return np.r_[base[1:], angles(essential.rotation)]
+        return np.r_[base[1:], matrix_to_opk(essential.rotation)]
     s = np.sign(bx)
     phi1 = np.arcsin(np.clip(s * u[2], -1.0, 1.0))
     kappa1 = np.arctan2(-s * u[1], s * u[0])
-    m1 = rotation(np.array([0.0, phi1, kappa1]))
-    return np.r_[phi1, kappa1, angles(essential.rotation @ m1)]
+    m1 = opk_to_matrix(np.array([0.0, phi1, kappa1]))
+    return np.r_[phi1, kappa1, matrix_to_opk(essential.rotation @ m1)]
 
 
 def _model_points(r1, r2, m1, m2, base):
@@ -355,7 +353,7 @@ def relative_orientation(
                          f"model is mirrored (fix bx = {-bx}?) or the start was too far off")
     cxx, variance_factor = covariance(fit, n - 5, a_posteriori=a_posteriori)
     eops = np.zeros((2, 6))
-    eops[0, 3:] = angles(m1)
+    eops[0, 3:] = matrix_to_opk(m1)
     eops[1] = np.r_[base, parameters[2:]]
     return RelativeOrientation(
         parameterisation=parameterisation,

@@ -14,10 +14,10 @@ import dataclasses
 
 import numpy as np
 
+from .._models._rotation_numpy import matrix_to_opk, opk_derivatives, opk_to_matrix
 from ._common import (
     Correction,
     Fit,
-    angles,
     as_points,
     check_float64,
     check_principal_distance,
@@ -30,8 +30,6 @@ from ._common import (
     null_vector,
     per_item,
     reduced_coordinates,
-    rotation,
-    rotation_derivatives,
     same_count,
     wrap_angles,
 )
@@ -73,7 +71,7 @@ class Resection:
     @property
     def rotation(self) -> np.ndarray:
         """M = R_m^c (3, 3) of `eop`."""
-        return rotation(self.eop[3:])
+        return opk_to_matrix(self.eop[3:])
 
 
 def collinearity(
@@ -81,7 +79,7 @@ def collinearity(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Computed reduced coordinates -c (U, V) / W (n, 2) and their Jacobian by the six EOPs
     (n, 2, 6), docs/conventions.md with jaxba's rotation."""
-    m, dm = rotation(eop[3:]), rotation_derivatives(eop[3:])
+    m, dm = opk_to_matrix(eop[3:]), opk_derivatives(eop[3:])
     d = object_points - eop[:3]
     uvw = d @ m.T
     u, v, w = uvw.T
@@ -107,7 +105,7 @@ def _calibrated_dlt(normalised: np.ndarray, object_points: np.ndarray, what: str
     if np.median(homogeneous(object_points) @ p[2]) > 0:
         scale = -scale
     m = nearest_rotation(a / scale)
-    return np.r_[-m.T @ b / scale, angles(m)]
+    return np.r_[-m.T @ b / scale, matrix_to_opk(m)]
 
 
 def _plane_homography(normalised: np.ndarray, object_points: np.ndarray,
@@ -131,7 +129,7 @@ def _plane_homography(normalised: np.ndarray, object_points: np.ndarray,
         scale = -scale
     m1, m2, t = h[:, 0] / scale, h[:, 1] / scale, h[:, 2] / scale
     m = nearest_rotation(np.c_[m1, m2, np.cross(m1, m2)]) @ np.c_[e1, e2, e3].T
-    return np.r_[origin - m.T @ t, angles(m)]
+    return np.r_[origin - m.T @ t, matrix_to_opk(m)]
 
 
 def closed_form_resection(

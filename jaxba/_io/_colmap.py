@@ -39,7 +39,6 @@ Plain NumPy; nothing here calls jax.
 
 import dataclasses
 import json
-import math
 import os
 import pathlib
 from collections.abc import Mapping, Sequence
@@ -47,6 +46,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from .._models._cameras._names import CAMERA_PARAMETER_NAMES
+from .._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 
 PIXEL_ORIGIN_SHIFT = -0.5  # COLMAP pixel (corner origin) -> jaxba/OpenCV pixel (centre origin)
 # The COLMAP camera frame (x right, y down, z forward) in the photogrammetric one: M = F R.
@@ -156,36 +156,17 @@ def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
     return -q if q[0] < 0 else q
 
 
-def _opk_to_matrix(opk: Sequence[float]) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega), radians (docs/conventions.md)."""
-    (so, sp, sk), (co, cp, ck) = np.sin(opk), np.cos(opk)
-    return np.array([
-        [cp * ck, co * sk + so * sp * ck, so * sk - co * sp * ck],
-        [-cp * sk, co * ck - so * sp * sk, so * ck + co * sp * sk],
-        [sp, -so * cp, co * cp],
-    ])
-
-
-def _matrix_to_opk(m: np.ndarray) -> np.ndarray:
-    """(omega, phi, kappa) in radians of M (docs/conventions.md), |phi| < 90°."""
-    return np.array([
-        math.atan2(-m[2, 1], m[2, 2]),
-        math.atan2(m[2, 0], math.hypot(m[2, 1], m[2, 2])),
-        math.atan2(-m[1, 0], m[0, 0]),
-    ])
-
-
 def colmap_pose_to_eop(qvec: Sequence[float], tvec: Sequence[float]) -> np.ndarray:
     """COLMAP's world-to-camera (q, t) -> jaxba EOPs (X0, Y0, Z0, omega, phi, kappa [rad])."""
     rotation = quaternion_to_matrix(qvec)
     station = -rotation.T @ np.asarray(tvec, dtype=float)
-    return np.r_[station, _matrix_to_opk(_CV_TO_PHOTOGRAMMETRIC @ rotation)]
+    return np.r_[station, matrix_to_opk(_CV_TO_PHOTOGRAMMETRIC @ rotation)]
 
 
 def eop_to_colmap_pose(eop: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     """jaxba EOPs (X0, Y0, Z0, omega, phi, kappa [rad]) -> COLMAP's (q (w ≥ 0), t)."""
     eop = np.asarray(eop, dtype=float)
-    rotation = _CV_TO_PHOTOGRAMMETRIC @ _opk_to_matrix(eop[3:])
+    rotation = _CV_TO_PHOTOGRAMMETRIC @ opk_to_matrix(eop[3:])
     return matrix_to_quaternion(rotation), -rotation @ eop[:3]
 
 

@@ -3,8 +3,10 @@
 An independent implementation of the forward model of docs/conventions.md that writes test
 projects in the docs/project-files.md layout with a known truth: a replica of the BASC
 self-calibration lab (a 3D target field on a wall, convergent and rolled images, a datum of six
-fixed coordinates and measured distances for the scale). Nothing here imports jax or the rest of
-jaxba, so that the JAX model can be checked against it.
+fixed coordinates and measured distances for the scale). Nothing here imports jax or jaxba's
+camera models, so that the JAX model can be checked against it; the rotation is jaxba's NumPy
+one (`jaxba._models._rotation_numpy`, itself checked against the product of the elementary
+rotations).
 
 Frames and units: object space X right, Y up, Z towards the cameras, metres; image space x right,
 y up, mm, origin at the sensor centre; the camera looks along its -z axis; (U, V, W) = M (X - X0)
@@ -17,6 +19,8 @@ import math
 import pathlib
 
 import numpy as np
+
+from .._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 
 IOP_NAMES = ("xp", "yp", "c", "K0", "K1", "K2", "K3", "P1", "P2", "P3", "A1", "A2")
 # The BASC lab camera: mm, SMAC distortion with r in mm; about -5 % radial distortion at
@@ -55,25 +59,15 @@ class SyntheticTruth:
 
 
 def rotation_matrix(omega, phi, kappa):
-    """M = R3(kappa) R2(phi) R1(omega) as a product of the elementary rotations.
-
-    R1(a) = [[1, 0, 0], [0, cos a, sin a], [0, -sin a, cos a]], R2 and R3 alike about y and z;
-    M rotates object-space vectors into the image frame. Angles in radians; returns (3, 3).
-    """
-    (co, so), (cp, sp), (ck, sk) = [(math.cos(a), math.sin(a)) for a in (omega, phi, kappa)]
-    r1 = np.array([[1.0, 0.0, 0.0], [0.0, co, so], [0.0, -so, co]])
-    r2 = np.array([[cp, 0.0, -sp], [0.0, 1.0, 0.0], [sp, 0.0, cp]])
-    r3 = np.array([[ck, sk, 0.0], [-sk, ck, 0.0], [0.0, 0.0, 1.0]])
-    return r3 @ r2 @ r1
+    """M = R3(kappa) R2(phi) R1(omega) (3, 3), rotating object-space vectors into the image
+    frame (jaxba's `opk_to_matrix`). Angles in radians."""
+    return opk_to_matrix(np.array([omega, phi, kappa]))
 
 
 def opk_from_rotation(m):
-    """(omega, phi, kappa) in radians from M (3, 3), for |phi| < 90 degrees.
-
-    phi = asin(m31), omega = atan2(-m32, m33), kappa = atan2(-m21, m11).
-    """
-    phi = math.asin(float(np.clip(m[2, 0], -1.0, 1.0)))
-    return math.atan2(-m[2, 1], m[2, 2]), phi, math.atan2(-m[1, 0], m[0, 0])
+    """(omega, phi, kappa) in radians of M (3, 3), for |phi| < 90 degrees (jaxba's
+    `matrix_to_opk`), as a tuple of floats."""
+    return tuple(float(angle) for angle in matrix_to_opk(m))
 
 
 def look_at(station, target, roll):

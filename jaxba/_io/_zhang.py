@@ -18,6 +18,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from .._models._rotation_numpy import matrix_to_opk
+
 N_IMAGES = 5
 SENSOR = (640, 480)
 FREE = ("fx", "fy", "cx", "cy", "skew", "k1", "k2")
@@ -112,16 +114,9 @@ def pose(k: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def eop_from_pose(rotation: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Photogrammetric EOPs of an OpenCV pose: M = diag(1, -1, -1) R, X0 = -Rᵀ t.
 
-    Returns X0 (3,) in target units and (omega, phi, kappa) in radians, docs/conventions.md:
-    omega = atan2(-m32, m33), phi = atan2(m31, hypot(m32, m33)), kappa = atan2(-m21, m11).
+    Returns X0 (3,) in target units and (omega, phi, kappa) in radians (docs/conventions.md).
     """
-    m = _CV_TO_PHOTOGRAMMETRIC @ rotation
-    opk = np.array([
-        np.arctan2(-m[2, 1], m[2, 2]),
-        np.arctan2(m[2, 0], np.hypot(m[2, 1], m[2, 2])),
-        np.arctan2(-m[1, 0], m[0, 0]),
-    ])
-    return -rotation.T @ t, opk
+    return -rotation.T @ t, matrix_to_opk(_CV_TO_PHOTOGRAMMETRIC @ rotation)
 
 
 def _write_table(path: pathlib.Path, header: str, rows: list[list[str]]) -> None:

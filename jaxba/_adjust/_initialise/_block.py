@@ -41,12 +41,12 @@ import scipy.sparse
 from ..._approximations import Similarity, absolute_orientation, space_resection
 from ..._float64 import require_float64
 from ..._models._cameras import AbstractCamera
+from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 from ._frame import partial_similarity
 from ._ideal import ideal_coordinates, image_residuals
 from ._robust import (
     RAYLEIGH_MEDIAN,
     SIGMA_FLOOR,
-    angles,
     intersect,
     orient_pair,
     pair_points,
@@ -54,7 +54,6 @@ from ._robust import (
     reprojection,
     resect,
     robust_sigma,
-    rotation,
 )
 
 INLIER_K = 3.5
@@ -288,7 +287,7 @@ class _Block:
 
     def orient(self, i, eop, method):
         self.eops[i] = eop
-        self.matrices[i] = rotation(eop[3:])
+        self.matrices[i] = opk_to_matrix(eop[3:])
         self.oriented[i] = True
         self.image_method[i] = method
         self.image_reason.pop(i, None)
@@ -570,7 +569,7 @@ class _Block:
             both = pair.inliers & known
             if np.sum(both) < 2 or pair.median_angle < self.min_angle:
                 continue
-            m_rel, base = rotation(pair.eops[1, 3:]), pair.eops[1, :3]
+            m_rel, base = opk_to_matrix(pair.eops[1, 3:]), pair.eops[1, :3]
             model = pair_points(self.q[rj][both], self.q[ri][both], m_rel, base)
             world = self.X[self.point[rj][both]] - self.eops[j, :3]
             scales = np.linalg.norm(world, axis=1) / np.linalg.norm(model, axis=1)
@@ -578,7 +577,7 @@ class _Block:
             if not (scale > 0 and np.median(np.abs(scales - scale)) <= 0.2 * scale):
                 continue
             m_j = self.matrices[j]
-            eop = np.r_[self.eops[j, :3] + scale * m_j.T @ base, angles(m_rel @ m_j)]
+            eop = np.r_[self.eops[j, :3] + scale * m_j.T @ base, matrix_to_opk(m_rel @ m_j)]
             rows = self.obs_of_image[i]
             rows = rows[self.known[self.point[rows]]]
             errors = reprojection(m_rel @ m_j, eop[:3], self.X[self.point[rows]], self.q[rows])
@@ -664,7 +663,7 @@ class _Block:
         from_distances = source.endswith("distances")
         if similarity is None and len(given):
             i = given[0]
-            r = rotation(self.given[i, 3:]).T @ self.matrices[i]  # M_G = M_M Rᵀ
+            r = opk_to_matrix(self.given[i, 3:]).T @ self.matrices[i]  # M_G = M_M Rᵀ
             similarity = _similarity(self.given[i, :3] - scale * r @ self.eops[i, :3], r, scale)
             self.log.append(f"frame: rotated and shifted onto the given EOPs of image {i}, "
                             f"scale {scale:.6g} from {source}")
@@ -688,7 +687,7 @@ class _Block:
         self.eops[self.oriented] = similarity.transform_eops(self.eops[self.oriented])
         self.X[self.known] = similarity.transform(self.X[self.known])
         for i in np.flatnonzero(self.oriented):
-            self.matrices[i] = rotation(self.eops[i, 3:])
+            self.matrices[i] = opk_to_matrix(self.eops[i, 3:])
 
     def _partial(self, model, ground, fixed, source) -> Similarity | None:
         """`partial_similarity` onto fewer than 3 full control points (and the distances'
@@ -844,7 +843,7 @@ class _Block:
 
 def _similarity(translation, rotation_matrix, scale) -> Similarity:
     """A `Similarity` X_G = T + S R X_M set by hand (no covariance)."""
-    return Similarity(parameters=np.r_[translation, angles(rotation_matrix.T), scale],
+    return Similarity(parameters=np.r_[translation, matrix_to_opk(rotation_matrix.T), scale],
                       covariance=np.full((7, 7), np.nan), residuals=np.zeros((0, 3)),
                       variance_factor=float("nan"), redundancy=0, iterations=0,
                       converged=True)

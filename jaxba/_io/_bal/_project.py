@@ -16,7 +16,7 @@ import pathlib
 
 import numpy as np
 
-from .._dbat import matrix_to_opk
+from ..._models._rotation_numpy import matrix_to_opk
 from ._reader import BalProblem, read_bal
 
 

@@ -62,12 +62,3 @@ def intersect(stations: np.ndarray, directions: np.ndarray) -> np.ndarray:
     units = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     projectors = np.eye(3) - units[:, :, None] * units[:, None, :]
     return np.linalg.solve(projectors.sum(axis=0), np.einsum("nij,nj->i", projectors, stations))
-
-
-def matrix_to_opk(m: np.ndarray) -> np.ndarray:
-    """(omega, phi, kappa) in radians of M = R3(kappa) R2(phi) R1(omega), docs/conventions.md."""
-    return np.array([
-        np.arctan2(-m[2, 1], m[2, 2]),
-        np.arctan2(m[2, 0], np.hypot(m[2, 1], m[2, 2])),
-        np.arctan2(-m[1, 0], m[0, 0]),
-    ])

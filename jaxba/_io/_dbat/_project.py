@@ -22,8 +22,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 from ._camera import DbatCamera, read_cameras
-from ._geometry import intersect, matrix_to_opk, planar_resection
+from ._geometry import intersect, planar_resection
 from ._script import DbatScript, read_script
 from ._tables import ControlPoint, read_control_points
 
@@ -149,7 +150,7 @@ def _starting_poses(script: DbatScript, camera: DbatCamera, initial: dict[str, f
             raise ValueError(f"{script.path.name}: <prior_eo>: image {image} has no omega,"
                              " phi, kappa; a prior EO without angles is not supported")
         if prior is not None:
-            m = _opk_matrix(np.radians(prior.angles))
+            m = opk_to_matrix(np.radians(prior.angles))
             poses[image] = (m, np.array(prior.station), "prior EO")
             continue
         cps = [m for m in measured if m.point in control]
@@ -163,15 +164,6 @@ def _starting_poses(script: DbatScript, camera: DbatCamera, initial: dict[str, f
             continue
         poses[image] = (rotation, station, "planar resection")
     return poses
-
-
-def _opk_matrix(opk: np.ndarray) -> np.ndarray:
-    """M = R3(kappa) R2(phi) R1(omega) (docs/conventions.md), radians."""
-    (co, cp, ck), (so, sp, sk) = np.cos(opk), np.sin(opk)
-    r1 = np.array([[1, 0, 0], [0, co, so], [0, -so, co]])
-    r2 = np.array([[cp, 0, -sp], [0, 1, 0], [sp, 0, cp]])
-    r3 = np.array([[ck, sk, 0], [-sk, ck, 0], [0, 0, 1]])
-    return r3 @ r2 @ r1
 
 
 def _check_rays(script: DbatScript, control: dict) -> None:
