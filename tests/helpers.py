@@ -9,6 +9,12 @@ from jax.flatten_util import ravel_pytree
 import jaxba
 from jaxba._problem._bundle import free_indices, observation_mask, params_from_free
 from jaxba._problem._observations import ParameterObservations
+from jaxba._solvers._schur._bundle import (
+    _to_parameters,
+    bundle_normal_equations,
+    bundle_predicted_reduction,
+    solve_bundle_damped,
+)
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
@@ -88,3 +94,13 @@ def _jacfwd_jacobian(problem, params, index, rows):
 
     x_free = ravel_pytree(params)[0][index]
     return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)
+
+
+@eqx.filter_jit
+def schur_damped_step(problem, structure, params, damping):
+    """One damped Schur step (JᵀJ + λD)⁻¹Jᵀe at `params` as Parameters, and its predicted
+    reduction, as one program: run op by op, a step compiled ~500 small programs."""
+    normal = bundle_normal_equations(problem, structure, params)
+    x_r, x_e = solve_bundle_damped(structure, normal, damping)
+    step = _to_parameters(structure, params, x_r, x_e)
+    return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))

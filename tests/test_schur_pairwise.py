@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import jacfwd_jacobian
+from helpers import jacfwd_jacobian, schur_damped_step
 
 import jaxba
 from jaxba._problem._bundle import free_indices
@@ -15,10 +15,8 @@ from jaxba._solvers._schur._bundle import (
     _reduced_positions,
     _schur_complement,
     _small_inverse,
-    _to_parameters,
     bundle_normal_equations,
     bundle_structure,
-    solve_bundle_damped,
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
 
@@ -50,14 +48,6 @@ def _reduced_camera_matrix(problem, structure):
     return normal.reduced_hessian + product
 
 
-@eqx.filter_jit
-def _damped_step(problem, structure, damping):
-    """One damped Schur step at the approximations as Parameters, as one program."""
-    normal = bundle_normal_equations(problem, structure, problem.initial)
-    x_r, x_e = solve_bundle_damped(structure, normal, damping)
-    return _to_parameters(structure, problem.initial, x_r, x_e)
-
-
 def test_schur_complement_matches_dense(block):
     structure = bundle_structure(block)
     reduced = np.asarray(_reduced_camera_matrix(block, structure))
@@ -84,7 +74,8 @@ def test_cameras_freeing_different_iops(block):
     problem = eqx.tree_at(lambda p: p.free.cameras["smac"], block, jnp.asarray(free))
     structure = bundle_structure(problem)
     assert structure.iop_columns == ((0, 1, 2, 3, 4, 5, 6, 7, 8),)
-    step_parameters = _damped_step(problem, structure, jnp.asarray(1e-3))
+    step_parameters, _ = schur_damped_step(problem, structure, problem.initial,
+                                           jnp.asarray(1e-3))
     step = flatten(step_parameters)
     jacobian, residual = jacfwd_jacobian(problem, problem.initial)
     hessian = jacobian.T @ jacobian
