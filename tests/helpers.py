@@ -54,9 +54,10 @@ def central_difference(f, x, eps):
 def assert_jacobian_matches_fd(f, x, rtol, atol, *, step=FD_STEP):
     """Assert that `jax.jacfwd(f)(x)` matches central differences with steps step·max(1, |x_i|)."""
     x = np.asarray(x, dtype=np.float64)
-    exact = np.asarray(jax.jacfwd(f)(jnp.asarray(x)))
+    # `f` and its Jacobian compiled once each (op by op: dozens of small programs per call).
+    exact = np.asarray(jax.jit(jax.jacfwd(f))(jnp.asarray(x)))
     assert np.all(np.isfinite(exact)), "jax.jacfwd returned non-finite entries"
-    approximate = central_difference(f, x, step * np.maximum(1.0, np.abs(x)))
+    approximate = central_difference(jax.jit(f), x, step * np.maximum(1.0, np.abs(x)))
     np.testing.assert_allclose(exact, approximate, rtol=rtol, atol=atol)
 
 
