@@ -9,6 +9,12 @@ from jax.flatten_util import ravel_pytree
 import jaxba
 from jaxba._problem._bundle import free_indices, observation_mask, params_from_free
 from jaxba._problem._observations import ParameterObservations
+from jaxba._solvers._schur._bundle import (
+    _to_parameters,
+    bundle_normal_equations,
+    bundle_predicted_reduction,
+    solve_bundle_damped,
+)
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
@@ -48,9 +54,10 @@ def central_difference(f, x, eps):
 def assert_jacobian_matches_fd(f, x, rtol, atol, *, step=FD_STEP):
     """Assert that `jax.jacfwd(f)(x)` matches central differences with steps step·max(1, |x_i|)."""
     x = np.asarray(x, dtype=np.float64)
-    exact = np.asarray(jax.jacfwd(f)(jnp.asarray(x)))
+    # `f` and its Jacobian compiled once each (op by op: dozens of small programs per call).
+    exact = np.asarray(jax.jit(jax.jacfwd(f))(jnp.asarray(x)))
     assert np.all(np.isfinite(exact)), "jax.jacfwd returned non-finite entries"
-    approximate = central_difference(f, x, step * np.maximum(1.0, np.abs(x)))
+    approximate = central_difference(jax.jit(f), x, step * np.maximum(1.0, np.abs(x)))
     np.testing.assert_allclose(exact, approximate, rtol=rtol, atol=atol)
 
 
@@ -88,3 +95,13 @@ def _jacfwd_jacobian(problem, params, index, rows):
 
     x_free = ravel_pytree(params)[0][index]
     return jax.jacfwd(residual_vector)(x_free), residual_vector(x_free)
+
+
+@eqx.filter_jit
+def schur_damped_step(problem, structure, params, damping):
+    """One damped Schur step (JᵀJ + λD)⁻¹Jᵀe at `params` as Parameters, and its predicted
+    reduction, as one program: run op by op, a step compiled ~500 small programs."""
+    normal = bundle_normal_equations(problem, structure, params)
+    x_r, x_e = solve_bundle_damped(structure, normal, damping)
+    step = _to_parameters(structure, params, x_r, x_e)
+    return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))

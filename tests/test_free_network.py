@@ -1,5 +1,6 @@
 """Free-network datum (inner constraints) against the lab's control datum."""
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -119,7 +120,7 @@ def free_block(tmp_path_factory):
 
 def _similar(params, theta):
     centre = np.mean(np.asarray(params.points), axis=0)
-    return similarity_transform(params, jnp.asarray(theta), centre)
+    return eqx.filter_jit(similarity_transform)(params, jnp.asarray(theta), centre)
 
 
 def test_schur_free_network_solves_to_the_inner_constraint_datum(free_block):

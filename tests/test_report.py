@@ -13,6 +13,7 @@ import pathlib
 import re
 import shutil
 
+import equinox as eqx
 import numpy as np
 import pytest
 import scipy.stats
@@ -406,7 +407,7 @@ def test_statistics_in_json(lab, tmp_path):
     # The removed point: its residual at the solution (observed - computed, σ = 1), no r,
     # w as rejected (with the sign of v), an outlier.
     entry = image[removed]
-    unit = np.asarray(jaxba.advanced.collinearity_residual(
+    unit = np.asarray(eqx.filter_jit(jaxba.advanced.collinearity_residual)(
         "smac", result.parameters.cameras["smac"][0],
         result.parameters.images[int(group.image[5])],
         result.parameters.points[int(group.point[5])], group.measured[5], np.ones(2),

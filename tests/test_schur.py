@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
-from helpers import jacfwd_jacobian
+from helpers import jacfwd_jacobian, schur_damped_step
 
 from jaxba._io._bal import BalProblem, bal_bundle
 from jaxba._models._cameras import BalCamera
@@ -24,11 +24,7 @@ from jaxba._problem._bundle import free_indices, params_from_free
 from jaxba._problem._parameters import flatten
 from jaxba._solvers._cholesky import cholesky_solve
 from jaxba._solvers._schur._bundle import (
-    _to_parameters,
-    bundle_normal_equations,
-    bundle_predicted_reduction,
     bundle_structure,
-    solve_bundle_damped,
     solve_schur,
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
@@ -193,9 +189,7 @@ def test_schur_step_equals_dense_damped_step(scene, damping):
     problem, _ = scene
     params = problem.initial
     structure = bundle_structure(problem, jacobian_batch=64)
-    normal = bundle_normal_equations(problem, structure, params)
-    x_r, x_e = solve_bundle_damped(structure, normal, jnp.asarray(damping))
-    step = _to_parameters(structure, params, x_r, x_e)
+    step, predicted = schur_damped_step(problem, structure, params, jnp.asarray(damping))
     schur = flatten(step)[free_indices(problem)]
 
     jacobian, residual = (np.asarray(a) for a in jacfwd_jacobian(problem, params))
@@ -203,8 +197,6 @@ def test_schur_step_equals_dense_damped_step(scene, damping):
     diagonal = np.asarray(marquardt_diagonal(jnp.asarray(np.diag(hessian)), 1e-6, 1e32))
     expected = np.linalg.solve(hessian + damping * np.diag(diagonal), jacobian.T @ residual)
     assert np.linalg.norm(schur - expected) <= STEP_RTOL * np.linalg.norm(expected)
-    predicted = bundle_predicted_reduction(
-        structure, normal, jax.tree.map(jnp.negative, step))
     model = 0.5 * np.sum((residual - jacobian @ expected) ** 2) - 0.5 * np.sum(residual**2)
     assert model < 0
     assert float(predicted) == pytest.approx(model, rel=STEP_RTOL)

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import jacfwd_jacobian, with_control_and_huber
+from helpers import jacfwd_jacobian, schur_damped_step, with_control_and_huber
 from jax.flatten_util import ravel_pytree
 
 import jaxba
@@ -19,11 +19,7 @@ from jaxba._problem._bundle import free_indices
 from jaxba._problem._observations import AbstractObservationGroup
 from jaxba._problem._parameters import flatten
 from jaxba._solvers._schur._bundle import (
-    _to_parameters,
-    bundle_normal_equations,
-    bundle_predicted_reduction,
     bundle_structure,
-    solve_bundle_damped,
     solve_schur,
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
@@ -86,23 +82,13 @@ def test_unknown_group_is_rejected(block):
         bundle_structure(problem)
 
 
-@eqx.filter_jit
-def _damped_step(problem, structure, params, damping):
-    """One damped Schur step as Parameters and its predicted reduction, as one program: run
-    op by op, the four cases compiled ~2,500 small programs (38 s of CPU against 12 s)."""
-    normal = bundle_normal_equations(problem, structure, params)
-    x_r, x_e = solve_bundle_damped(structure, normal, damping)
-    step = _to_parameters(structure, params, x_r, x_e)
-    return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))
-
-
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])
 @pytest.mark.parametrize("damping", [1e-3, 1.0])
 def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     problem = block if variant == "plain" else _with_control_and_robust(block)
     params = problem.initial
     structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
-    all_steps, predicted = _damped_step(problem, structure, params, jnp.asarray(damping))
+    all_steps, predicted = schur_damped_step(problem, structure, params, jnp.asarray(damping))
     all_steps = flatten(all_steps)
     step = all_steps[free_indices(problem)]
 

@@ -1,5 +1,6 @@
 """Refuse rank-deficient bundles before solving, naming what cannot be determined."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -54,12 +55,19 @@ def similarity_directions(params: Parameters, centre, *, pose: str = "opk") -> n
     """(7, n_all): how every unknown (`flatten` order) changes under each similarity
     direction of `similarity_transform` about `centre` (3,), at `params` (images rows of
     the pose model `pose`)."""
+    return np.asarray(_similarity_jacobian(params, jnp.asarray(centre), pose)).T
+
+
+@eqx.filter_jit
+def _similarity_jacobian(params: Parameters, centre, pose: str):
+    """(n_all, 7) Jacobian of `similarity_transform` at θ = 0, as one program (run op by
+    op it compiled ~100 small programs)."""
 
     def flat(theta):
         moved = similarity_transform(params, theta, centre, pose=pose)
         return jnp.concatenate([jnp.ravel(leaf) for leaf in jax.tree.leaves(moved)])
 
-    return np.asarray(jax.jacfwd(flat)(jnp.zeros(7))).T
+    return jax.jacfwd(flat)(jnp.zeros(7))
 
 
 def network_centre(problem: BundleProblem) -> np.ndarray:

@@ -95,12 +95,19 @@ def _single_ray_points(point_hessian, point_rows, n_free) -> np.ndarray | None:
     return basis
 
 
+@eqx.filter_jit
+def _reduced_camera_matrix(structure, normal):
+    """S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r) and V⁻¹ (n_e, 3, 3), as one program (run op by
+    op, V⁻¹ alone compiled ~25 small programs)."""
+    point_inverse = _small_inverse(normal.point_hessian)
+    product, _ = _schur_complement(structure, normal, point_inverse)
+    return normal.reduced_hessian + product, point_inverse
+
+
 def _reduced_null_space(structure, normal, reduced_rows, point_rows, n_free) -> np.ndarray | None:
     """(d, n_free) null vectors of S on the free reduced unknowns, extended to the points
     by x_p = -V_p⁻¹ Y_pᵀ x_r; None if S is regular."""
-    point_inverse = _small_inverse(normal.point_hessian)
-    product, _ = eqx.filter_jit(_schur_complement)(structure, normal, point_inverse)
-    reduced = np.asarray(normal.reduced_hessian + product)
+    reduced, point_inverse = (np.asarray(a) for a in _reduced_camera_matrix(structure, normal))
     free = reduced_rows >= 0
     null = _equilibrated_null_space(reduced[np.ix_(free, free)])
     if null.shape[1] == 0:
