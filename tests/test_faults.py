@@ -259,9 +259,15 @@ def test_interrupt_dropped_in_a_finaliser_is_silent_and_still_stops_the_run(caps
             _remember_interrupt(signal.SIGINT, None)
 
     hook_before = sys.unraisablehook
-    with pytest.raises(KeyboardInterrupt), _remembered_interrupts():
-        InterruptedWhileCollected()  # dropped at once: __del__ runs, its exception is lost
-        assert True  # the run goes on past the lost interrupt
+    # As from an interactive shell: a background job (CI) inherits SIGINT ignored, and the
+    # CLI then leaves interrupts alone.
+    handler_before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt), _remembered_interrupts():
+            InterruptedWhileCollected()  # dropped at once: __del__ runs, its exception is lost
+            assert True  # the run goes on past the lost interrupt
+    finally:
+        signal.signal(signal.SIGINT, handler_before)
     assert capsys.readouterr().err == ""
     assert sys.unraisablehook is hook_before
 

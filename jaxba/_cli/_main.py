@@ -73,6 +73,7 @@ def _remembered_interrupts() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
         sys.unraisablehook = report_unraisable
+        _interrupted.clear()  # a later command in this process starts uninterrupted
 
 
 def _raise_if_interrupted() -> None:
