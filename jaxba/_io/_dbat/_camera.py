@@ -142,15 +142,21 @@ def parse_camera(element: ET.Element, where: str, number: int) -> DbatCamera:
     return camera
 
 
+def read_xml(path: pathlib.Path, what: str) -> ET.Element:
+    """The root element of the XML file `path` (a DBAT `what`: "camera file", "DBAT
+    script"); `ValueError` naming the file where it is missing or not valid XML."""
+    if not path.is_file():
+        raise ValueError(f"{path}: no such {what}")
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as error:
+        raise ValueError(f"{path}: not valid XML: {error}") from None
+
+
 def read_cameras(path: str | os.PathLike) -> tuple[DbatCamera, ...]:
     """The <cameras><camera> blocks of a DBAT camera file or script."""
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such camera file")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as error:
-        raise ValueError(f"{path}: not valid XML: {error}") from None
+    root = read_xml(path, "camera file")
     elements = [e for block in root.iter("cameras") for e in block.findall("camera")]
     if not elements:
         raise ValueError(f"{path}: no <cameras><camera> block")

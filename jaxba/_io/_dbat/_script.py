@@ -16,7 +16,7 @@ import os
 import pathlib
 import xml.etree.ElementTree as ET
 
-from ._camera import DbatCamera, parse_camera, read_cameras
+from ._camera import DbatCamera, parse_camera, read_cameras, read_xml
 from ._tables import (
     ControlPoint,
     MarkPoint,
@@ -277,12 +277,7 @@ def _read_operations(block: ET.Element | None, images: dict[str, str], where: st
 def read_script(path: str | os.PathLike) -> DbatScript:
     """Read a DBAT XML script and every file its input names (module docstring)."""
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such DBAT script")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as error:
-        raise ValueError(f"{path}: not valid XML: {error}") from None
+    root = read_xml(path, "DBAT script")
     if root.tag != "document":
         raise ValueError(f"{path}: expected a DBAT <document>, got <{root.tag}>")
     found = {c.tag: c for c in _children(root, ("meta", "input", "operations", "output"),
