@@ -2,7 +2,6 @@
 
 from collections.abc import Callable
 
-import equinox as eqx
 import jax
 import numpy as np
 import optimistix as optx
@@ -15,16 +14,13 @@ from .._statistics._adjustment import Adjustment
 from .._statistics._backends import backend_for
 from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
 from .._statistics._covariance import Precision, precision_from_covariance
-from .._statistics._datum import nonfinite_start_error
+from .._statistics._datum import nonfinite_start_error, whitened_residuals
 from .._statistics._ids import ids_from_labels
 from .._timing import Timings
 
 
 class NotConvergedError(RuntimeError):
     """The adjustment stopped without meeting its convergence criteria."""
-
-
-_whitened = eqx.filter_jit(BundleProblem.whitened)
 
 
 def _stop_reason(result: optx.RESULTS, max_steps: int) -> str:
@@ -108,7 +104,7 @@ def adjust(
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
-        whitened = _whitened(problem, params)
+        whitened = whitened_residuals(problem, params)
         residuals = observed_minus_computed(problem, whitened)
         try:
             parameter_precision = backend.precision(params, sigma0=sigma0)

@@ -48,7 +48,7 @@ def schur_redundancy_numbers(
     problem: BundleProblem, params: Parameters, *, structure: BundleStructure | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(r_i, e_i) of the real observations, flat in `observation_mask` order, at `params`:
-    the same as `jaxba._statistics._reliability.redundancy_numbers` (dense), from the Schur split.
+    the same as `DenseBackend.redundancy_numbers` (`_backends`), from the Schur split.
     For bundles with a datum (S positive definite); not for free networks."""
     if structure is None:
         structure = bundle_structure(problem)
