@@ -38,26 +38,24 @@ class DenseDescent(AbstractNormalDescent):
         jacobian = jax.jacfwd(self.residual_fn)(y)
         return jacobian.T @ jacobian, jacobian.T @ residual
 
-    def step(self, radius, state):
+    def solve(self, damping, state):
         normal, gradient = state
-        return finite_step(-jnp.linalg.solve(normal + jnp.eye(gradient.size) / radius, gradient))
+        newton = jnp.linalg.solve(normal + damping * jnp.eye(gradient.size), gradient)
+        step, result = finite_step(-newton)
+        return step, gradient @ newton, result
 
     def predicted_reduction(self, y_diff, state):
         normal, gradient = state
         return y_diff @ gradient + 0.5 * y_diff @ (normal @ y_diff)
 
-    def gauss_newton(self, state):
-        normal, gradient = state
-        newton = jnp.linalg.solve(normal, gradient)
-        return -newton, gradient @ newton
-
 
 class UphillDescent(DenseDescent):
-    """Steps that go the wrong way, with a model that promises a decrease each time."""
+    """Damped steps that go the wrong way (the Gauss-Newton step is right), with a model
+    that promises a decrease each time."""
 
-    def step(self, radius, state):
-        step, result = super().step(radius, state)
-        return -step, result
+    def solve(self, damping, state):
+        step, decrement, result = super().solve(damping, state)
+        return jnp.where(damping > 0, -step, step), decrement, result
 
     def predicted_reduction(self, y_diff, state):
         return -jnp.abs(super().predicted_reduction(y_diff, state)) - 1e-300
@@ -156,9 +154,9 @@ class WrongNewtonDescent(DenseDescent):
     """Damped steps as `DenseDescent`, a Gauss-Newton step that goes the wrong way (its
     decrement is right)."""
 
-    def gauss_newton(self, state):
-        step, decrement = super().gauss_newton(state)
-        return -step, decrement
+    def solve(self, damping, state):
+        step, decrement, result = super().solve(damping, state)
+        return jnp.where(damping == 0, -step, step), decrement, result
 
 
 def test_rejected_gauss_newton_step_leaves_the_radius():

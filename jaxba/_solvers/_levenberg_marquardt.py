@@ -69,18 +69,17 @@ class NormalDampedNewtonDescent(AbstractNormalDescent[Array, _NormalState]):
         normal = self.scale[:, None] * normal * self.scale[None, :]
         return _NormalState(normal, self.scale * gradient)
 
-    def gauss_newton(self, state: _NormalState) -> tuple[Array, Scalar]:
-        """-N⁻¹g by Cholesky, and gᵀN⁻¹g; unknowns no row depends on (padding in a batch)
-        have empty rows, regularised by 1e-12 of N's largest diagonal entry."""
+    def solve(self, damping: Scalar, state: _NormalState) -> tuple[Array, Scalar, optx.RESULTS]:
+        """-(N + λI)⁻¹g by Cholesky, gᵀ(N + λI)⁻¹g and whether the step is finite. For
+        λ = 0 (Gauss-Newton) unknowns no row depends on (padding in a batch) have empty
+        rows, regularised by 1e-12 of N's largest diagonal entry instead."""
         normal, gradient = state.normal, state.gradient
-        regular = normal + 1e-12 * jnp.max(jnp.diag(normal)) * jnp.eye(normal.shape[0])
-        newton = cholesky_solve(regular, gradient, self._block(gradient.shape[0]))
-        return -newton, gradient @ newton
-
-    def step(self, radius: Scalar, state: _NormalState) -> tuple[Array, optx.RESULTS]:
-        n = state.gradient.shape[0]
-        damped = state.normal + jnp.eye(n, dtype=state.normal.dtype) / radius
-        return finite_step(-cholesky_solve(damped, state.gradient, self._block(n)))
+        n = gradient.shape[0]
+        shift = jnp.where(damping > 0, damping, 1e-12 * jnp.max(jnp.diag(normal)))
+        newton = cholesky_solve(normal + shift * jnp.eye(n, dtype=normal.dtype), gradient,
+                                self._block(n))
+        step, result = finite_step(-newton)
+        return step, gradient @ newton, result
 
     def predicted_reduction(self, y_diff: Array, state: _NormalState) -> Scalar:
         return y_diff @ state.gradient + 0.5 * y_diff @ (state.normal @ y_diff)

@@ -790,10 +790,13 @@ class BundleSchurDescent(
         normal = self._normal(y)
         return normal, normal_equations_result(normal)
 
-    def step(self, radius: Scalar, state):
+    def solve(self, damping: Scalar, state):
+        """x = (N + λD)⁻¹g by the Schur complement: the step -x, gᵀx and whether the
+        normal equations were finite (fixed unknowns have zero gradient and step)."""
         normal, result = state
-        x_r, x_e = solve_bundle_damped(self.structure, normal, 1.0 / radius)
-        return self._parameters(-x_r, -x_e), result
+        x_r, x_e = solve_bundle_damped(self.structure, normal, damping)
+        decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
+        return self._parameters(-x_r, -x_e), decrement, result
 
     def _parameters(self, x_r, x_e) -> Parameters:
         step = _to_parameters(self.structure, self.problem.initial, x_r, x_e)
@@ -801,14 +804,6 @@ class BundleSchurDescent(
 
     def predicted_reduction(self, y_diff: Parameters, state) -> Scalar:
         return bundle_predicted_reduction(self.structure, state[0], y_diff)
-
-    def gauss_newton(self, state) -> tuple[Parameters, Scalar]:
-        """The undamped Schur solve x = N⁻¹g: the step -x and gᵀx (fixed unknowns have zero
-        gradient and step)."""
-        normal = state[0]
-        x_r, x_e = solve_bundle_damped(self.structure, normal, 0.0)
-        decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
-        return self._parameters(-x_r, -x_e), decrement
 
     def _normal(self, y: Parameters) -> BundleNormalEquations:
         return bundle_normal_equations(
