@@ -198,7 +198,9 @@ def test_synthetic_nadir_block_reaches_sigma0_one():
 
 def test_run_bal_with_and_without_progress_agree(tmp_path):
     """With progress the BAL solve runs step by step, without it as one program: same
-    iterations and cost."""
+    iterations and cost. The toy has fewer residuals than unknowns, so the final cost is
+    rounding (~6e-18 px², from 2764): the two programs fuse their sums differently, and the
+    costs agree to 1e-15 of the initial one, not bit for bit."""
     from jaxba._cli._bal import run_bal
 
     toy = pathlib.Path(__file__).parent / "data" / "bal" / "dubrovnik-3-7-pre.txt"
@@ -206,7 +208,8 @@ def test_run_bal_with_and_without_progress_agree(tmp_path):
     loud = run_bal(toy, tmp_path / "loud", on_iteration=lambda iteration: None)
     assert quiet["accepted_iterations"] == loud["accepted_iterations"]
     assert quiet["iterations"] == loud["iterations"]
-    assert quiet["final_cost"] == loud["final_cost"]
+    assert quiet["initial_cost"] == loud["initial_cost"]
+    assert abs(quiet["final_cost"] - loud["final_cost"]) <= 1e-15 * quiet["initial_cost"]
     assert len(loud["cost_history"]) == loud["accepted_iterations"] + 1
 
 
