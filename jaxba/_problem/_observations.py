@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._custom_types import Vector2, Vector3
 from .._models._cameras import CAMERA_MODELS, AbstractRefraction
 from .._models._poses import POSE_MODELS, image_frames
-from ._parameters import Parameters
+from ._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES, Parameters
 
 
 class AbstractObservationGroup(eqx.Module):
@@ -80,6 +80,23 @@ class AbstractObservationGroup(eqx.Module):
 
         jacobians, residuals = jax.vmap(jax.jacrev(row, has_aux=True))(values, rows)
         return residuals, jacobians
+
+    def kind(self) -> str:
+        """What the group measures, as reports and results.json name it: "image_points",
+        "control", "gnss_ins", "camera_priors", "distances"; by default its name up to a
+        colon."""
+        return self.name.split(":")[0]
+
+    def coordinate_names(self) -> tuple[str, ...]:
+        """The names of a row's entries (its residual columns); () where a row is one
+        quantity that its `row_references` name alone (a distance)."""
+        return tuple(str(k) for k in range(self.stddev.shape[1]))
+
+    def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
+        """What each row refers to, as (label, block, index) triples: `index` (n,) rows of
+        the block ("images", "points" or "cameras/<model>"), whose IDs name the row under
+        `label` in reports; () where rows are known by their number only."""
+        return ()
 
     def mask(self) -> Bool[Array, "n k"]:
         """True where the residual entry is an observation."""
@@ -156,6 +173,15 @@ class ImagePoints(AbstractObservationGroup):
     constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
     removed_whole: ClassVar[bool] = True
 
+    def kind(self) -> str:
+        return "image_points"
+
+    def coordinate_names(self) -> tuple[str, ...]:
+        return ("x", "y")
+
+    def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
+        return ("image", "images", self.image), ("point", "points", self.point)
+
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
         """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
         return jnp.concatenate([
@@ -213,6 +239,20 @@ class ParameterObservations(AbstractObservationGroup):
     observed: Float[Array, "n k"]
     stddev: Float[Array, "n k"]
 
+    def kind(self) -> str:
+        return {"points": "control", "images": "gnss_ins"}.get(self.block, "camera_priors")
+
+    def coordinate_names(self) -> tuple[str, ...]:
+        if self.block == "points":
+            return POINT_PARAMETER_NAMES
+        if self.block == "images":
+            return IMAGE_PARAMETER_NAMES
+        return CAMERA_MODELS[self.block.removeprefix("cameras/")].parameter_names
+
+    def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
+        label = {"points": "point", "images": "image"}.get(self.block, "camera")
+        return ((label, self.block, self.rows),)
+
     def local_values(self, params: Parameters) -> Float[Array, "n k"]:
         """The observed block row of every row."""
         return jnp.asarray(params.block(self.block))[self.rows]
@@ -235,6 +275,15 @@ class Distances(AbstractObservationGroup):
     b: Int[Array, " n"]
     observed: Float[Array, "n 1"]
     stddev: Float[Array, "n 1"]
+
+    def kind(self) -> str:
+        return "distances"
+
+    def coordinate_names(self) -> tuple[str, ...]:
+        return ()
+
+    def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
+        return ("point_a", "points", self.a), ("point_b", "points", self.b)
 
     def local_values(self, params: Parameters) -> Float[Array, "n 6"]:
         """XYZ of both end points of every distance."""

@@ -27,6 +27,12 @@ class Ids:
     images: tuple[Hashable, ...]
     points: tuple[Hashable, ...]
 
+    def block(self, name: str) -> tuple[Hashable, ...]:
+        """The IDs of the block called "images", "points" or "cameras/<model>"."""
+        if name.startswith("cameras/"):
+            return self.cameras[name.removeprefix("cameras/")]
+        return getattr(self, name)
+
 
 def index_ids(params: Parameters) -> Ids:
     """Row numbers as IDs; cameras numbered over all models in `flatten` order."""

@@ -14,14 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._models._cameras import CAMERA_MODELS
-from .._problem._observations import (
-    AbstractObservationGroup,
-    Distances,
-    ImagePoints,
-    ParameterObservations,
-)
-from .._problem._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from .._problem._observations import AbstractObservationGroup, ImagePoints
 from ._ids import Ids
 
 
@@ -80,70 +73,33 @@ class Outlier:
     abs_w: float
 
 
-def group_kind(group: AbstractObservationGroup) -> str:
-    """"image_points", "control", "gnss_ins", "camera_priors" or "distances"."""
-    if isinstance(group, ImagePoints):
-        return "image_points"
-    if isinstance(group, Distances):
-        return "distances"
-    if isinstance(group, ParameterObservations):
-        return {"points": "control", "images": "gnss_ins"}.get(group.block, "camera_priors")
-    return group.name.split(":")[0]
-
-
 def is_measurement(group: AbstractObservationGroup) -> bool:
     """A group of real measurements (not constraints, such as a free network's inner
     constraints: the group says which it is)."""
     return not group.constraint
 
 
-def coordinate_names(group: AbstractObservationGroup) -> tuple[str, ...]:
-    """The names of the coordinates (columns) of `group`'s rows."""
-    if isinstance(group, ImagePoints):
-        return ("x", "y")
-    if isinstance(group, ParameterObservations):
-        if group.block == "points":
-            return POINT_PARAMETER_NAMES
-        if group.block == "images":
-            return IMAGE_PARAMETER_NAMES
-        return CAMERA_MODELS[group.block.removeprefix("cameras/")].parameter_names
-    return ("distance",)
-
-
-def name_rows(ids: Ids, group, rows) -> list[dict[str, str]]:
-    """The IDs (as text) naming rows `rows` (k,) of `group`: image and point, the two points
-    of a distance, the point, image or camera of a parameter observation, else the row
-    number."""
+def name_rows(ids: Ids, group: AbstractObservationGroup, rows) -> list[dict[str, str]]:
+    """The IDs (as text) naming rows `rows` (k,) of `group` (`row_references`: image and
+    point, the two points of a distance, the point, image or camera of a parameter
+    observation), else the row number."""
     rows = np.asarray(rows, dtype=int)
-
-    def named(block_ids, index) -> list[str]:
-        return [str(block_ids[k]) for k in np.asarray(index)[rows].tolist()]
-
-    if isinstance(group, ImagePoints):
-        pairs = zip(named(ids.images, group.image), named(ids.points, group.point))
-        return [{"image": image, "point": point} for image, point in pairs]
-    if isinstance(group, Distances):
-        pairs = zip(named(ids.points, group.a), named(ids.points, group.b))
-        return [{"point_a": a, "point_b": b} for a, b in pairs]
-    if not isinstance(group, ParameterObservations):
+    references = group.row_references()
+    if not references:
         return [{"row": str(row)} for row in rows.tolist()]
-    if group.block == "points":
-        key, names = "point", named(ids.points, group.rows)
-    elif group.block == "images":
-        key, names = "image", named(ids.images, group.rows)
-    else:
-        key = "camera"
-        names = named(ids.cameras[group.block.removeprefix("cameras/")], group.rows)
-    return [{key: name} for name in names]
+    columns = {
+        label: [str(block_ids[k]) for k in np.asarray(index)[rows].tolist()]
+        for label, block, index in references
+        for block_ids in [ids.block(block)]
+    }
+    return [dict(zip(columns, names)) for names in zip(*columns.values())]
 
 
-def with_coordinate(group, ids: dict[str, str], coordinate: int) -> dict:
-    """`ids` of a row and the name of its observed coordinate (none for a distance)."""
-    if isinstance(group, Distances):
-        return ids
-    if isinstance(group, ImagePoints | ParameterObservations):
-        return {**ids, "coordinate": coordinate_names(group)[coordinate]}
-    return {**ids, "coordinate": str(coordinate)}
+def with_coordinate(group: AbstractObservationGroup, ids: dict[str, str], coordinate: int) -> dict:
+    """`ids` of a row and the name of its observed coordinate (none where the group names
+    none: a distance)."""
+    names = group.coordinate_names()
+    return {**ids, "coordinate": names[coordinate]} if names else ids
 
 
 def observation_ids(ids: Ids, group, row: int, coordinate: int) -> dict[str, str]:
@@ -208,7 +164,7 @@ def group_statistics(result) -> list[GroupStatistics]:
         with np.errstate(invalid="ignore"):
             outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
         statistics.append(GroupStatistics(
-            group, group_kind(group), observed, removed, v, r, w, outlier & observed))
+            group, group.kind(), observed, removed, v, r, w, outlier & observed))
     return statistics
 
 

@@ -15,7 +15,6 @@ from ._free_network import InnerConstraints
 from ._ids import Ids
 from ._observation_statistics import (
     describe,
-    group_kind,
     group_statistics,
     observation_ids,
     outliers,
@@ -102,7 +101,7 @@ def datum_description(problem) -> str:
         if n_images:
             parts.append(f"{n_images} images with {what} EOPs")
     n_distances = sum(int(np.isfinite(np.asarray(g.stddev)).sum()) for g in problem.groups
-                      if group_kind(g) == "distances")
+                      if g.kind() == "distances")
     if n_distances:
         parts.append(f"{n_distances} distances")
     return "control: " + (", ".join(parts) if parts else "none (no fixed or weighted unknowns)")
