@@ -61,7 +61,8 @@ def schur_cofactors(
     if structure is None:
         structure = bundle_structure(problem)
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    return _schur_cofactors(problem, structure, params, sigma0, n_observations - n_unknowns)
+    return _schur_cofactors(problem, structure, params,
+                            *_traced_scalars(sigma0, n_observations - n_unknowns))
 
 
 def schur_precision(
@@ -225,6 +226,13 @@ def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
     points = points.at[structure.reduced_points].set(cofactor[index[:, :, None], index[:, None, :]])
     free = problem.free.points.astype(cofactor.dtype)
     return points * free[:, :, None] * free[:, None, :]
+
+
+def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.float64]:
+    """σ0 and the redundancy as float64 scalars, which `eqx.filter_jit` traces: as Python
+    numbers they are static, and every new redundancy (data snooping switches observations
+    off) compiled the statistics program again (~3 s)."""
+    return np.float64(sigma0), np.float64(redundancy)
 
 
 @eqx.filter_jit

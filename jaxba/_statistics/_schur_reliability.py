@@ -41,6 +41,7 @@ from ._schur_precision import (
     _point_cofactors,
     _precision_from_cofactors,
     _reduced_cofactor,
+    _traced_scalars,
 )
 
 
@@ -70,7 +71,8 @@ def schur_precision_and_redundancy(
     if structure is None:
         structure = bundle_structure(problem)
     redundancy = problem.n_observations() - problem.n_unknowns()
-    leverages, residuals, cofactors = _statistics(problem, structure, params, sigma0, redundancy)
+    leverages, residuals, cofactors = _statistics(problem, structure, params,
+                                                  *_traced_scalars(sigma0, redundancy))
     return _precision_from_cofactors(problem, structure, cofactors, sigma0,
                                      _redundancy(problem, leverages, residuals))
 
@@ -85,7 +87,8 @@ def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
 
 @eqx.filter_jit
 def _statistics(problem, structure, params, sigma0, redundancy):
-    """`_leverages` and `schur_cofactors` in one program."""
+    """`_leverages` and `schur_cofactors` in one program (`sigma0`, `redundancy`: float64
+    scalars from `_traced_scalars`)."""
     leverages, residuals, (cofactor, points) = _leverages(problem, structure, params)
     cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
                                   redundancy)
