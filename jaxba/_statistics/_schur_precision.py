@@ -16,8 +16,8 @@ from .._solvers._schur._bundle import (
     _reduced_vector,
     _schur_complement,
     _to_parameters,
-    bundle_normal_equations,
     bundle_structure,
+    compiled_normal_equations,
 )
 from .._solvers._schur._normal import _matmul, _small_inverse
 from ._covariance import Precision, SchurCovariance, with_ties
@@ -61,7 +61,8 @@ def schur_cofactors(
     if structure is None:
         structure = bundle_structure(problem)
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    return _schur_cofactors(problem, structure, params,
+    normal = compiled_normal_equations(problem, structure, params)
+    return _schur_cofactors(problem, structure, params, normal,
                             *_traced_scalars(sigma0, n_observations - n_unknowns))
 
 
@@ -236,8 +237,7 @@ def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.floa
 
 
 @eqx.filter_jit
-def _schur_cofactors(problem, structure, params, sigma0, redundancy):
-    normal = bundle_normal_equations(problem, structure, params)
+def _schur_cofactors(problem, structure, params, normal, sigma0, redundancy):
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
     points = _point_cofactors(problem, structure, cofactor, eliminated)
