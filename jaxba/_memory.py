@@ -8,10 +8,10 @@ compilations of the datum check, the solve and the statistics left ~400 MB of fr
 resident after the solve, and each later phase's own peak came on top of it.
 
 `release_free_memory` (glibc's `malloc_trim(0)`) returns the free pages at the end of every
-timed phase (`jaxba._timing.Timings.phase`); `tune_allocator` (the CLI, once at start-up)
-also makes free() return large blocks at once (`mallopt`: blocks of 256 KiB and more mapped
-on their own, the heap trimmed when 1 MiB is free at its top). Both are no-ops where the C
-library is not glibc.
+timed phase that compiled a program (`jaxba._timing.Timings.phase`); `tune_allocator` (the
+CLI, once at start-up) also makes free() return large blocks at once (`mallopt`: blocks of
+256 KiB and more mapped on their own, the heap trimmed when 1 MiB is free at its top). Both
+are no-ops where the C library is not glibc.
 """
 
 import ctypes
@@ -36,7 +36,8 @@ def _glibc():
 
 
 def release_free_memory() -> None:
-    """Return the C heap's free pages to the system (`malloc_trim(0)`; a few ms)."""
+    """Return the C heap's free pages to the system (`malloc_trim(0)`: it walks the heap, a
+    few ms in a fresh process, 20-40 ms in one that has compiled many programs)."""
     libc = _glibc()
     if libc is not None:
         libc.malloc_trim(0)

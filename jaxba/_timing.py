@@ -3,9 +3,11 @@
 jax reports every trace, lowering and backend compilation (or load from the persistent
 compilation cache) through `jax.monitoring`; `CompileLog` sums them while it is open, so a
 phase's compile seconds can be told from its run seconds. One listener is registered once
-per process and feeds every open log. At the end of every phase the C heap's free pages are
-returned to the system (`jaxba._memory`): a phase's compilations must not raise the next
-phase's memory.
+per process and feeds every open log. At the end of every phase that compiled (or loaded)
+a program the C heap's free pages are returned to the system (`jaxba._memory`): a phase's
+compilations must not raise the next phase's memory. Phases that compile nothing (the
+re-adjustments of variance components and data snooping) skip it: `malloc_trim` walks the
+whole heap, 20-40 ms a call in a process that has compiled many programs.
 """
 
 import contextlib
@@ -108,7 +110,8 @@ class Timings:
         notify = None if self.on_compile is None else (lambda: self.on_compile(name))
         with CompileLog(on_compile=notify) as log:
             yield
-        release_free_memory()
+        if log.count:  # only compilations leave much free heap (malloc_trim: 20-40 ms)
+            release_free_memory()
         self.add(Phase(name, time.perf_counter() - start, log.seconds, log.count,
                        log.cache_hits))
 

@@ -47,9 +47,14 @@ def camera_points(camera, eops, points):
     return np.asarray(_camera_points(camera, jnp.asarray(eops), jnp.asarray(points)))
 
 
+# One program each (op by op, a rotation per image and point compiled and ran ~4,000 times).
+_opk_to_matrices = jax.jit(jax.vmap(jaxba.opk_to_matrix))
+_matrices_to_opk = jax.jit(jax.vmap(jaxba.matrix_to_opk))
+
+
 def camera_frame(eops, points):
     """p = M (X - X0) (n, 3) of points (n, 3) in images (n, 6)."""
-    m = np.array([np.asarray(jaxba.opk_to_matrix(jnp.asarray(e[3:]))) for e in eops])
+    m = np.asarray(_opk_to_matrices(jnp.asarray(eops[:, 3:])))
     return np.einsum("nij,nj->ni", m, points - eops[:, :3])
 
 
@@ -220,8 +225,7 @@ def test_an_opencv_pixel_camera_block():
     rng = np.random.default_rng(7)
     points = make_targets(rng, 60)
     stations, matrices = make_stations(rng, 10, 1)
-    eops = np.array([np.r_[s, np.asarray(jaxba.matrix_to_opk(jnp.asarray(m)))]
-                     for s, m in zip(stations, matrices)])
+    eops = np.c_[stations, np.asarray(_matrices_to_opk(jnp.asarray(matrices)))]
     camera = jaxba.OpenCVCamera(2300.0, 2300.0, 2999.5, 1999.5, 0.0, -0.1, 0.05, 2e-4, -1e-4,
                                 0.0)
     inside = lambda xy: np.all((xy >= 20) & (xy <= [5979, 3979]), axis=1)  # noqa: E731

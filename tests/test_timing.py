@@ -42,3 +42,18 @@ def test_nested_logs_both_count_and_a_repeated_phase_adds_up():
     timings.add(Phase("solve", 1.0, 0.5, 2, 1))
     (solve,) = timings.phases
     assert solve.compilations == outer.count + 2 and solve.cache_hits >= 1
+
+
+def test_only_phases_that_compile_release_free_memory(monkeypatch):
+    """malloc_trim (20-40 ms in a process that has compiled much) runs after a phase that
+    compiled a program, not after one that only ran compiled ones."""
+    released = []
+    monkeypatch.setattr("jaxba._timing.release_free_memory", lambda: released.append(1))
+    timings = Timings()
+    double = jax.jit(lambda x: 2.0 * x - 1.0)
+    with timings.phase("compiles"):
+        double(jnp.ones(5)).block_until_ready()
+    assert len(released) == 1
+    with timings.phase("runs"):
+        double(jnp.ones(5)).block_until_ready()
+    assert len(released) == 1

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._memory import release_free_memory
+from .._timing import CompileLog
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,8 +93,10 @@ def least_squares_stepwise(
     """
     if not has_aux:
         fn = _NoAux(fn)
-    state, terminate, result = _init(fn, solver, y0, args)
-    release_free_memory()  # what compiling `_init` freed, before `_step` compiles
+    with CompileLog() as log:
+        state, terminate, result = _init(fn, solver, y0, args)
+    if log.count:
+        release_free_memory()  # what compiling `_init` freed, before `_step` compiles
     y, aux = y0, state.aux
     num_steps = 0
     while num_steps < max_steps and not _stops(terminate, result):

@@ -7,6 +7,7 @@ adjusted densely and with their points eliminated alike (`full_covariance` excep
 
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -89,14 +90,20 @@ def propagate(
     The covariance has the flattened shape (y.size, y.size).
     """
     index = np.asarray(result.precision.free_index)
-    base = jnp.asarray(flatten(result.parameters))
-
-    def of_free(x_free):
-        values = unflatten(result.parameters, base.at[index].set(x_free))
-        return jnp.ravel(function(values))
-
-    value = np.asarray(function(result.parameters))
-    jacobian = np.asarray(jax.jacfwd(of_free)(base[index]))
+    value, jacobian = (np.asarray(a) for a in _value_and_jacobian(
+        function, result.parameters, flatten(result.parameters), index))
     used = np.flatnonzero(np.any(jacobian != 0, axis=0))
     covariance = result.precision.covariance_of(index[used])
     return value, jacobian[:, used] @ covariance @ jacobian[:, used].T
+
+
+@eqx.filter_jit
+def _value_and_jacobian(function, params: Parameters, base, index):
+    """`function(params)` and F = ∂ ravel(function) / ∂x_free (y.size, index.size), `base`
+    the flattened `params`, as one program (op by op, `jax.jacfwd` of a small function
+    compiled ~100 small programs per call)."""
+
+    def of_free(x_free):
+        return jnp.ravel(function(unflatten(params, base.at[index].set(x_free))))
+
+    return function(params), jax.jacfwd(of_free)(base[index])

@@ -13,7 +13,6 @@ condition number is squared, so a defect shows as an eigenvalue ratio at roundin
 """
 
 import equinox as eqx
-import jax
 import numpy as np
 
 from .._problem._bundle import BundleProblem, free_indices
@@ -23,8 +22,8 @@ from .._solvers._schur._bundle import (
     _reduced_positions,
     _schur_complement,
     _small_inverse,
-    bundle_normal_equations,
     bundle_structure,
+    compiled_normal_equations,
 )
 from ._datum import check_columns, describe_defect
 
@@ -41,7 +40,7 @@ def check_datum_schur(
     defect as `check_datum` does, without a dense Jacobian (see the module docstring)."""
     labels = labels or parameter_labels(problem.initial)
     structure = structure or bundle_structure(problem)
-    normal = jax.jit(bundle_normal_equations)(problem, structure, problem.initial)
+    normal = compiled_normal_equations(problem, structure, problem.initial)
     index = free_indices(problem)
     n_all = flatten(problem.initial).size
     row_of = np.full(n_all, -1)

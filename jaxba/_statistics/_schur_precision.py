@@ -16,8 +16,8 @@ from .._solvers._schur._bundle import (
     _reduced_vector,
     _schur_complement,
     _to_parameters,
-    bundle_normal_equations,
     bundle_structure,
+    compiled_normal_equations,
 )
 from .._solvers._schur._normal import _matmul, _small_inverse
 from ._covariance import Precision, SchurCovariance, with_ties
@@ -61,7 +61,9 @@ def schur_cofactors(
     if structure is None:
         structure = bundle_structure(problem)
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    return _schur_cofactors(problem, structure, params, sigma0, n_observations - n_unknowns)
+    normal = compiled_normal_equations(problem, structure, params)
+    return _schur_cofactors(problem, structure, params, normal,
+                            *_traced_scalars(sigma0, n_observations - n_unknowns))
 
 
 def schur_precision(
@@ -227,9 +229,15 @@ def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
     return points * free[:, :, None] * free[:, None, :]
 
 
+def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.float64]:
+    """σ0 and the redundancy as float64 scalars, which `eqx.filter_jit` traces: as Python
+    numbers they are static, and every new redundancy (data snooping switches observations
+    off) compiled the statistics program again (~3 s)."""
+    return np.float64(sigma0), np.float64(redundancy)
+
+
 @eqx.filter_jit
-def _schur_cofactors(problem, structure, params, sigma0, redundancy):
-    normal = bundle_normal_equations(problem, structure, params)
+def _schur_cofactors(problem, structure, params, normal, sigma0, redundancy):
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
     points = _point_cofactors(problem, structure, cofactor, eliminated)

@@ -31,8 +31,8 @@ from .._solvers._schur._bundle import (
     _distance_jacobians,
     _free_masks,
     _image_blocks,
-    bundle_normal_equations,
     bundle_structure,
+    compiled_normal_equations,
 )
 from ._covariance import Precision
 from ._schur_precision import (
@@ -41,6 +41,7 @@ from ._schur_precision import (
     _point_cofactors,
     _precision_from_cofactors,
     _reduced_cofactor,
+    _traced_scalars,
 )
 
 
@@ -52,7 +53,8 @@ def schur_redundancy_numbers(
     For bundles with a datum (S positive definite); not for free networks."""
     if structure is None:
         structure = bundle_structure(problem)
-    leverages, residuals, _ = _leverages(problem, structure, params)
+    normal = compiled_normal_equations(problem, structure, params)
+    leverages, residuals, _ = _leverages(problem, structure, params, normal)
     return _redundancy(problem, leverages, residuals)
 
 
@@ -70,7 +72,9 @@ def schur_precision_and_redundancy(
     if structure is None:
         structure = bundle_structure(problem)
     redundancy = problem.n_observations() - problem.n_unknowns()
-    leverages, residuals, cofactors = _statistics(problem, structure, params, sigma0, redundancy)
+    normal = compiled_normal_equations(problem, structure, params)
+    leverages, residuals, cofactors = _statistics(problem, structure, params, normal,
+                                                  *_traced_scalars(sigma0, redundancy))
     return _precision_from_cofactors(problem, structure, cofactors, sigma0,
                                      _redundancy(problem, leverages, residuals))
 
@@ -84,19 +88,20 @@ def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
 
 
 @eqx.filter_jit
-def _statistics(problem, structure, params, sigma0, redundancy):
-    """`_leverages` and `schur_cofactors` in one program."""
-    leverages, residuals, (cofactor, points) = _leverages(problem, structure, params)
+def _statistics(problem, structure, params, normal, sigma0, redundancy):
+    """`_leverages` and `schur_cofactors` in one program (`sigma0`, `redundancy`: float64
+    scalars from `_traced_scalars`)."""
+    leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal)
     cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
                                   redundancy)
     return leverages, residuals, cofactors
 
 
 @eqx.filter_jit
-def _leverages(problem, structure, params):
+def _leverages(problem, structure, params, normal):
     """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k); the residuals; and
-    S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`)."""
-    normal = bundle_normal_equations(problem, structure, params)
+    S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`);
+    `normal`: `bundle_normal_equations` at `params` (`compiled_normal_equations`)."""
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
     jr, je, _ = _image_blocks(problem, structure, params,

@@ -451,6 +451,11 @@ def bundle_normal_equations(
     )
 
 
+# `bundle_normal_equations` as a program of its own: the datum check's, which the statistics
+# reuse (`jaxba._statistics._schur_precision`) instead of compiling it again inside theirs.
+compiled_normal_equations = jax.jit(bundle_normal_equations)
+
+
 def _block_columns(structure: BundleStructure, group: ParameterObservations) -> Array:
     """(n, width) reduced columns of the observed rows of a camera or image block."""
     width = group.observed.shape[1]
