@@ -25,30 +25,59 @@ GRAD_RTOL = 1e-5  # issue 6: d IOP / d observation against central differences, 
 OBS_STEP = 1e-3  # mm (≈ σ): truncation ~1e-7; smaller steps drown in the re-solves' tolerance
 STATION_STEP = 1e-4  # m, central-difference step of a station coordinate
 FD_SOLVE_TOL = 1e-15  # re-solves for the differences: to rounding, or they drown the step
+# The solves of the derivatives and of the differences' re-solves: tolerances are static
+# arguments of the compiled programs, so one setting lets the tests share them.
+FD_OPTIONS = {"rtol": FD_SOLVE_TOL, "atol": FD_SOLVE_TOL, "max_steps": 200}
 CHECKED = ((0, 0), (7, 1), (60, 0), (121, 1), (200, 0))  # (observation, coordinate)
+# The Schur backend's adjoint (jaxba._solvers._schur._adjoint) against the dense one: the IOPs'
+# sensitivity on `block`, and against central differences too the gradient of a quantity on
+# `small_block`: 10 images, 80 targets, 5 free IOPs, the lab datum (6 fixed coordinates, the
+# distances' scale) and weighted control on 3 points.
+BACKEND_RTOL = 1e-8  # Schur vs dense gradient, relative to each block's largest entry
+CONTROL_STEP = 1e-4  # m (≈ 0.1 σ of the control), central-difference step of a control value
+SCHUR_CHECKED = ((0, 0), (33, 1), (400, 0))  # (observation, coordinate)
+
+
+def _solved(problem, measured):
+    """The adjusted Parameters of `problem` with the image coordinates `measured` (dense
+    backend, solved to rounding), computed by jax.vjp's forward pass: the very program that
+    `sensitivity` runs forward (a plain call compiles the solve once more); the pullback is
+    never run."""
+    plan = jaxba.advanced.linearisation_plan(problem)
+
+    def solve(m):
+        moved = eqx.tree_at(lambda p: p.groups[0].measured, problem, m)
+        return adjusted(moved, backend="dense", plan=plan, **FD_OPTIONS)
+
+    return jax.vjp(solve, measured)[0]
 
 
 @pytest.fixture(scope="module")
 def block(tmp_path_factory):
+    """8 images, 30 targets, 8 free IOPs, the lab datum; starting at its optimum, so that
+    re-solves start nearby."""
     truth = jaxba.write_synthetic_project(tmp_path_factory.mktemp("diff"), seed=5, n_images=8,
                                           n_targets=30)
-    return jaxba.build_project(jaxba.read_project(truth.project_file)).problem
+    problem = jaxba.build_project(jaxba.read_project(truth.project_file)).problem
+    optimum = _solved(problem, problem.groups[0].measured)
+    return eqx.tree_at(lambda p: p.initial, problem, optimum)
 
 
-@pytest.mark.slow  # ~1 min: ten re-solved bundles and the implicit adjoint
-def test_iop_gradients_match_central_differences(block):
+@pytest.fixture(scope="module")
+def dense_sensitivity(block):
+    """`sensitivity` of `block` on the dense backend, solved to rounding: (S, names)."""
+    return sensitivity(block, backend="dense", **FD_OPTIONS)
+
+
+@pytest.mark.slow  # ~10 s: compiles the dense solve and its implicit adjoint, ten re-solves
+def test_iop_gradients_match_central_differences(block, dense_sensitivity):
     problem = block
-    start = jaxba.adjust(problem, check=False).parameters
-    problem = eqx.tree_at(lambda p: p.initial, problem, start)  # re-solves start nearby
-    sens, names = sensitivity(problem, rtol=FD_SOLVE_TOL, atol=FD_SOLVE_TOL, max_steps=200)
+    sens, names = dense_sensitivity
     keep = np.array([jaxba.SmacCamera.parameter_names.index(n) for n in names])
-    plan = jaxba.advanced.linearisation_plan(problem)
     measured = problem.groups[0].measured
 
     def iops(m):
-        moved = eqx.tree_at(lambda p: p.groups[0].measured, problem, m)
-        solved = adjusted(moved, plan, rtol=FD_SOLVE_TOL, atol=FD_SOLVE_TOL, max_steps=200)
-        return np.asarray(solved.cameras["smac"][0])[keep]
+        return np.asarray(_solved(problem, m).cameras["smac"][0])[keep]
 
     # Each IOP's own scale: its largest sensitivity to any observation.
     scale = np.abs(np.asarray(sens)).max(axis=(1, 2))
@@ -61,7 +90,7 @@ def test_iop_gradients_match_central_differences(block):
 
 def test_network_design_gradient(block):
     problem = block
-    params = jaxba.adjust(problem, check=False).parameters
+    params = problem.initial  # the adjusted geometry
     # iop_trace_gradient is compiled once for the five calls (op by op they compiled ~470
     # small programs).
     def trace_and_gradient(params):
@@ -80,12 +109,14 @@ def test_network_design_gradient(block):
         assert float(grad[image, axis]) == pytest.approx(fd, rel=1e-4, abs=1e-6 * float(value))
 
 
-# The Schur backend's adjoint (jaxba._solvers._schur._adjoint) against the dense one and against
-# central differences, on a block both can solve: 10 images, 80 targets, 5 free IOPs, the lab
-# datum (6 fixed coordinates, the distances' scale) and weighted control on 3 points.
-BACKEND_RTOL = 1e-8  # Schur vs dense gradient, relative to each block's largest entry
-CONTROL_STEP = 1e-4  # m (≈ 0.1 σ of the control), central-difference step of a control value
-SCHUR_CHECKED = ((0, 0), (33, 1), (400, 0))  # (observation, coordinate)
+@pytest.mark.slow  # ~10 s: compiles the Schur backend's jacrev (its CG vmapped over 8 IOPs)
+def test_schur_sensitivity_matches_dense(block, dense_sensitivity):
+    schur, names = sensitivity(block, backend="schur", **FD_OPTIONS)
+    dense, dense_names = dense_sensitivity
+    assert names == dense_names == ["xp", "yp", "c", "K1", "K2", "K3", "P1", "P2"]
+    scale = np.abs(np.asarray(dense)).max(axis=(1, 2), keepdims=True)
+    error = np.abs(np.asarray(schur) - np.asarray(dense)) / scale
+    assert np.all(error < BACKEND_RTOL), dict(zip(names, error.max(axis=(1, 2))))
 
 
 @pytest.fixture(scope="module")
@@ -126,56 +157,66 @@ def _split(problem, backend):
     return {"plan": jaxba.advanced.linearisation_plan(problem)}
 
 
-def _value_and_gradient(problem, data, backend):
-    """The quantity and its gradient w.r.t. `data`, solved to rounding (the tolerances of the
-    central differences' re-solves: one compiled program serves both)."""
-    options = dict(rtol=FD_SOLVE_TOL, atol=FD_SOLVE_TOL, max_steps=200, **_split(problem, backend))
-    return jax.value_and_grad(_adjusted_quantity, argnums=1)(problem, data, backend, **options)
+def _central_difference_steps(problem):
+    """(which array of `_data`, index, step) of the Schur gradient's central differences:
+    image coordinates, control values and a fixed coordinate of the datum."""
+    checked = [(0, index, OBS_STEP) for index in SCHUR_CHECKED]
+    checked += [(1, (0, 2), CONTROL_STEP), (1, (2, 0), CONTROL_STEP)]
+    fixed = int(np.flatnonzero(~np.asarray(problem.free.points).all(axis=1))[0])
+    checked += [(2, (fixed, int(np.flatnonzero(~np.asarray(problem.free.points[fixed]))[0])),
+                 CONTROL_STEP)]
+    return checked
+
+
+def _moved(data, which, index, step):
+    changed = list(data)
+    changed[which] = changed[which].at[index].add(step)
+    return tuple(changed)
 
 
 @pytest.fixture(scope="module")
-def schur_gradient(small_block):
-    return _value_and_gradient(small_block, _data(small_block), "schur")[1]
+def gradients(small_block):
+    """Per backend: the quantity's gradient w.r.t. `_data` ("gradient"), the StableHLO text of
+    its program ("lowered"), and for the Schur backend the central differences of the
+    quantity by re-solves (`_central_difference_steps` -> value, "differences").
+
+    One compiled program per backend, data -> (quantity, gradient), solved to rounding (the
+    tolerances of the re-solves: the program serves both), closed over the problem (its
+    index arrays concrete, not traced). Everything is evaluated here, while the programs
+    are compiled: jax's caches are cleared after a test that leaves the process large, and
+    these programs hold a host callback (equinox's error checks), so the persistent cache
+    does not keep them."""
+    data = _data(small_block)
+    out = {}
+    for backend in ("schur", "dense"):
+        options = dict(FD_OPTIONS, **_split(small_block, backend))
+        compiled = jax.jit(jax.value_and_grad(
+            lambda data, backend=backend, options=options: _adjusted_quantity(
+                small_block, data, backend, **options)))
+        out[backend] = {"gradient": compiled(data)[1],
+                        "lowered": compiled.lower(data).as_text()}  # the call's own lowering
+        if backend == "schur":
+            out[backend]["differences"] = [
+                (float(compiled(_moved(data, which, index, step))[0])
+                 - float(compiled(_moved(data, which, index, -step))[0])) / (2 * step)
+                for which, index, step in _central_difference_steps(small_block)]
+    return out
 
 
-@pytest.mark.slow  # ~20 s: compiles the dense path's adjustment and adjoint
-def test_schur_gradient_matches_dense(small_block, schur_gradient):
-    dense_gradient = _value_and_gradient(small_block, _data(small_block), "dense")[1]
-    for name, schur, dense in zip(("measured", "control", "points"), schur_gradient,
-                                  dense_gradient):
+@pytest.mark.slow  # ~25 s for `gradients`: compiles both backends' solve and adjoint
+def test_schur_gradient_matches_dense(gradients):
+    for name, schur, dense in zip(("measured", "control", "points"),
+                                  gradients["schur"]["gradient"], gradients["dense"]["gradient"]):
         scale = np.abs(np.asarray(dense)).max()
         assert scale > 0, name
         error = np.abs(np.asarray(schur) - np.asarray(dense)).max() / scale
         assert error < BACKEND_RTOL, (name, error)
 
 
-@pytest.mark.slow  # ~40 s: compiles both backends' jacrev (the Schur CG vmapped over 5 IOPs)
-def test_schur_sensitivity_matches_dense(small_block):
-    schur, names = sensitivity(small_block, backend="schur")
-    dense, dense_names = sensitivity(small_block, backend="dense")
-    assert names == dense_names == ["xp", "yp", "c", "K1", "K2"]
-    scale = np.abs(np.asarray(dense)).max(axis=(1, 2), keepdims=True)
-    error = np.abs(np.asarray(schur) - np.asarray(dense)) / scale
-    assert np.all(error < BACKEND_RTOL), dict(zip(names, error.max(axis=(1, 2))))
-
-
-def test_schur_gradient_matches_central_differences(small_block, schur_gradient):
-    problem = small_block
-    data = _data(problem)
-    grad = schur_gradient
-
-    def moved(which, index, step):
-        changed = list(data)
-        changed[which] = changed[which].at[index].add(step)
-        return float(_value_and_gradient(problem, tuple(changed), "schur")[0])
-
-    checked = [(0, index, OBS_STEP) for index in SCHUR_CHECKED]
-    checked += [(1, (0, 2), CONTROL_STEP), (1, (2, 0), CONTROL_STEP)]
-    fixed = int(np.flatnonzero(~np.asarray(problem.free.points).all(axis=1))[0])
-    checked += [(2, (fixed, int(np.flatnonzero(~np.asarray(problem.free.points[fixed]))[0])),
-                 CONTROL_STEP)]
-    for which, index, step in checked:
-        fd = (moved(which, index, step) - moved(which, index, -step)) / (2 * step)
+def test_schur_gradient_matches_central_differences(small_block, gradients):
+    grad = gradients["schur"]["gradient"]
+    for (which, index, _), fd in zip(_central_difference_steps(small_block),
+                                     gradients["schur"]["differences"], strict=True):
         scale = np.abs(np.asarray(grad[which])).max()
         assert float(grad[which][index]) == pytest.approx(fd, abs=GRAD_RTOL * scale), (which, index)
 
@@ -191,7 +232,7 @@ def _largest_matrix_dimension(text: str) -> int:
     return largest
 
 
-def test_schur_adjoint_forms_no_dense_matrix(small_block):
+def test_schur_adjoint_forms_no_dense_matrix(small_block, gradients):
     """No array of the Schur path's forward solve and reverse pass has two dimensions longer
     than the reduced camera matrix (n_r + 1, its padding column); the dense path's Hessian
     (n_free x n_free) fails the same check."""
@@ -199,15 +240,9 @@ def test_schur_adjoint_forms_no_dense_matrix(small_block):
     n_reduced = bundle_structure(problem).n_reduced
     n_free = problem.n_unknowns()
     assert n_free > 2 * (n_reduced + 1)
-
-    def lowered(backend):  # the problem's index arrays concrete: closed over, not traced
-        split = _split(problem, backend)
-        gradient = jax.grad(lambda data: _adjusted_quantity(problem, data, backend, **split))
-        return jax.jit(gradient).lower(_data(problem))
-
-    schur = _largest_matrix_dimension(lowered("schur").as_text())
+    schur = _largest_matrix_dimension(gradients["schur"]["lowered"])
     assert schur <= n_reduced + 1, (schur, n_reduced)
-    assert _largest_matrix_dimension(lowered("dense").as_text()) >= n_free
+    assert _largest_matrix_dimension(gradients["dense"]["lowered"]) >= n_free
 
 
 def test_backend_choice(small_block, monkeypatch):

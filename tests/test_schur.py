@@ -10,6 +10,7 @@ and the final cost of stock `optx.LevenbergMarquardt` (dense QR).
 import ctypes
 import pathlib
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -64,8 +65,8 @@ def synthetic_scene(seed=0, n_cameras=N_CAMERAS, n_points=N_POINTS, drop=0.0):
     )
     keep = (rng.uniform(size=camera_index.size) >= drop) | (camera_index < 2)
     camera_index, point_index = camera_index[keep], point_index[keep]
-    clean = np.asarray(jax.vmap(_project)(jnp.asarray(cameras[camera_index]),
-                                          jnp.asarray(points[point_index])))
+    clean = np.asarray(jax.jit(jax.vmap(_project))(jnp.asarray(cameras[camera_index]),
+                                                   jnp.asarray(points[point_index])))
     observed = clean + rng.normal(scale=NOISE_PX, size=clean.shape)
     truth = BalProblem(cameras, points, camera_index, point_index, observed)
     camera_perturbation = np.array([1e-2] * 3 + [5e-2] * 3 + [2.0, 1e-3, 1e-4])
@@ -78,7 +79,12 @@ def synthetic_scene(seed=0, n_cameras=N_CAMERAS, n_points=N_POINTS, drop=0.0):
 
 
 def cost(problem, params) -> float:
-    return float(0.5 * sum(jnp.sum(e**2) for e in problem.residuals(params)))
+    return float(_cost(problem, params))
+
+
+@eqx.filter_jit  # one program for every call (op by op: dozens of small ones each)
+def _cost(problem, params):
+    return 0.5 * sum(jnp.sum(e**2) for e in problem.residuals(params))
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -209,16 +215,20 @@ def _dense_lm_cost(problem) -> float:
     """Stock optx.LevenbergMarquardt (dense QR) in Jacobi-scaled unknowns, tight tolerances."""
     jacobian, _ = jacfwd_jacobian(problem, problem.initial)
     scale = jnp.asarray(1.0 / np.linalg.norm(np.asarray(jacobian), axis=0))
-    index = jnp.asarray(free_indices(problem))
-    x0 = jnp.asarray(flatten(problem.initial))[index]
+    index = free_indices(problem)
+    x0 = flatten(problem.initial)[index]
+    return float(_dense_lm(problem, scale, jnp.asarray(index), jnp.asarray(x0)))
 
+
+@eqx.filter_jit  # the solve and the final cost as one program
+def _dense_lm(problem, scale, index, x0):
     def fn(z, args):
         params = params_from_free(problem, x0 + scale * z, index)
         return jnp.concatenate([jnp.ravel(e) for e in problem.residuals(params)])
 
     solver = optx.LevenbergMarquardt(rtol=1e-13, atol=1e-13)
     solution = optx.least_squares(fn, solver, jnp.zeros_like(x0), max_steps=500, throw=False)
-    return float(0.5 * jnp.sum(fn(solution.value, None) ** 2))
+    return 0.5 * jnp.sum(fn(solution.value, None) ** 2)
 
 
 def test_final_cost_matches_dense_levenberg_marquardt(scene, tight_solution):

@@ -23,7 +23,6 @@ from jaxba._solvers._schur._bundle import (
     solve_schur,
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
-from jaxba._solvers._trust_region import STEP_TOLERANCE
 from jaxba._statistics._backends import DenseBackend
 from jaxba._statistics._schur_precision import schur_cofactors
 from jaxba._statistics._schur_reliability import schur_redundancy_numbers
@@ -47,6 +46,13 @@ def block(tmp_path_factory):
         tmp_path_factory.mktemp("block"),
         seed=3, n_images=8, n_targets=30, n_cameras=2, gnss_sigma=(0.05, 0.01),
     )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def plain_solution(block):
+    """`solve_schur(block)` with its defaults (50 steps, the statistical step test), solved
+    once for the tests that read it."""
+    return solve_schur(block)
 
 
 def _with_control_and_robust(problem):
@@ -92,10 +98,10 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
     all_steps = flatten(all_steps)
     step = all_steps[free_indices(problem)]
 
-    jacobian, residual = jacfwd_jacobian(problem, params)
+    jacobian, residual = (np.asarray(a) for a in jacfwd_jacobian(problem, params))
     hessian = jacobian.T @ jacobian
-    diagonal = marquardt_diagonal(jnp.diagonal(hessian), 1e-6, 1e32)
-    expected = jnp.linalg.solve(hessian + damping * jnp.diag(diagonal), jacobian.T @ residual)
+    diagonal = np.asarray(marquardt_diagonal(jnp.asarray(np.diag(hessian)), 1e-6, 1e32))
+    expected = np.linalg.solve(hessian + damping * np.diag(diagonal), jacobian.T @ residual)
     np.testing.assert_allclose(
         step, expected, rtol=STEP_RTOL, atol=STEP_RTOL * np.abs(expected).max()
     )
@@ -108,9 +114,8 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
 
 
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])
-def test_solve_schur_matches_dense_solve(block, variant):
+def test_solve_schur_matches_dense_solve(block, plain_solution, variant):
     problem = block if variant == "plain" else _with_control_and_robust(block)
-    index = jnp.asarray(free_indices(problem))
     # Huber from the approximations (every residual far in the linear part) converges
     # slowly (linearly) in both (dense: ~310 steps): both run to the Cauchy test alone (no
     # statistical step test; the dense reference always). The Schur LM then reaches the
@@ -118,8 +123,8 @@ def test_solve_schur_matches_dense_solve(block, variant):
     # 200 steps, so only the plain variant must report convergence; coordinates must agree
     # to 1e-8.
     max_steps = 50 if variant == "plain" else 200
-    step_tolerance = STEP_TOLERANCE if variant == "plain" else 0.0
-    schur = solve_schur(problem, index, max_steps=max_steps, step_tolerance=step_tolerance)
+    schur = (plain_solution if variant == "plain"
+             else solve_schur(problem, max_steps=max_steps, step_tolerance=0.0))
     dense = jaxba.solve(problem, rtol=1e-10, atol=1e-10, step_tolerance=0.0,
                         max_steps=max_steps + 200)
     assert isinstance(schur, jaxba.Solution)
@@ -134,12 +139,12 @@ def test_solve_schur_matches_dense_solve(block, variant):
     )
 
 
-def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block):
+def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block, plain_solution):
     from jaxba._solvers._progress import StepRecorder
 
     recorder = StepRecorder(redundancy=100)
     stepwise = solve_schur(block, on_step=recorder)
-    whole = solve_schur(block)
+    whole = plain_solution
     assert len(recorder.iterations) >= 2
     assert recorder.iterations[0].cost > float(stepwise.cost)
     assert recorder.iterations[-1].cost == pytest.approx(float(stepwise.cost), rel=1e-12)
@@ -150,9 +155,8 @@ def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block):
 
 
 @pytest.mark.parametrize("pairwise", [True, False])
-def test_cofactors_match_dense_precision(block, pairwise):
-    index = jnp.asarray(free_indices(block))
-    params = solve_schur(block, index).parameters
+def test_cofactors_match_dense_precision(block, plain_solution, pairwise):
+    params = plain_solution.parameters
     dense = jaxba.precision(block, params)
     # Several chunks of pairs and of points; the cofactors pair-wise and densely.
     structure = bundle_structure(block, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)

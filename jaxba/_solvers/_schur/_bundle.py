@@ -882,8 +882,10 @@ def solve_schur(
     del free_index
     if structure is None:
         structure = bundle_structure(problem)
-    settings = dict(rtol=rtol, atol=atol, step_tolerance=step_tolerance,
-                    function_tolerance=function_tolerance)
+    # The tolerances as arrays, traced: solves that differ only in them share one compiled
+    # program. step_tolerance stays static: whether it is 0 decides what is compiled.
+    settings = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), step_tolerance=step_tolerance,
+                    function_tolerance=jnp.asarray(function_tolerance))
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)
