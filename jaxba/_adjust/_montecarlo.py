@@ -69,6 +69,44 @@ def _computed(problem: BundleProblem, params: Parameters, k: int) -> Array:
     return group.measured - sigma * jnp.where(group.mask(), e, 0.0)
 
 
+@eqx.filter_jit
+def _simulated(problem: BundleProblem, at: Parameters, key: PRNGKeyArray, n: int) -> list[Array]:
+    """Per image group, `n` replicates (n, rows, 2) of its coordinates computed at `at` plus
+    noise N(0, σ²); one compiled program (op by op: ~30 small ones)."""
+    measured = []
+    for k, key_k in zip(_image_groups(problem), jax.random.split(key, len(problem.groups))):
+        group = problem.groups[k]
+        computed = _computed(problem, at, k)
+        sigma = jnp.where(group.mask(), group.stddev, 0.0)
+        noise = jax.random.normal(key_k, (n, *computed.shape)) * sigma
+        measured.append(computed + noise)
+    return measured
+
+
+@eqx.filter_jit
+def _image_residuals(problem: BundleProblem, params: Parameters) -> tuple[list, list]:
+    """The whitened residuals (rows, 2) of every image group at `params`, and their masks."""
+    groups = [problem.groups[k] for k in _image_groups(problem)]
+    return ([g.residuals(params, problem.refraction) for g in groups],
+            [g.mask() for g in groups])
+
+
+@eqx.filter_jit
+def _resampled(problem: BundleProblem, params: Parameters, pool, key: PRNGKeyArray,
+               n: int) -> list[Array]:
+    """Per image group, `n` replicates of its coordinates computed at `params` plus σ times
+    draws from `pool` (with replacement); one compiled program."""
+    ks = _image_groups(problem)
+    measured = []
+    for k, key_k in zip(ks, jax.random.split(key, len(ks))):
+        group = problem.groups[k]
+        computed = _computed(problem, params, k)
+        draws = jax.random.choice(key_k, jnp.asarray(pool), (n, *computed.shape))
+        sigma = jnp.where(group.mask(), group.stddev, 0.0)
+        measured.append(computed + sigma * draws)
+    return measured
+
+
 def _replicate(problem: BundleProblem, measured: list[Array]) -> BundleProblem:
     ks = _image_groups(problem)
     return eqx.tree_at(lambda p: [p.groups[k].measured for k in ks], problem, measured)
@@ -80,10 +118,24 @@ CHUNK = 10  # replicates per vmapped solve (one Dask task), by default
 def _solve_chunk(task) -> Solution:
     """The replicates of `task` = (problem, measured per image group, solver options)."""
     problem, measured, options = task
+    return _solve_stacked(problem, linearisation_plan(problem), measured, **options)
+
+
+@eqx.filter_jit
+def _solve_stacked(problem, plan, measured, *, max_steps, rtol, atol) -> Solution:
+    """`solve_batch` of the replicates of `problem` with image coordinates `measured` (per
+    image group, a leading replicate axis), stacked in the same program: op by op, the
+    stacking compiled a small program per leaf."""
     n = measured[0].shape[0]
     stacked = jax.vmap(lambda m: _replicate(problem, m))(measured)
-    plan = linearisation_plan(problem)
-    return solve_batch(stacked, broadcast_plan(plan, n), **options)
+    return solve_batch(stacked, broadcast_plan(plan, n), max_steps=max_steps, rtol=rtol,
+                       atol=atol)
+
+
+@eqx.filter_jit
+def _concatenate(parts: list[Solution], n: int) -> Solution:
+    """The first `n` replicates of the chunks' solutions `parts`, in order."""
+    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[:n], *parts)
 
 
 def _solve_all(problem, measured, options, scheduler, chunk_size) -> Solution:
@@ -100,8 +152,7 @@ def _solve_all(problem, measured, options, scheduler, chunk_size) -> Solution:
             if isinstance(solution, BaseException):
                 raise solution
             parts[k] = solution
-    return jax.tree.map(lambda *leaves: jnp.concatenate(leaves)[:n],
-                        *(parts[k] for k in range(len(rows))))
+    return _concatenate([parts[k] for k in range(len(rows))], n)
 
 
 def _solve_replicates(problem, measured, *, max_steps, rtol, atol, scheduler=None,
@@ -110,8 +161,8 @@ def _solve_replicates(problem, measured, *, max_steps, rtol, atol, scheduler=Non
     options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
     solutions = _solve_all(problem, measured, options, scheduler, chunk_size)
     index = np.asarray(linearisation_plan(problem).free_index)
-    flat = np.stack([flatten(jax.tree.map(lambda leaf: leaf[r], solutions.parameters))
-                     for r in range(n)])
+    parameters = jax.device_get(solutions.parameters)
+    flat = np.stack([flatten(jax.tree.map(lambda leaf: leaf[r], parameters)) for r in range(n)])
     free = flat[:, index]
     covariance = np.atleast_2d(np.cov(free, rowvar=False))
     std = np.zeros(flat.shape[1])
@@ -139,13 +190,7 @@ def monte_carlo(
     coordinates are computed at (default: `adjust(problem)`'s solution).
     """
     at = at if at is not None else adjust(problem, check=False).parameters
-    measured = []
-    for k, key_k in zip(_image_groups(problem), jax.random.split(key, len(problem.groups))):
-        group = problem.groups[k]
-        computed = _computed(problem, at, k)
-        sigma = jnp.where(group.mask(), group.stddev, 0.0)
-        noise = jax.random.normal(key_k, (n, *computed.shape)) * sigma
-        measured.append(computed + noise)
+    measured = _simulated(problem, at, key, n)
     return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol,
                              scheduler=scheduler, chunk_size=chunk_size)
 
@@ -168,20 +213,10 @@ def bootstrap(
     """
     result = adjust(problem, check=False)
     params, redundancy = result.parameters, result.precision.redundancy
-    ks = _image_groups(problem)
-    pool = np.concatenate([
-        np.asarray(problem.groups[k].residuals(params, problem.refraction))[
-            np.asarray(problem.groups[k].mask())]
-        for k in ks
-    ])
+    residuals, masks = jax.device_get(_image_residuals(problem, params))
+    pool = np.concatenate([e[mask] for e, mask in zip(residuals, masks)])
     pool = (pool - pool.mean()) * np.sqrt(problem.n_observations() / redundancy)
-    measured = []
-    for k, key_k in zip(ks, jax.random.split(key, len(ks))):
-        group = problem.groups[k]
-        computed = _computed(problem, params, k)
-        draws = jax.random.choice(key_k, jnp.asarray(pool), (n, *computed.shape))
-        sigma = jnp.where(group.mask(), group.stddev, 0.0)
-        measured.append(computed + sigma * draws)
+    measured = _resampled(problem, params, pool, key, n)
     return _solve_replicates(problem, measured, max_steps=max_steps, rtol=rtol, atol=atol,
                              scheduler=scheduler, chunk_size=chunk_size)
 
