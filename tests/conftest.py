@@ -115,10 +115,10 @@ def synthetic_block(tmp_path_factory):
 # ones for the end, so the two workers finish together (alphabetical order left one worker
 # ~90 s of CPU behind the other: 6:34 instead of ~5:50).
 LONGEST_MODULES = (
-    "test_notebooks.py", "test_differentiable.py", "test_schur_bundle.py", "test_batch.py",
-    "test_ties.py", "test_cli.py", "test_statistics.py", "test_free_network.py",
-    "test_dask.py", "test_initialise.py", "test_faults.py", "test_schur_adjust.py",
-    "test_cv_models.py",
+    "test_notebooks.py", "test_schur_bundle.py", "test_ties.py", "test_differentiable.py",
+    "test_batch.py", "test_initialise.py", "test_statistics.py", "test_free_network.py",
+    "test_cv_models.py", "test_cli.py", "test_dask.py", "test_faults.py", "test_bal.py",
+    "test_schur_adjust.py",
 )
 
 
