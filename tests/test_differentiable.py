@@ -40,7 +40,7 @@ SCHUR_CHECKED = ((0, 0), (33, 1), (400, 0))  # (observation, coordinate)
 
 def _solved(problem, measured):
     """The adjusted Parameters of `problem` with the image coordinates `measured` (dense
-    backend, solved to rounding), computed by jax.vjp's forward pass: the very program that
+    backend, `FD_OPTIONS`), computed by jax.vjp's forward pass: the very program that
     `sensitivity` runs forward (a plain call compiles the solve once more); the pullback is
     never run."""
     plan = jaxba.advanced.linearisation_plan(problem)
@@ -65,7 +65,7 @@ def block(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def dense_sensitivity(block):
-    """`sensitivity` of `block` on the dense backend, solved to rounding: (S, names)."""
+    """`sensitivity` of `block` on the dense backend, `FD_OPTIONS`: (S, names)."""
     return sensitivity(block, backend="dense", **FD_OPTIONS)
 
 

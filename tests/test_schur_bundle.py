@@ -181,6 +181,27 @@ def test_cofactors_match_dense_precision(block, plain_solution, pairwise):
         )  # fmt: skip
 
 
+@pytest.mark.parametrize("pairwise", [True, False])
+@pytest.mark.parametrize("variant", ["plain", "control_robust"])
+def test_redundancy_numbers_match_dense(block, variant, pairwise):
+    """r_i = 1 - j N⁻¹ jᵀ from the Schur blocks equals the dense computation for every real
+    observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances."""
+    problem = block if variant == "plain" else _with_control_and_robust(block)
+    flat, unravel = ravel_pytree(problem.initial)
+    perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
+    params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))
+    # Several chunks of pairs and of points; the cofactors pair-wise and densely.
+    structure = bundle_structure(problem, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
+    r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
+    expected_r, expected_whitened = DenseBackend(problem).redundancy_numbers(params)
+    assert r.shape == expected_r.shape == (problem.n_observations(),)
+    np.testing.assert_allclose(whitened, expected_whitened, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(r, expected_r, rtol=0, atol=REDUNDANCY_ATOL)
+    # Σ r_i = trace(I - J N⁻¹ Jᵀ) = n - u.
+    redundancy = problem.n_observations() - problem.n_unknowns()
+    assert float(np.sum(r)) == pytest.approx(redundancy, rel=1e-9)
+
+
 def _benchmark_block():
     path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "schur_bundle_block.py"
     spec = importlib.util.spec_from_file_location("schur_bundle_block", path)
@@ -215,24 +236,3 @@ def test_run_bal_with_and_without_progress_agree(tmp_path):
     assert quiet["initial_cost"] == loud["initial_cost"]
     assert abs(quiet["final_cost"] - loud["final_cost"]) <= 1e-15 * quiet["initial_cost"]
     assert len(loud["cost_history"]) == loud["accepted_iterations"] + 1
-
-
-@pytest.mark.parametrize("variant", ["plain", "control_robust"])
-@pytest.mark.parametrize("pairwise", [True, False])
-def test_redundancy_numbers_match_dense(block, variant, pairwise):
-    """r_i = 1 - j N⁻¹ jᵀ from the Schur blocks equals the dense computation for every real
-    observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances."""
-    problem = block if variant == "plain" else _with_control_and_robust(block)
-    flat, unravel = ravel_pytree(problem.initial)
-    perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
-    params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))
-    # Several chunks of pairs and of points; the cofactors pair-wise and densely.
-    structure = bundle_structure(problem, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
-    r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
-    expected_r, expected_whitened = DenseBackend(problem).redundancy_numbers(params)
-    assert r.shape == expected_r.shape == (problem.n_observations(),)
-    np.testing.assert_allclose(whitened, expected_whitened, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(r, expected_r, rtol=0, atol=REDUNDANCY_ATOL)
-    # Σ r_i = trace(I - J N⁻¹ Jᵀ) = n - u.
-    redundancy = problem.n_observations() - problem.n_unknowns()
-    assert float(np.sum(r)) == pytest.approx(redundancy, rel=1e-9)
