@@ -66,9 +66,10 @@ def schur_precision_and_redundancy(
     structure: BundleStructure | None = None,
 ) -> Precision:
     """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`:
-    both from one compiled program, which forms the normal equations, S⁻¹ and the
-    pair-wise cofactor blocks once (two programs did all that twice: block A 0.3 s and, cold,
-    one compilation of ~3 s more)."""
+    both from one compiled program, which forms S⁻¹ and the pair-wise cofactor blocks once
+    (two programs did all that twice: block A 0.3 s and, cold, one compilation of ~3 s
+    more), from the normal equations of `compiled_normal_equations` (the datum check's
+    program: compiled once for both)."""
     if structure is None:
         structure = bundle_structure(problem)
     redundancy = problem.n_observations() - problem.n_unknowns()

@@ -684,7 +684,8 @@ def schur_solve(
     positions = unflatten(problem.initial, np.arange(rhs.shape[1]))
     reduced = _reduced_positions(problem, structure)
     points = np.asarray(positions.points)[np.asarray(structure.eliminated_points)]
-    x_r, x_e = _schur_solve(problem, structure, params, jnp.asarray(rhs[:, reduced]),
+    normal = compiled_normal_equations(problem, structure, params)
+    x_r, x_e = _schur_solve(problem, structure, normal, jnp.asarray(rhs[:, reduced]),
                             jnp.asarray(rhs[:, points]))
     out = np.zeros_like(rhs)
     out[:, reduced] = np.asarray(x_r)
@@ -693,8 +694,8 @@ def schur_solve(
 
 
 @eqx.filter_jit
-def _schur_solve(problem, structure, params, rhs_r, rhs_e):
-    normal = bundle_normal_equations(problem, structure, params)
+def _schur_solve(problem, structure, normal, rhs_r, rhs_e):
+    """`schur_solve` with the normal equations `normal` formed (by their own program)."""
     free_r, free_e = _free_masks(problem, structure, rhs_r.dtype)
 
     def one(r, e):  # vmapped over the right-hand sides; S is assembled once
