@@ -47,6 +47,7 @@ from ..._problem._observations import (
 )
 from ..._problem._parameters import Parameters, flatten, unflatten
 from .._cholesky import cholesky_solve
+from .._compiled import solver_jit
 from .._solution import Solution
 from .._steps import StepInfo, least_squares_stepwise
 from .._trust_region import (
@@ -841,7 +842,7 @@ def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
 _schur_solution = eqx.filter_jit(_make_schur_solution)
 
 
-@eqx.filter_jit
+@solver_jit
 def _solve_schur(problem, structure, *, max_steps, **settings):
     solver = _make_schur_solver(problem, structure, **settings)
     solution = optx.least_squares(
