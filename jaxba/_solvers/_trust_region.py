@@ -271,22 +271,28 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         region = jnp.where(missed, jnp.maximum(GAUSS_NEWTON_RETREAT * state.decrement,
                                                GAUSS_NEWTON_REGION), state.region)
 
-        def accepted(descent_state):
-            cauchy = self._cauchy_test(
-                state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
-            small_change = state.cost - cost_eval <= self.function_tolerance * state.cost
-            terminate = (cauchy | small_change) & ~state.first_step
-            # A solve that ends here never reads the model at this point: no linearisation.
-            descent_state = jax.lax.cond(
-                terminate, lambda: descent_state,
-                lambda: self.descent.query(state.y_eval, residual_eval, descent_state))
-            return state.y_eval, residual_eval, cost_eval, aux_eval, descent_state, terminate
+        cauchy = self._cauchy_test(
+            state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
+        small_change = state.cost - cost_eval <= self.function_tolerance * state.cost
+        last = (cauchy | small_change) & ~state.first_step  # where accepted, the solve ends
 
-        def rejected(descent_state):
-            return y, state.residual, state.cost, state.aux, descent_state, radius < MIN_RADIUS
+        def linearised(descent_state):  # accepted, and the solve goes on
+            descent_state = self.descent.query(state.y_eval, residual_eval, descent_state)
+            return state.y_eval, residual_eval, cost_eval, aux_eval, descent_state, jnp.array(False)
 
+        def unchanged(descent_state):  # rejected, or accepted where the solve ends
+            def pick(new, old):
+                return jax.tree.map(lambda a, b: jnp.where(accept, a, b), new, old)
+
+            return (pick(state.y_eval, y), pick(residual_eval, state.residual),
+                    jnp.where(accept, cost_eval, state.cost), pick(aux_eval, state.aux),
+                    descent_state, accept | (radius < MIN_RADIUS))
+
+        # Where the solve ends nothing reads the model at the point: no linearisation. (One
+        # cond with the state passed through one branch; passed through a cond nested in a
+        # branch, or a switch, XLA copied it every step.)
         y, residual, cost, aux, descent_state, terminate = jax.lax.cond(
-            accept, accepted, rejected, state.descent_state)
+            accept & ~last, linearised, unchanged, state.descent_state)
         result = optx.RESULTS.where(
             jnp.isfinite(cost), optx.RESULTS.successful, optx.RESULTS.nonfinite)
 
