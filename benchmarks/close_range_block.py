@@ -81,7 +81,7 @@ def main() -> None:
           f" solve {damped_seconds[0]:.3f} s ({damped_seconds[1]:.3f} s CPU)", flush=True)
 
     settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
-                    step_tolerance=STEP_TOLERANCE)
+                    step_tolerance=STEP_TOLERANCE, function_tolerance=0.0)
     start = time.perf_counter()
     compiled = _solve_schur.lower(problem, structure, **settings).compile()
     compile_seconds = time.perf_counter() - start

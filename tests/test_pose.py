@@ -100,8 +100,14 @@ def test_frames_are_made_once_per_image():
     images = jnp.asarray(np.stack([OPK, OPK * 0.5]))
     frames = image_frames(OpkPose, images)
     assert isinstance(frames, MatrixPose) and frames.matrix.shape == (2, 3, 3)
-    rodrigues = image_frames(RodriguesPose, jnp.asarray(np.stack([RODRIGUES] * 3)))
-    assert isinstance(rodrigues, RodriguesPose)
+    # Rodrigues images too: their matrix maps points as the pose's own cross products do.
+    rodrigues = image_frames(RodriguesPose, jnp.asarray(np.stack([RODRIGUES, RODRIGUES * 0.5])))
+    assert isinstance(rodrigues, MatrixPose) and rodrigues.matrix.shape == (2, 3, 3)
+    point = jnp.array([1.5, -2.0, 7.0])
+    for k, values in enumerate([RODRIGUES, RODRIGUES * 0.5]):
+        frame = jax.tree.map(lambda x, k=k: x[k], rodrigues)
+        expected = RodriguesPose.from_parameters(jnp.asarray(values)).to_camera(point)
+        np.testing.assert_allclose(frame.to_camera(point), expected, rtol=1e-14, atol=1e-14)
 
 
 def test_image_groups_of_one_problem_share_their_pose():

@@ -131,8 +131,12 @@ def test_pairs_are_all_same_point_pairs_of_the_lower_key_triangle():
     problem, _ = synthetic_scene(seed=1, n_cameras=4, n_points=9, drop=0.4)
     structure = bundle_structure(problem)
     group = problem.groups[0]
-    camera, point = np.asarray(group.camera), np.asarray(group.point)
+    # The structure's rows: the group's observations by key (every one once), padding last.
+    order = np.asarray(structure.image_order)
+    assert sorted(order) == list(range(group.point.shape[0]))
+    camera, point = np.asarray(group.camera)[order], np.asarray(group.point)[order]
     key = np.asarray(structure.key)[: camera.size]
+    assert np.all(np.diff(key) >= 0) and structure.key[-1] == structure.key_columns.shape[0] - 1
     # One key per image here: every observation of an image has the same reduced columns.
     assert len({(c, k) for c, k in zip(camera, key)}) == len(set(camera))
     n_obs, row_size = camera.size, structure.pair_first.shape[-1]

@@ -22,6 +22,7 @@ import optimistix as optx
 
 from .._memory import release_free_memory
 from .._timing import CompileLog
+from ._compiled import solver_jit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,14 +56,14 @@ def _terminate(fn, solver, y, args, state):
     return terminate, optx.RESULTS.where(_all_finite(y), result, optx.RESULTS.nonfinite)
 
 
-@eqx.filter_jit
+@solver_jit
 def _init(fn, solver, y0, args):
     f_struct, aux_struct = jax.eval_shape(fn, y0, args)
     state = solver.init(fn, y0, args, {}, f_struct, aux_struct, frozenset())
     return state, *_terminate(fn, solver, y0, args, state)
 
 
-@eqx.filter_jit
+@solver_jit
 def _step(fn, solver, y, args, state):
     new_y, state, aux = solver.step(fn, y, args, {}, state, frozenset())
     # As optimistix: the finiteness test is on the iterate the step started from.

@@ -108,6 +108,7 @@ def _leverages(problem, structure, params, normal):
     jr, je, _ = _image_blocks(problem, structure, params,
                               *_free_masks(problem, structure, dtype))
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
+    image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
     point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
 
     full = problem.with_free(params)

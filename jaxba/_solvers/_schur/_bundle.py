@@ -47,6 +47,7 @@ from ..._problem._observations import (
 )
 from ..._problem._parameters import Parameters, flatten, unflatten
 from .._cholesky import cholesky_solve
+from .._compiled import solver_jit
 from .._solution import Solution
 from .._steps import StepInfo, least_squares_stepwise
 from .._trust_region import (
@@ -83,8 +84,10 @@ class BundleStructure(eqx.Module):
 
     Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
     then the reduced points); column n_reduced is a dummy that absorbs padding.
-    - `image_columns`: (n_image_obs + 1, m) reduced columns of every image observation
-      (all ImagePoints groups concatenated; the last row is a padding observation): the
+    Observation rows: the image observations of all ImagePoints groups, group after group,
+    each group's by key (`image_order`: row r is observation `image_order[r]` of the groups
+    concatenated), then one padding observation.
+    - `image_columns`: (n_image_obs + 1, m) reduced columns of every observation row: the
       model's IOPs in `iop_columns`, the 6 EOPs, padding, and the 3 columns of a reduced
       point (`point_width` 3 where some points are reduced, else 0: no such columns);
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
@@ -116,6 +119,7 @@ class BundleStructure(eqx.Module):
 
     image_columns: Int[Array, "n_obs1 m"]
     image_point: Int[Array, " n_obs1"]
+    image_order: Int[Array, " n_obs"]
     key: Int[Array, " n_obs1"]
     key_columns: Int[Array, "n_keys m"]
     key_rows: Int[Array, "n_key_chunks rows row_size"]
@@ -227,6 +231,11 @@ def bundle_structure(
     key_columns, key = np.unique(columns, axis=0, return_inverse=True)
     key = np.ravel(key)
     n_obs = columns.shape[0] - 1
+    # Each group's observations by key (stable), the padding row last: S's pair products
+    # then gather from one key's rows at a time (Dubrovnik-16, listed by point: 19 -> 13 ms).
+    group = np.repeat(np.arange(len(images)), [g.point.shape[0] for g in images])
+    order = np.append(np.lexsort((key[:n_obs], group)), n_obs)
+    columns, point_rows, key = columns[order], point_rows[order], key[order]
     *pairs, key_pairs = _observation_pairs(point_rows[:n_obs], key[:n_obs], n_eliminated,
                                            pair_batch)
     observations = np.arange(n_obs)
@@ -243,6 +252,7 @@ def bundle_structure(
     return BundleStructure(
         image_columns=jnp.asarray(columns),
         image_point=jnp.asarray(point_rows),
+        image_order=jnp.asarray(order[:n_obs]),
         key=jnp.asarray(key),
         key_columns=jnp.asarray(key_columns),
         key_rows=jnp.asarray(key_rows),
@@ -544,12 +554,14 @@ def _image_blocks(
 
 def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
     """One ImagePoints group's observations (camera, image, point, measured, σ, mask,
-    reduced columns, eliminated-point row, key), in chunks of `structure.jacobian_batch`
+    reduced columns, eliminated-point row, key), rows `start`..`stop` of the structure (the
+    group's observations in `image_order`), in chunks of `structure.jacobian_batch`
     (n_chunks, batch, ...); padding repeats the last observation, masked out, with
     out-of-range columns, point row and key."""
     n = stop - start
     batch = max(1, min(structure.jacobian_batch, n))
     pad = -n % batch
+    rows = structure.image_order[start:stop] - start
 
     def chunked(x, fill=None):
         widths = [(0, pad)] + [(0, 0)] * (x.ndim - 1)
@@ -560,12 +572,12 @@ def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: i
         return x.reshape(-1, batch, *x.shape[1:])
 
     return (
-        chunked(group.camera),
-        chunked(group.image),
-        chunked(group.point),
-        chunked(group.measured),
-        chunked(group.stddev),
-        chunked(group.mask(), False),
+        chunked(group.camera[rows]),
+        chunked(group.image[rows]),
+        chunked(group.point[rows]),
+        chunked(group.measured[rows]),
+        chunked(group.stddev[rows]),
+        chunked(group.mask()[rows], False),
         chunked(structure.image_columns[start:stop], structure.n_reduced),
         chunked(structure.image_point[start:stop], structure.eliminated_points.shape[0]),
         chunked(structure.key[start:stop], structure.key_columns.shape[0]),
@@ -842,7 +854,7 @@ def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
 _schur_solution = eqx.filter_jit(_make_schur_solution)
 
 
-@eqx.filter_jit
+@solver_jit
 def _solve_schur(problem, structure, *, max_steps, **settings):
     solver = _make_schur_solver(problem, structure, **settings)
     solution = optx.least_squares(

@@ -1,0 +1,60 @@
+"""`solver_jit`: the solvers' loops compiled with XLA options of their own.
+
+The options travel with each program (`jax.jit(compiler_options=...)`); jax's global
+configuration stays the caller's.
+
+YNNPACK's reductions. XLA:CPU (jaxlib 0.10.2) hands dot products and reductions to YNNPACK
+by default. The solvers reduce float64 arrays over short axes (a 3 x 9 block times a vector
+per observation, the gradient's 2 x 9 blocks, the cost), where YNNPACK's reductions ran
+slower than XLA's own fused loops. Without them, its dot products kept (CPU seconds, best
+of 7, machine loaded): Dubrovnik-16's solve 0.61-0.63 -> 0.55-0.57 s; the close-range
+block of benchmarks/blocks.py, normal equations 60 -> 41 ms, the compiled solve 0.54 ->
+0.43 s.
+"""
+
+import functools
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+
+# YNNPACK for individual dot products only (not its reductions).
+SOLVER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"}
+
+
+@functools.cache
+def solver_compiler_options() -> dict[str, str]:
+    """`SOLVER_OPTIONS` where this jaxlib accepts them (a trivial program compiled once to
+    find out), else none: the names are XLA's experimental ones."""
+    try:
+        jax.jit(lambda x: x + 1, compiler_options=SOLVER_OPTIONS).lower(1.0).compile()
+    except jax.errors.JaxRuntimeError:
+        return {}
+    return dict(SOLVER_OPTIONS)
+
+
+class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
+    """`eqx.filter_jit(fn)` compiled with `solver_compiler_options()`, settled at the first
+    call or `lower` (never at import). Calls and `lower` as `eqx.filter_jit`'s.
+
+    Only for programs called at the top level, never inside `jax.jit` or `jax.vmap` (jax
+    refuses compiler options on a nested jit): `solve_schur`'s loop and the stepwise
+    loop's steps, whose arguments are built in NumPy or driven from Python anyway. The
+    dense `solve`, which batches vmap, keeps the default options.
+    """
+
+    def __init__(self, fn: Callable):
+        self._fn = fn
+        self._program = None
+        functools.update_wrapper(self, fn)
+
+    def _compiled(self):
+        if self._program is None:
+            self._program = eqx.filter_jit(self._fn, compiler_options=solver_compiler_options())
+        return self._program
+
+    def __call__(self, *args, **kwargs):
+        return self._compiled()(*args, **kwargs)
+
+    def lower(self, *args, **kwargs):
+        return self._compiled().lower(*args, **kwargs)
