@@ -106,11 +106,11 @@ def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractOb
         for field in dataclasses.fields(group)
         if not field.metadata.get("static", False) and field.name != "stddev"
     }
-    padded = {key: jnp.asarray(_pad_rows(value, n)) for key, value in leaves.items()}
+    padded = {key: jax.device_put(_pad_rows(value, n)) for key, value in leaves.items()}
     stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
     stddev[n_real:] = np.inf
     group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
-    group = eqx.tree_at(lambda g: g.stddev, group, jnp.asarray(stddev))
+    group = eqx.tree_at(lambda g: g.stddev, group, jax.device_put(stddev))
     return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
 
 
@@ -118,8 +118,8 @@ def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | No
     def pad(leaf, like):
         n = np.shape(like)[0]
         if fill_free is None:
-            return jnp.asarray(_pad_rows(leaf, n))
-        return jnp.asarray(_pad_rows(leaf, n, fill=fill_free))
+            return jax.device_put(_pad_rows(leaf, n))
+        return jax.device_put(_pad_rows(leaf, n, fill=fill_free))
 
     return jax.tree.map(pad, params, shapes)
 
@@ -361,7 +361,7 @@ def _take(tree, k: int):
 
 
 def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
-    return jax.tree.map(lambda leaf, ref: jnp.asarray(leaf[: np.shape(ref)[0]]), padded, like)
+    return jax.tree.map(lambda leaf, ref: jax.device_put(leaf[: np.shape(ref)[0]]), padded, like)
 
 
 def _unpad_residuals(padded_problem: BundleProblem, problem: BundleProblem, flat) -> list:
@@ -399,8 +399,9 @@ def check_datum_batch(
     )
     labels = labels if labels is not None else [None] * batch.n_batch
     found = []
+    host = jax.device_get(batch.problem)
     for k, problem in enumerate(batch.problems):
-        padded = _take(batch.problem, k)
+        padded = _take(host, k)
         real = jacobian[k][_real_rows(padded, problem)][:, : batch.n_free[k]]
         try:
             check_datum_with_jacobian(problem, real, labels=labels[k], rtol=rtol)
@@ -441,7 +442,8 @@ def adjust_batch(
     stats = batch_statistics(batch.problem, solution.parameters, batch.free_index,
                              jnp.asarray(batch.n_free))
     solution, stats = jax.device_get((solution, stats))
-    padded_problems = [_take(batch.problem, k) for k in range(n)]
+    host = jax.device_get(batch.problem)
+    padded_problems = [_take(host, k) for k in range(n)]
     results = []
     for k, problem in enumerate(batch.problems):
         results.append(_adjustment(

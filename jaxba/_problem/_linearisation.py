@@ -118,9 +118,9 @@ def linearisation_plan(
         columns = column_of[depends[observed][:, list(slots)]]
         unique, key = np.unique(columns, axis=0, return_inverse=True)
         rows = _rows_by_key(key.ravel(), unique.shape[0])
-        key_rows.append(jnp.asarray(np.where(rows >= 0, observed[rows], -1)))
-        key_columns.append(jnp.asarray(unique))
-    return LinearisationPlan(jnp.asarray(free_index), tuple(key_rows), tuple(key_columns),
+        key_rows.append(jax.device_put(np.where(rows >= 0, observed[rows], -1)))
+        key_columns.append(jax.device_put(unique))
+    return LinearisationPlan(jax.device_put(free_index), tuple(key_rows), tuple(key_columns),
                              tuple(live))
 
 
@@ -241,7 +241,7 @@ def _group_columns(problem: BundleProblem, index: np.ndarray) -> tuple:
     """Per group, the free column (n_free: none) of every row's unknowns (`local_values`),
     or None for a group that is not row-local."""
     column_of = _free_columns(problem, index)
-    return tuple(None if depends is None else jnp.asarray(column_of[depends])
+    return tuple(None if depends is None else jax.device_put(column_of[depends])
                  for depends in _local_positions(problem))
 
 
@@ -249,7 +249,8 @@ def column_norms(problem: BundleProblem, params: Parameters) -> Float[Array, " n
     """‖column‖ of the whitened Jacobian dẽ/dx_free at `params` (`free_indices` order),
     summed from the per-row blocks: no dense Jacobian or normal matrix at any size."""
     index = free_indices(problem)
-    return _column_norms(problem, params, jnp.asarray(index), _group_columns(problem, index))
+    return _column_norms(problem, params, jax.device_put(index),
+                         _group_columns(problem, index))
 
 
 @eqx.filter_jit
@@ -283,7 +284,7 @@ def dense_jacobian(
     index = free_indices(problem)
     # All rows compiled, the real ones selected after: an observation switched off (data
     # snooping) keeps the compiled program's shapes.
-    jacobian, residuals = _dense_jacobian(problem, params, jnp.asarray(index),
+    jacobian, residuals = _dense_jacobian(problem, params, jax.device_put(index),
                                           _group_columns(problem, index))
     rows = np.flatnonzero(observation_mask(problem))
     return np.asarray(jacobian)[rows], np.asarray(residuals)[rows]

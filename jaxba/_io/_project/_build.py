@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -109,7 +110,7 @@ def _images(spec: ProjectSpec):
         sigma.append(observed_sigma)
     eop, sigma = np.asarray(eop), np.asarray(sigma)
     groups = _weighted_rows("gnss_ins", "images", eop, sigma)
-    return jnp.asarray(eop), jnp.asarray(free), groups
+    return jax.device_put(eop), jax.device_put(np.asarray(free)), groups
 
 
 def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray) -> list:
@@ -119,8 +120,8 @@ def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray)
     if rows.size == 0:
         return []
     return [ParameterObservations(
-        name=name, block=block, rows=jnp.asarray(rows),
-        observed=jnp.asarray(values[rows]), stddev=jnp.asarray(sigma[rows]))]
+        name=name, block=block, rows=jax.device_put(rows),
+        observed=jax.device_put(values[rows]), stddev=jax.device_put(sigma[rows]))]
 
 
 def used_points(spec: ProjectSpec) -> list[str]:
@@ -140,7 +141,7 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
     free = ~(given == 0)
     sigma = np.where(given > 0, given, np.inf)
     groups = _weighted_rows("control", "points", xyz, sigma)
-    return jnp.asarray(xyz), jnp.asarray(free), groups
+    return jax.device_put(xyz), jax.device_put(free), groups
 
 
 def pixel_grid(camera) -> PixelGrid | None:
@@ -189,10 +190,10 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
             name=f"image_points:{camera_id}",
             model=model,
             camera=jnp.full(len(rows), row),
-            image=jnp.asarray(image[rows]),
-            point=jnp.asarray(point[rows]),
-            measured=jnp.asarray(xy),
-            stddev=jnp.asarray(sigma),
+            image=jax.device_put(image[rows]),
+            point=jax.device_put(point[rows]),
+            measured=jax.device_put(xy),
+            stddev=jax.device_put(sigma),
             constants=tuple((n, constants[n]) for n in CAMERA_MODELS[model].constant_names),
         ))
     return groups
