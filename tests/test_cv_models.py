@@ -200,7 +200,9 @@ def test_opencv_full_matches_cv2_project_points():
     values = {"fx": 800.0, "fy": 790.0, "cx": 320.0, "cy": 240.0, "skew": 0.0} | coefficients
     camera = jaxba.OpenCVFullCamera(**{n: jnp.asarray(v) for n, v in values.items()})
     p_camera = jnp.asarray(p_cv * [1.0, -1.0, -1.0])
-    ours = jax.vmap(lambda p: camera.image_point(p, jnp.zeros(2), 0.0))(p_camera)
+    # one compiled projection (op by op: ~20 small programs)
+    ours = jax.jit(jax.vmap(lambda c, p: c.image_point(p, jnp.zeros(2), 0.0), (None, 0)))(
+        camera, p_camera)
     k = np.array([[800.0, 0.0, 320.0], [0.0, 790.0, 240.0], [0.0, 0.0, 1.0]])
     theirs, _ = cv2.projectPoints(p_cv[:, None], np.zeros(3), np.zeros(3), k,
                                   np.array([coefficients[n] for n in OPENCV_TERMS]))
@@ -291,7 +293,8 @@ def test_export_refuses_what_it_cannot_map():
         jaxba.fit_opencv(_camera(jaxba.BalCamera, {"f": 500.0}), (640, 480))
     with pytest.raises(ValueError, match="pixel_grid"):
         jaxba.fit_opencv(_camera(jaxba.SmacCamera, SMAC), GRID.sensor)
-    folding = _camera(jaxba.MetrologyCamera, METROLOGY | {"A1": -0.05}, r0=0.0)
+    # r0 as in test_metrology_camera_exports_exactly: the same compiled ray tracing
+    folding = _camera(jaxba.MetrologyCamera, METROLOGY | {"A1": -0.05}, r0=R0)
     with pytest.raises(ValueError, match="folds"):
         jaxba.fit_opencv(folding, GRID.sensor, GRID)
 
