@@ -528,6 +528,7 @@ def _image_blocks(
     differentiated at a time (`jax.lax.scan`). Memory O(n_obs m), as W's."""
     params = problem.with_free(params)
     dtype = params.images.dtype
+    free_keys = free_r[structure.key_columns]  # (n_keys, m): observations of a key share it
     parts, start = [], 0
     for group in problem.groups:
         if not isinstance(group, ImagePoints):
@@ -535,9 +536,8 @@ def _image_blocks(
         stop = start + group.point.shape[0]
 
         def blocks(_, chunk, group=group):
-            observations = list(chunk[:-1])  # less the key
             return None, _image_jacobian_blocks(
-                problem, structure, group, params, free_r, free_e, observations)
+                problem, structure, group, params, free_keys, free_e, list(chunk))
 
         _, out = jax.lax.scan(blocks, None, _image_group_chunks(structure, group, start, stop))
         parts.append([x.reshape(-1, *x.shape[2:])[: stop - start] for x in out])
@@ -549,10 +549,10 @@ def _image_blocks(
 
 def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
     """One ImagePoints group's observations (camera, image, point, measured, σ, mask,
-    reduced columns, eliminated-point row, key), rows `start`..`stop` of the structure (the
-    group's observations in `image_order`), in chunks of `structure.jacobian_batch`
+    eliminated-point row, key), rows `start`..`stop` of the structure (the group's
+    observations in `image_order`), in chunks of `structure.jacobian_batch`
     (n_chunks, batch, ...); padding repeats the last observation, masked out, with
-    out-of-range columns, point row and key."""
+    out-of-range point row and key."""
     n = stop - start
     batch = max(1, min(structure.jacobian_batch, n))
     pad = -n % batch
@@ -573,7 +573,6 @@ def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: i
         chunked(group.measured[rows]),
         chunked(group.stddev[rows]),
         chunked(group.mask()[rows], False),
-        chunked(structure.image_columns[start:stop], structure.n_reduced),
         chunked(structure.image_point[start:stop], structure.eliminated_points.shape[0]),
         chunked(structure.key[start:stop], structure.key_columns.shape[0]),
     )
@@ -584,19 +583,20 @@ def _image_jacobian_blocks(
     structure: BundleStructure,
     group: ImagePoints,
     params: Parameters,
-    free_r: Array,
+    free_keys: Array,
     free_e: Array,
     observations: list[Array],
 ) -> tuple[Float[Array, "n 2 m"], Float[Array, "n 2 3"], Float[Array, "n 2"]]:
     """Jacobian blocks of a batch of one group's observations (`_image_group_chunks`
-    rows, less the key) at `params` (all values set): jr over the observation's reduced
-    columns (a reduced point's columns included), je over its eliminated point (0 for a
-    reduced one), both 0 in fixed columns, and e. The residual differentiated is the one
+    rows) at `params` (all values set): jr over the observation's reduced columns (a
+    reduced point's columns included), je over its eliminated point (0 for a reduced
+    one), both 0 in fixed columns (`free_keys`: 1.0 on the free columns of every key;
+    `free_e` as `_free_masks`'), and e. The residual differentiated is the one
     the solver minimises: whitened, masked, robustified (`BundleProblem.residuals`).
     Only the IOPs in `structure.iop_columns` are differentiated. The image's pose enters
     through its pose model's `row_frame` (from `row_inputs`, made once per image),
     differentiated by the parameter offset δ at δ = 0."""
-    camera, image, point, measured, sigma, mask, columns, point_row = observations
+    camera, image, point, measured, sigma, mask, point_row, key = observations
     iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
     m, n_iop = structure.m, iop_columns.size
     all_iops = n_iop == params.cameras[group.model].shape[1]
@@ -634,7 +634,7 @@ def _image_jacobian_blocks(
     padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - 6), dtype)
     point_part = [jnp.where(reduced_point, jp, 0.0)] if structure.point_width else []
     jr = jnp.concatenate([jc, padding, *point_part], axis=-1)
-    jr = jr * free_r[columns][:, None, :]
+    jr = jr * free_keys.at[key].get(mode="fill", fill_value=0.0)[:, None, :]
     je = jnp.where(reduced_point, 0.0, jp) * free_e[point_row][:, None, :]
     return jr, je, e
 
