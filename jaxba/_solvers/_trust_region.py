@@ -292,7 +292,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
         def propose():  # the step for the next trial, and whether the solve has converged
             if self.step_tolerance > 0:
-                return self._propose(accept, radius, descent_state, cost, region)
+                return self._propose(y, accept, radius, descent_state, cost, region)
             step, _, step_result = self.descent.solve(1.0 / radius, descent_state)
             return (step, step_result, jnp.array(False), jnp.array(False),
                     jnp.array(jnp.inf, cost.dtype))
@@ -325,7 +325,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         )
         return y, state, aux
 
-    def _propose(self, accept, radius, descent_state, cost, region):
+    def _propose(self, y, accept, radius, descent_state, cost, region):
         """The next trial step and its result; whether the solve has converged; whether the
         step is the Gauss-Newton one, and gᵀN⁻¹g (inf where not computed).
 
@@ -354,8 +354,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             round_, _, _, _, near = carry
             return (round_ == 0) | ((round_ == 1) & accept & ~near)
 
-        step_shape = jax.eval_shape(lambda: self.descent.solve(damped, descent_state)[0])
-        start = (jnp.array(0), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), step_shape),
+        start = (jnp.array(0), jax.tree.map(jnp.zeros_like, y),  # a step has y's structure
                  optx.RESULTS.successful, jnp.array(jnp.inf, cost.dtype), jnp.array(False))
         _, step, result, decrement, near = jax.lax.while_loop(again, solve, start)
         converged = accept & (decrement <= tolerance)
