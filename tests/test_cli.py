@@ -409,3 +409,15 @@ def test_blunder_warnings(tmp_path, snooping):
         assert len(variance) == 1 and "blunders" in variance[0]
         assert len(large) == 1 and ": image img01 point 5 x |w| " in large[0]
         assert not removed
+
+
+def test_an_adjustment_loads_no_plotting_or_table_modules(tmp_path):
+    """`jaxba adjust` without figures imports neither matplotlib nor scipy.stats, pandas,
+    Dask or rich (each 0.1-0.8 s of a whole run)."""
+    project_file = _copy_lab(tmp_path / "lab")
+    heavy = ("matplotlib", "scipy.stats", "pandas", "dask", "distributed", "rich")
+    script = ("import sys; from jaxba._cli._main import main; code = main(sys.argv[1:]);"
+              f" print(code, *[m for m in {heavy!r} if m in sys.modules])")
+    done = subprocess.run([sys.executable, "-c", script, "adjust", str(project_file), "--out",
+                           str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert done.stdout.splitlines()[-1].split() == ["0"], done.stderr
