@@ -5,6 +5,7 @@ One adjustment is shared by most tests (module fixture); the error cases stop be
 
 import base64
 import contextlib
+import gc
 import hashlib
 import io
 import json
@@ -409,3 +410,25 @@ def test_blunder_warnings(tmp_path, snooping):
         assert len(variance) == 1 and "blunders" in variance[0]
         assert len(large) == 1 and ": image img01 point 5 x |w| " in large[0]
         assert not removed
+
+
+def test_an_adjustment_loads_no_plotting_or_table_modules(tmp_path):
+    """`jaxba adjust` without figures imports neither matplotlib nor scipy.stats, pandas,
+    Dask or rich (each 0.1-0.8 s of a whole run); in a process of its own it freezes what
+    it imported for the garbage collector."""
+    project_file = _copy_lab(tmp_path / "lab")
+    heavy = ("matplotlib", "scipy.stats", "pandas", "dask", "distributed", "rich")
+    script = ("import gc, sys; from jaxba._cli._main import main;"
+              " code = main(sys.argv[1:], own_process=True);"
+              f" print(code, gc.get_freeze_count() > 0, *[m for m in {heavy!r} if m in"
+              " sys.modules])")
+    done = subprocess.run([sys.executable, "-c", script, "adjust", str(project_file), "--out",
+                           str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    assert done.stdout.splitlines()[-1].split() == ["0", "True"], done.stderr
+
+
+def test_an_adjustment_in_a_callers_process_freezes_nothing(run):
+    """`main` called from Python (the run fixture) leaves the caller's garbage collector as
+    it was: frozen objects are never collected."""
+    assert run["code"] == 0
+    assert gc.get_freeze_count() == 0

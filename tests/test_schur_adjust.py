@@ -205,3 +205,20 @@ def _numbers(tree) -> np.ndarray:
     if isinstance(tree, bool) or isinstance(tree, str):
         return np.zeros(0)
     return np.array([np.nan if tree is None else float(tree)])
+
+
+def test_the_datum_check_and_the_statistics_are_one_program_each(tmp_path):
+    """What a run traces, lowers and loads from the cache in every process (jax's compile
+    events, counted per phase by `Timings`): the datum check one program (the normal
+    equations with S), the statistics one more (covariance blocks, redundancy numbers and
+    residuals; the normal equations at the solution reuse the datum check's program), the
+    stepwise solve its init, step and result (and, once per process, the probe of the
+    compiler options)."""
+    project = _project(tmp_path)
+    jax.clear_caches()  # every program of the run is traced again (loaded from the cache)
+    result = jaxba.adjust_project(project, solver="schur")
+    compiled = {phase.name: phase.compilations for phase in result.timings.phases}
+    assert compiled["datum check"] == 1
+    assert compiled["statistics"] == 1
+    assert 3 <= compiled["solve"] <= 4
+    assert sum(compiled.values()) == result.timings.compilations

@@ -19,8 +19,10 @@ from jaxba._problem._bundle import free_indices
 from jaxba._problem._observations import AbstractObservationGroup
 from jaxba._problem._parameters import flatten
 from jaxba._solvers._schur._bundle import (
+    bundle_normal_equations,
     bundle_structure,
     solve_schur,
+    zero_normal_equations,
 )
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._statistics._backends import DenseBackend
@@ -80,6 +82,20 @@ class _OtherGroup(AbstractObservationGroup):
     def residuals(self, params, refraction):
         return jnp.zeros_like(self.stddev)
 
+
+
+@pytest.mark.parametrize("variant", ["plain", "control and Huber"])
+def test_the_solvers_zero_normal_equations_are_shaped_as_the_real_ones(block, variant):
+    """The loop's state starts from `zero_normal_equations`, shaped from the structure
+    alone: were a shape off, the compiled step would be traced and compiled a second time."""
+    problem = block if variant == "plain" else _with_control_and_robust(block)
+    structure = bundle_structure(problem)
+    real = jax.eval_shape(bundle_normal_equations, problem, structure, problem.initial)
+    zeros = zero_normal_equations(structure, jnp.float64)
+    assert jax.tree.structure(zeros) == jax.tree.structure(real)
+    for got, want in zip(jax.tree.leaves(zeros), jax.tree.leaves(real), strict=True):
+        assert (got.shape, got.dtype) == (want.shape, want.dtype)
+        assert not np.any(np.asarray(got))
 
 def test_unknown_group_is_rejected(block):
     other = _OtherGroup(name="other", stddev=jnp.ones((1, 1)))

@@ -104,16 +104,17 @@ def adjust(
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
-        whitened = whitened_residuals(problem, params)
-        residuals = observed_minus_computed(problem, whitened)
         try:
-            parameter_precision = backend.precision(params, sigma0=sigma0)
+            parameter_precision, whitened = backend.precision_and_whitened(
+                params, sigma0=sigma0)
         except np.linalg.LinAlgError as error:
+            whitened = whitened_residuals(problem, params)
             parameter_precision = _precision_unavailable(
                 problem, params, sigma0, final_cost, redundancy)
             converged, message = False, (
                 f"the normal matrix at the solution is singular ({error}): no σ, no"
                 " correlations; check the approximations and which parameters are free")
+        residuals = observed_minus_computed(problem, whitened)
     sigma_ratio = np.sqrt(parameter_precision.sigma0_squared) / sigma0
     if not converged and not sigma_ratio <= DIVERGED_SIGMA0 and _stalled(recorder.iterations):
         # Stuck far from a consistent solution: name the approximations it left behind.

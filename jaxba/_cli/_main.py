@@ -232,6 +232,10 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
     from jaxba._timing import Phase, Timings
 
     jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
+    if args.own_process:
+        from jaxba._gc import freeze_long_lived
+
+        freeze_long_lived()
     timings = Timings(on_compile=lambda name: _say(f"  {name}: compiling..."))
     timings.add(Phase("read", read_seconds, 0.0, 0, 0))
     timings.add(Phase("start-up", time.perf_counter() - start, 0.0, 0, 0))
@@ -588,9 +592,10 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int:
     """Run the command line; returns the exit code: 0 ok, 1 not converged, 2 bad input,
-    3 internal error, 130 interrupted."""
+    3 internal error, 130 interrupted. `own_process`: the process ends after it (`entry`),
+    so what it imports may be frozen for the garbage collector (`jaxba._gc`)."""
     from jaxba._report import OutputError
 
     parser = _parser()
@@ -598,6 +603,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exit_:  # --help, or a usage error already printed by argparse
         return exit_.code if isinstance(exit_.code, int) else EXIT_BAD_INPUT
+    args.own_process = own_process
     try:
         with _remembered_interrupts():
             return args.run(args)
@@ -625,7 +631,7 @@ def entry() -> None:
     an interrupt during compilation left XLA's threads running while the interpreter shut
     down, which ended in a segmentation fault.
     """
-    code = main()
+    code = main(own_process=True)
     if code == EXIT_INTERRUPTED:
         sys.stdout.flush()
         sys.stderr.flush()

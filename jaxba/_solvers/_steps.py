@@ -52,8 +52,11 @@ class _NoAux(eqx.Module):
 
 
 def _terminate(fn, solver, y, args, state):
+    """terminate, the result, and whether the result is a failure (read in Python: an
+    `==` on the result outside the program compiled a program of its own)."""
     terminate, result = solver.terminate(fn, y, args, {}, state, frozenset())
-    return terminate, optx.RESULTS.where(_all_finite(y), result, optx.RESULTS.nonfinite)
+    result = optx.RESULTS.where(_all_finite(y), result, optx.RESULTS.nonfinite)
+    return terminate, result, result != optx.RESULTS.successful
 
 
 @solver_jit
@@ -70,8 +73,8 @@ def _step(fn, solver, y, args, state):
     return new_y, state, aux, *_terminate(fn, solver, y, args, state)
 
 
-def _stops(terminate, result) -> bool:
-    return bool(terminate) or not bool(result == optx.RESULTS.successful)
+def _stops(terminate, failed) -> bool:
+    return bool(terminate) or bool(failed)
 
 
 def least_squares_stepwise(
@@ -95,23 +98,23 @@ def least_squares_stepwise(
     if not has_aux:
         fn = _NoAux(fn)
     with CompileLog() as log:
-        state, terminate, result = _init(fn, solver, y0, args)
+        state, terminate, result, failed = _init(fn, solver, y0, args)
     if log.count:
         release_free_memory()  # what compiling `_init` freed, before `_step` compiles
     y, aux = y0, state.aux
     num_steps = 0
-    while num_steps < max_steps and not _stops(terminate, result):
+    while num_steps < max_steps and not _stops(terminate, failed):
         accepted_before = int(state.num_accepted_steps)
-        y, state, aux, terminate, result = _step(fn, solver, y, args, state)
+        y, state, aux, terminate, result, failed = _step(fn, solver, y, args, state)
         num_steps += 1
         if on_step is not None:
             accepted = int(state.num_accepted_steps) > accepted_before
             on_step(StepInfo(num_steps - 1, accepted, float(state.cost)))
-    ran_out = bool(result == optx.RESULTS.successful) and not bool(terminate)
+    ran_out = not bool(failed) and not bool(terminate)
     if ran_out:
         result = optx.RESULTS.nonlinear_max_steps_reached
     y, aux, stats = solver.postprocess(fn, y, aux, args, {}, state, frozenset(), result)
     return optx.Solution(
         value=y, result=result, aux=aux, state=state,
-        stats={"num_steps": jnp.array(num_steps), "max_steps": max_steps, **stats},
+        stats={"num_steps": jax.device_put(num_steps), "max_steps": max_steps, **stats},
     )

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 import numpy as np
-import scipy.linalg
+from jaxtyping import Array
 
 from .._problem._bundle import BundleProblem
 from .._problem._linearisation import dense_jacobian
@@ -30,7 +30,7 @@ from .._solvers._schur._choice import use_schur
 from .._solvers._solution import Solution
 from ._adjustment import Adjustment
 from ._covariance import Precision, precision
-from ._datum import check_datum
+from ._datum import check_datum, whitened_residuals
 from ._free_network import (
     free_network_precision,
     free_network_redundancy_numbers,
@@ -39,7 +39,11 @@ from ._free_network import (
     to_inner_datum,
 )
 from ._schur_datum import check_datum_schur
-from ._schur_reliability import schur_precision_and_redundancy, schur_redundancy_numbers
+from ._schur_reliability import (
+    schur_precision_and_redundancy,
+    schur_redundancy_numbers,
+    schur_statistics,
+)
 
 
 class Backend(abc.ABC):
@@ -64,6 +68,13 @@ class Backend(abc.ABC):
         """σ̂0², σ of every unknown and the covariance at `params` (`LinAlgError` where the
         normal matrix is singular)."""
 
+    def precision_and_whitened(
+        self, params: Parameters, *, sigma0: float = 1.0
+    ) -> tuple[Precision, tuple[Array, ...]]:
+        """`precision` and the whitened residuals at `params` (`BundleProblem.whitened`,
+        per group); `LinAlgError` as `precision`."""
+        return self.precision(params, sigma0=sigma0), whitened_residuals(self.problem, params)
+
     @abc.abstractmethod
     def redundancy_numbers(self, params: Parameters) -> tuple[np.ndarray, np.ndarray]:
         """(r_i, e_i) of the real observations, flat in `observation_mask` order."""
@@ -85,6 +96,8 @@ class DenseBackend(Backend):
 
     def redundancy_numbers(self, params):
         """1 - diag(J N⁻¹ Jᵀ), from the column-scaled dense Jacobian."""
+        import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
+
         jacobian, whitened = (np.asarray(a) for a in dense_jacobian(self.problem, params))
         scaled = jacobian / np.linalg.norm(jacobian, axis=0)
         factor = scipy.linalg.cho_factor(scaled.T @ scaled)
@@ -125,6 +138,12 @@ class SchurBackend(Backend):
                                           structure=self.structure)
         return schur_precision_and_redundancy(self.problem, params, sigma0=sigma0,
                                               structure=self.structure)
+
+    def precision_and_whitened(self, params, *, sigma0=1.0):
+        """Both from the statistics' one program (a bundle with a datum)."""
+        if self.free_network:
+            return super().precision_and_whitened(params, sigma0=sigma0)
+        return schur_statistics(self.problem, params, sigma0=sigma0, structure=self.structure)
 
     def redundancy_numbers(self, params):
         if self.free_network:

@@ -3,7 +3,6 @@
 import dataclasses
 
 import numpy as np
-import scipy.linalg
 
 from .._problem._bundle import BundleProblem, free_indices, tie_source
 from .._problem._linearisation import dense_jacobian
@@ -137,6 +136,8 @@ def _inner_constraint_cofactor(observations: np.ndarray, constraints: np.ndarray
 
 def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0) -> Precision:
     """Dense covariance of the free unknowns at `params` (up to a few thousand unknowns)."""
+    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
+
     jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
     n_observations, n_unknowns = jacobian.shape
     redundancy = n_observations - n_unknowns

@@ -28,7 +28,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
@@ -98,6 +97,8 @@ def _unobservable_similarity(
     observations do not see: the generalised eigenvectors of (J B)ᵀ(J B) against
     (D B)ᵀ(D B) (D: column norms `norms` of the free unknowns) whose eigenvalue is below
     `UNOBSERVABLE_RTOL`²."""
+    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
+
     index = free_indices(problem)
     moves = np.zeros_like(motions)
     moves[:, index] = motions[:, index]
@@ -174,6 +175,8 @@ def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundlePro
     the constraints dropped and d coordinates of the datum points held at their values in
     `params` (the best-conditioned ones: pivoted QR of the constraints' columns). Its
     solutions are the free network's up to the similarity `to_inner_datum` removes."""
+    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
+
     group = inner_constraint_group(problem)
     free = flatten(problem.free).copy()
     directions = np.asarray(group.directions)

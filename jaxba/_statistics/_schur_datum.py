@@ -12,7 +12,6 @@ condition number is squared, so a defect shows as an eigenvalue ratio at roundin
 (~1e-15) and the threshold is `EIGENVALUE_RTOL` (a Jacobian condition number of 1e6).
 """
 
-import equinox as eqx
 import numpy as np
 
 from .._problem._bundle import BundleProblem, free_indices
@@ -20,8 +19,6 @@ from .._problem._parameters import flatten, parameter_labels, unflatten
 from .._solvers._schur._bundle import (
     BundleStructure,
     _reduced_positions,
-    _schur_complement,
-    _small_inverse,
     bundle_structure,
     compiled_normal_equations,
 )
@@ -40,7 +37,8 @@ def check_datum_schur(
     defect as `check_datum` does, without a dense Jacobian (see the module docstring)."""
     labels = labels or parameter_labels(problem.initial)
     structure = structure or bundle_structure(problem)
-    normal = compiled_normal_equations(problem, structure, problem.initial)
+    normal, reduced, point_inverse = compiled_normal_equations(problem, structure,
+                                                               problem.initial)
     index = free_indices(problem)
     n_all = flatten(problem.initial).size
     row_of = np.full(n_all, -1)
@@ -61,7 +59,8 @@ def check_datum_schur(
 
     basis = _single_ray_points(point_hessian, point_rows, index.size)
     if basis is None:
-        basis = _reduced_null_space(structure, normal, reduced_rows, point_rows, index.size)
+        basis = _reduced_null_space(structure, normal, reduced, point_inverse, reduced_rows,
+                                    point_rows, index.size)
     if basis is not None:
         describe_defect(problem, basis, index, labels, column_norms=column_norms)
 
@@ -94,19 +93,12 @@ def _single_ray_points(point_hessian, point_rows, n_free) -> np.ndarray | None:
     return basis
 
 
-@eqx.filter_jit
-def _reduced_camera_matrix(structure, normal):
-    """S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r) and V⁻¹ (n_e, 3, 3), as one program (run op by
-    op, V⁻¹ alone compiled ~25 small programs)."""
-    point_inverse = _small_inverse(normal.point_hessian)
-    product, _ = _schur_complement(structure, normal, point_inverse)
-    return normal.reduced_hessian + product, point_inverse
-
-
-def _reduced_null_space(structure, normal, reduced_rows, point_rows, n_free) -> np.ndarray | None:
-    """(d, n_free) null vectors of S on the free reduced unknowns, extended to the points
-    by x_p = -V_p⁻¹ Y_pᵀ x_r; None if S is regular."""
-    reduced, point_inverse = (np.asarray(a) for a in _reduced_camera_matrix(structure, normal))
+def _reduced_null_space(
+    structure, normal, reduced, point_inverse, reduced_rows, point_rows, n_free
+) -> np.ndarray | None:
+    """(d, n_free) null vectors of S (`reduced`) on the free reduced unknowns, extended to
+    the points by x_p = -V_p⁻¹ Y_pᵀ x_r (`point_inverse`: V⁻¹); None if S is regular."""
+    reduced, point_inverse = np.asarray(reduced), np.asarray(point_inverse)
     free = reduced_rows >= 0
     null = _equilibrated_null_space(reduced[np.ix_(free, free)])
     if null.shape[1] == 0:

@@ -14,12 +14,11 @@ from .._solvers._schur._bundle import (
     BundleStructure,
     _reduced_positions,
     _reduced_vector,
-    _schur_complement,
     _to_parameters,
     bundle_structure,
     compiled_normal_equations,
 )
-from .._solvers._schur._normal import _matmul, _small_inverse
+from .._solvers._schur._normal import _matmul
 from ._covariance import Precision, SchurCovariance, with_ties
 
 
@@ -61,8 +60,8 @@ def schur_cofactors(
     if structure is None:
         structure = bundle_structure(problem)
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    normal = compiled_normal_equations(problem, structure, params)
-    return _schur_cofactors(problem, structure, params, normal,
+    normal, reduced, point_inverse = compiled_normal_equations(problem, structure, params)
+    return _schur_cofactors(problem, structure, params, normal, reduced, point_inverse,
                             *_traced_scalars(sigma0, n_observations - n_unknowns))
 
 
@@ -110,14 +109,12 @@ def _precision_from_cofactors(
     ), problem)
 
 
-def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:
+def _reduced_cofactor(problem, structure, reduced, point_inverse) -> tuple[Array, Array]:
     """S⁻¹ (n_r, n_r; rows and columns of fixed unknowns 0) and the points' V⁻¹ padded
-    with a zero block (n_e + 1, 3, 3)."""
-    dtype = normal.reduced_gradient.dtype
+    with a zero block (n_e + 1, 3, 3), from S (`reduced`) and V⁻¹ (`point_inverse`) as
+    `compiled_normal_equations` returns them."""
+    dtype = reduced.dtype
     free_r = _reduced_vector(structure, problem.free).astype(dtype)
-    point_inverse = _small_inverse(normal.point_hessian)
-    product, _ = _schur_complement(structure, normal, point_inverse)
-    reduced = normal.reduced_hessian + product
     factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
     cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
     return cofactor, jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
@@ -237,8 +234,9 @@ def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.floa
 
 
 @eqx.filter_jit
-def _schur_cofactors(problem, structure, params, normal, sigma0, redundancy):
-    cofactor, inverse = _reduced_cofactor(problem, structure, normal)
+def _schur_cofactors(problem, structure, params, normal, reduced, point_inverse, sigma0,
+                     redundancy):
+    cofactor, inverse = _reduced_cofactor(problem, structure, reduced, point_inverse)
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
     points = _point_cofactors(problem, structure, cofactor, eliminated)
     residuals = problem.residuals(problem.with_free(params))

@@ -53,8 +53,8 @@ def schur_redundancy_numbers(
     For bundles with a datum (S positive definite); not for free networks."""
     if structure is None:
         structure = bundle_structure(problem)
-    normal = compiled_normal_equations(problem, structure, params)
-    leverages, residuals, _ = _leverages(problem, structure, params, normal)
+    leverages, residuals, _ = _leverages(
+        problem, structure, params, *compiled_normal_equations(problem, structure, params))
     return _redundancy(problem, leverages, residuals)
 
 
@@ -65,19 +65,34 @@ def schur_precision_and_redundancy(
     sigma0: float = 1.0,
     structure: BundleStructure | None = None,
 ) -> Precision:
-    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`:
-    both from one compiled program, which forms S⁻¹ and the pair-wise cofactor blocks once
-    (two programs did all that twice: block A 0.3 s and, cold, one compilation of ~3 s
-    more), from the normal equations of `compiled_normal_equations` (the datum check's
-    program: compiled once for both)."""
+    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`
+    (`schur_statistics` without the whitened residuals)."""
+    return schur_statistics(problem, params, sigma0=sigma0, structure=structure)[0]
+
+
+def schur_statistics(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> tuple[Precision, tuple[Array, ...]]:
+    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`,
+    and the whitened residuals at `params` (`BundleProblem.whitened`, per group): all from
+    one compiled program, which forms S⁻¹ and the pair-wise cofactor blocks once (two
+    programs did all that twice: block A 0.3 s and, cold, one compilation of ~3 s more; the
+    residuals, a program of their own, cost 0.2 s to load in every process), from the
+    normal equations of `compiled_normal_equations` (the datum check's program: compiled
+    once for both)."""
     if structure is None:
         structure = bundle_structure(problem)
     redundancy = problem.n_observations() - problem.n_unknowns()
-    normal = compiled_normal_equations(problem, structure, params)
-    leverages, residuals, cofactors = _statistics(problem, structure, params, normal,
-                                                  *_traced_scalars(sigma0, redundancy))
-    return _precision_from_cofactors(problem, structure, cofactors, sigma0,
-                                     _redundancy(problem, leverages, residuals))
+    leverages, residuals, cofactors, whitened = _statistics(
+        problem, structure, params, *compiled_normal_equations(problem, structure, params),
+        *_traced_scalars(sigma0, redundancy))
+    precision = _precision_from_cofactors(problem, structure, cofactors, sigma0,
+                                          _redundancy(problem, leverages, residuals))
+    return precision, whitened
 
 
 def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
@@ -89,22 +104,27 @@ def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
 
 
 @eqx.filter_jit
-def _statistics(problem, structure, params, normal, sigma0, redundancy):
-    """`_leverages` and `schur_cofactors` in one program (`sigma0`, `redundancy`: float64
-    scalars from `_traced_scalars`)."""
-    leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal)
+def _statistics(problem, structure, params, normal, reduced, point_inverse, sigma0,
+                redundancy):
+    """`_leverages`, `schur_cofactors` and the whitened residuals in one program (`sigma0`,
+    `redundancy`: float64 scalars from `_traced_scalars`)."""
+    leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal,
+                                                          reduced, point_inverse)
     cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
                                   redundancy)
-    return leverages, residuals, cofactors
+    # Without a robust loss the solver's residuals are the whitened ones (params are the
+    # solution's, `with_free` already): not traced a second time.
+    whitened = residuals if problem.robust is None else problem.whitened(params)
+    return leverages, residuals, cofactors, whitened
 
 
 @eqx.filter_jit
-def _leverages(problem, structure, params, normal):
+def _leverages(problem, structure, params, normal, reduced, point_inverse):
     """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k); the residuals; and
     S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`);
-    `normal`: `bundle_normal_equations` at `params` (`compiled_normal_equations`)."""
+    `normal`, `reduced` S and `point_inverse` V⁻¹ at `params`: `compiled_normal_equations`'s."""
     dtype = normal.reduced_gradient.dtype
-    cofactor, inverse = _reduced_cofactor(problem, structure, normal)
+    cofactor, inverse = _reduced_cofactor(problem, structure, reduced, point_inverse)
     jr, je, _ = _image_blocks(problem, structure, params,
                               *_free_masks(problem, structure, dtype))
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)

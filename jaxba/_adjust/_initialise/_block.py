@@ -36,7 +36,6 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.sparse
 
 from ..._approximations import Similarity, absolute_orientation, space_resection
 from ..._float64 import require_float64
@@ -242,6 +241,8 @@ class _Block:
         rows = np.flatnonzero(self.valid)[order]
         bounds = np.searchsorted(self.point[rows], np.arange(self.n_points + 1))
         self.obs_of_point = [rows[bounds[p]:bounds[p + 1]] for p in range(self.n_points)]
+        import scipy.sparse  # here: its import (0.1 s) is not every run's
+
         used = np.flatnonzero(self.valid)
         incidence = scipy.sparse.csr_matrix(
             (np.ones(len(used)), (self.image[used], self.point[used])),

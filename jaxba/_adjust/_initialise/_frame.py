@@ -12,8 +12,6 @@ rotations exactly: they are all returned, best first, so that the caller can say
 import itertools
 
 import numpy as np
-import scipy.optimize
-from scipy.spatial.transform import Rotation
 
 DISTINCT_ANGLE = np.radians(1.0)
 """Two solutions whose rotations differ by more than this are distinct."""
@@ -36,6 +34,9 @@ def partial_similarity(model, ground, scale=None):
     within twice the best RMS (plus rounding), i.e. one unless the control is ambiguous.
     `scale`: S fixed (from distances), else estimated (needs 7 given coordinates). Empty when
     there are too few coordinates."""
+    import scipy.optimize  # here: scipy.optimize's import (0.3 s) is not every run's
+    from scipy.spatial.transform import Rotation
+
     model, ground = np.asarray(model, dtype=np.float64), np.asarray(ground, dtype=np.float64)
     given = np.isfinite(ground)
     unknowns = 6 if scale is not None else 7

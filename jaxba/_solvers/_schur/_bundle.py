@@ -249,25 +249,25 @@ def bundle_structure(
         pairwise = PAIRWISE_ADVANTAGE * n_pairs * k * k < n_eliminated * (n_reduced + 1) ** 2
 
     return BundleStructure(
-        image_columns=jnp.asarray(columns),
-        image_point=jnp.asarray(point_rows),
-        image_order=jnp.asarray(order[:n_obs]),
-        key=jnp.asarray(key),
-        key_columns=jnp.asarray(key_columns),
-        key_rows=jnp.asarray(key_rows),
-        key_row_block=jnp.asarray(key_row_block),
-        pair_first=jnp.asarray(pairs[0]),
-        pair_second=jnp.asarray(pairs[1]),
-        pair_block=jnp.asarray(pairs[2]),
-        key_pairs=jnp.asarray(key_pairs),
-        chunk_obs=jnp.asarray(chunks[0]),
-        chunk_local=jnp.asarray(chunks[1]),
-        chunk_points=jnp.asarray(chunks[2]),
-        reduced_points=jnp.asarray(reduced_points),
-        eliminated_points=jnp.asarray(eliminated_points),
-        point_column=jnp.asarray(point_column),
-        eliminated_index=jnp.asarray(eliminated_index),
-        camera_column=jnp.asarray(camera_column),
+        image_columns=jax.device_put(columns),
+        image_point=jax.device_put(point_rows),
+        image_order=jax.device_put(order[:n_obs]),
+        key=jax.device_put(key),
+        key_columns=jax.device_put(key_columns),
+        key_rows=jax.device_put(key_rows),
+        key_row_block=jax.device_put(key_row_block),
+        pair_first=jax.device_put(pairs[0]),
+        pair_second=jax.device_put(pairs[1]),
+        pair_block=jax.device_put(pairs[2]),
+        key_pairs=jax.device_put(key_pairs),
+        chunk_obs=jax.device_put(chunks[0]),
+        chunk_local=jax.device_put(chunks[1]),
+        chunk_points=jax.device_put(chunks[2]),
+        reduced_points=jax.device_put(reduced_points),
+        eliminated_points=jax.device_put(eliminated_points),
+        point_column=jax.device_put(point_column),
+        eliminated_index=jax.device_put(eliminated_index),
+        camera_column=jax.device_put(camera_column),
         models=models,
         iop_columns=iop_columns,
         camera_offsets=tuple(offsets),
@@ -347,11 +347,29 @@ class BundleNormalEquations(eqx.Module):
     point_damping: Float[Array, "n_e 3"]
 
 
-def _reduced_vector(structure: BundleStructure, params: Parameters) -> Float[Array, " n_r"]:
-    """The reduced-side entries of a Parameters tree (values, masks) as one vector."""
-    parts = [jnp.ravel(params.cameras[model]) for model in structure.models]
-    parts += [jnp.ravel(params.images), jnp.ravel(params.points[structure.reduced_points])]
-    return jnp.concatenate(parts).astype(params.images.dtype)
+def zero_normal_equations(structure: BundleStructure, dtype) -> BundleNormalEquations:
+    """`BundleNormalEquations` of zeros, shaped as `bundle_normal_equations` returns them."""
+    n_r, n_e = structure.n_reduced, structure.eliminated_points.shape[0]
+    n_rows = structure.image_columns.shape[0]  # the image observations and the padding row
+    return BundleNormalEquations(
+        reduced_hessian=jnp.zeros((n_r, n_r), dtype),
+        point_hessian=jnp.zeros((n_e, 3, 3), dtype),
+        coupling=jnp.zeros((n_rows, 3, structure.m), dtype),
+        reduced_gradient=jnp.zeros(n_r, dtype),
+        point_gradient=jnp.zeros((n_e, 3), dtype),
+        reduced_damping=jnp.zeros(n_r, dtype),
+        point_damping=jnp.zeros((n_e, 3), dtype),
+    )
+
+
+def _reduced_vector(
+    structure: BundleStructure, params: Parameters, xp=jnp
+) -> Float[Array, " n_r"]:
+    """The reduced-side entries of a Parameters tree (values, masks) as one vector; `xp`
+    numpy for a tree of NumPy arrays (no program compiled)."""
+    parts = [xp.ravel(params.cameras[model]) for model in structure.models]
+    parts += [xp.ravel(params.images), xp.ravel(params.points[structure.reduced_points])]
+    return xp.concatenate(parts).astype(params.images.dtype)
 
 
 def _to_parameters(
@@ -407,9 +425,13 @@ def bundle_normal_equations(
     )
     coupling = _gram(je, jr)
 
-    residuals = problem.residuals(problem.with_free(params))
-    for group, residual in zip(problem.groups, residuals):
+    # The direct observations' residuals only: the image points' are the blocks' own (the
+    # whole `problem.residuals` traced and lowered them again, 0.1-0.2 s a program).
+    full = problem.with_free(params)
+    for group in problem.groups:
         if isinstance(group, ParameterObservations):
+            # Whitened as `BundleProblem.whitened` (a robust loss is for image points only).
+            residual = jnp.where(group.mask(), group.residuals(full, problem.refraction), 0.0)
             # e = (observed - x) / σ: ∂e/∂x = -1/σ on the observed entries.
             derivative = jnp.where(group.mask(), -1.0 / group.stddev, 0.0).astype(dtype)
             rows = jnp.asarray(group.rows)
@@ -460,9 +482,18 @@ def bundle_normal_equations(
     )
 
 
-# `bundle_normal_equations` as a program of its own: the datum check's, which the statistics
-# reuse (`jaxba._statistics._schur_precision`) instead of compiling it again inside theirs.
-compiled_normal_equations = jax.jit(bundle_normal_equations)
+def _normal_and_reduced(problem, structure, params):
+    normal = bundle_normal_equations(problem, structure, params)
+    point_inverse = _small_inverse(normal.point_hessian)
+    product, _ = _schur_complement(structure, normal, point_inverse)
+    return normal, normal.reduced_hessian + product, point_inverse
+
+
+# One program of its own for the datum check (at the approximations) and the statistics (at
+# the solution), which would otherwise each compile the normal equations inside theirs:
+# `bundle_normal_equations` at `params`, S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r) and V⁻¹
+# (n_e, 3, 3). (The datum check's S was a second program, 0.2 s to load in every process.)
+compiled_normal_equations = jax.jit(_normal_and_reduced)
 
 
 def _block_columns(structure: BundleStructure, group: ParameterObservations) -> Array:
@@ -488,7 +519,7 @@ def _distance_columns(structure: BundleStructure, group: Distances) -> Array:
 def _reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np.ndarray:
     """(n_r,) `flatten` positions of the reduced columns."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
-    return np.asarray(_reduced_vector(structure, positions)).astype(int)
+    return _reduced_vector(structure, positions, np).astype(int)
 
 
 def _add_at_columns(
@@ -695,7 +726,7 @@ def schur_solve(
     positions = unflatten(problem.initial, np.arange(rhs.shape[1]))
     reduced = _reduced_positions(problem, structure)
     points = np.asarray(positions.points)[np.asarray(structure.eliminated_points)]
-    normal = compiled_normal_equations(problem, structure, params)
+    normal, _, _ = compiled_normal_equations(problem, structure, params)
     x_r, x_e = _schur_solve(problem, structure, normal, jnp.asarray(rhs[:, reduced]),
                             jnp.asarray(rhs[:, points]))
     out = np.zeros_like(rhs)
@@ -798,8 +829,9 @@ class BundleSchurDescent(
     max_diagonal: float = 1e32
 
     def init(self, y: Parameters, residual) -> tuple[BundleNormalEquations, optx.RESULTS]:
-        shapes = jax.eval_shape(self._normal, y)
-        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), optx.RESULTS.successful
+        # Zeros shaped from the structure: `jax.eval_shape(self._normal, y)` traced the
+        # normal equations once more in every process (0.3-0.6 s on a 60-image block).
+        return zero_normal_equations(self.structure, y.images.dtype), optx.RESULTS.successful
 
     def query(self, y: Parameters, residual, state):
         """The normal equations at `y` and whether they are finite (checked once here)."""
@@ -896,8 +928,10 @@ def solve_schur(
         structure = bundle_structure(problem)
     # The tolerances as arrays, traced: solves that differ only in them share one compiled
     # program. step_tolerance stays static: whether it is 0 decides what is compiled.
-    settings = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), step_tolerance=step_tolerance,
-                    function_tolerance=jnp.asarray(function_tolerance))
+    # device_put: jnp.asarray compiled a program to stage a Python float.
+    settings = dict(rtol=jax.device_put(rtol), atol=jax.device_put(atol),
+                    step_tolerance=step_tolerance,
+                    function_tolerance=jax.device_put(function_tolerance))
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)
