@@ -11,7 +11,7 @@ from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefracti
 from ..._models._robust import RobustLoss
 from ..._problem._bundle import BundleProblem
 from ..._problem._observations import Distances, ImagePoints, ParameterObservations
-from ..._problem._parameters import Parameters, parameter_labels
+from ..._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from ..._statistics._free_network import inner_constraints
 from ._errors import ProjectError
 from ._spec import ProjectSpec
@@ -258,6 +258,13 @@ def _dependent_datum(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray,
     return free, summary
 
 
+def _gauge_positions(initial: Parameters, images: np.ndarray) -> tuple[int, ...]:
+    """The `flatten` positions of the EOPs `images` (n_images, 6) marks: the dependent
+    datum's unknowns (`BundleProblem.gauge`)."""
+    positions = unflatten(initial, np.arange(flatten(initial).size)).images
+    return tuple(np.asarray(positions)[images].tolist())
+
+
 def datum_summary(spec: ProjectSpec) -> dict:
     """The datum as the reports give it: {"kind": "control"}; {"kind": "free", "points": the
     datum points or "all"}; dependent: see `_dependent_datum` ({"kind", "image", "fixed",
@@ -305,9 +312,11 @@ def build_project(spec: ProjectSpec) -> Project:
     point_ids = used_points(spec)
     eop, eop_free, gnss = _images(spec)
     datum = datum_summary(spec)
+    gauge = np.zeros(np.shape(eop_free), dtype=bool)
     if spec.settings.datum == "dependent":
-        eop_free, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
-        eop_free = jnp.asarray(eop_free)
+        held, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
+        gauge = np.asarray(eop_free) & ~held
+        eop_free = jnp.asarray(held)
     xyz, xyz_free, control = _points(spec, point_ids)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     image_index = {iid: k for k, iid in enumerate(image_ids)}
@@ -346,6 +355,7 @@ def build_project(spec: ProjectSpec) -> Project:
         refraction=refraction,
         robust=robust,
         ties=_ties(spec, camera_rows, iop),
+        gauge=_gauge_positions(initial, gauge),
     )
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
