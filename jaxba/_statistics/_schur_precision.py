@@ -19,7 +19,7 @@ from .._solvers._schur._bundle import (
     bundle_structure,
     compiled_normal_equations,
 )
-from .._solvers._schur._normal import _matmul, _small_inverse
+from .._solvers._schur._normal import _matmul, point_inverse, singular_points
 from ._covariance import Precision, SchurCovariance, with_ties
 
 
@@ -110,17 +110,24 @@ def _precision_from_cofactors(
     ), problem)
 
 
+def no_sigma(normal: BundleNormalEquations, eliminated: Float[Array, "n_e1 3 3"]) -> Array:
+    """The eliminated points' 3 x 3 cofactor blocks (n_e + 1, 3, 3; last: padding), NaN for
+    the points whose V_p is singular (`singular_points`): they have no σ."""
+    singular = jnp.append(singular_points(normal.point_hessian), False)
+    return jnp.where(singular[:, None, None], jnp.nan, eliminated)
+
+
 def _reduced_cofactor(problem, structure, normal) -> tuple[Array, Array]:
     """S⁻¹ (n_r, n_r; rows and columns of fixed unknowns 0) and the points' V⁻¹ padded
-    with a zero block (n_e + 1, 3, 3)."""
+    with a zero block (n_e + 1, 3, 3; `point_inverse`: pseudo-inverses where singular)."""
     dtype = normal.reduced_gradient.dtype
     free_r = _reduced_vector(structure, problem.free).astype(dtype)
-    point_inverse = _small_inverse(normal.point_hessian)
-    product, _ = _schur_complement(structure, normal, point_inverse)
+    inverse = point_inverse(normal.point_hessian)
+    product, _ = _schur_complement(structure, normal, inverse)
     reduced = normal.reduced_hessian + product
     factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
     cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
-    return cofactor, jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
+    return cofactor, jnp.concatenate([inverse, jnp.zeros((1, 3, 3), dtype)])
 
 
 def _observation_cofactors(
@@ -240,7 +247,7 @@ def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.floa
 def _schur_cofactors(problem, structure, params, normal, sigma0, redundancy):
     cofactor, inverse = _reduced_cofactor(problem, structure, normal)
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
-    points = _point_cofactors(problem, structure, cofactor, eliminated)
+    points = _point_cofactors(problem, structure, cofactor, no_sigma(normal, eliminated))
     residuals = problem.residuals(problem.with_free(params))
     return _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy)
 

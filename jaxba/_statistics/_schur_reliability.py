@@ -42,6 +42,7 @@ from ._schur_precision import (
     _precision_from_cofactors,
     _reduced_cofactor,
     _traced_scalars,
+    no_sigma,
 )
 
 
@@ -109,7 +110,8 @@ def _leverages(problem, structure, params, normal):
                               *_free_masks(problem, structure, dtype))
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
-    point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
+    point_cofactors = _point_cofactors(problem, structure, cofactor,
+                                       no_sigma(normal, eliminated))
 
     full = problem.with_free(params)
     residuals = problem.residuals(full)

@@ -62,6 +62,7 @@ from ._normal import (
     _small_inverse,
     marquardt_diagonal,
     pair_block_sums,
+    point_inverse,
 )
 from ._pairs import block_rows, same_point_pairs
 
@@ -667,12 +668,13 @@ def solve_bundle_damped(
 ) -> tuple[Float[Array, " n_r"], Float[Array, "n_e 3"]]:
     """x = (JᵀJ + λD)⁻¹ Jᵀe as (x_r, x_e) by the Schur complement on the eliminated points;
     `held` (n_r,) 1.0 on reduced columns held (x_r = 0 there: their rows and columns of S
-    and of the right-hand side dropped, which is S of the problem with them fixed)."""
+    and of the right-hand side dropped, which is S of the problem with them fixed). The
+    undamped solve (λ = 0) takes pseudo-inverses of singular point blocks (`point_inverse`:
+    a point on nearly coincident rays leaves the Gauss-Newton step and gᵀN⁻¹g finite)."""
     dtype = normal.reduced_gradient.dtype
-    point_inverse = _small_inverse(
-        _add_diagonal(normal.point_hessian, damping * normal.point_damping)
-    )
-    reduced, rhs = _schur_complement(structure, normal, point_inverse)
+    damped = _add_diagonal(normal.point_hessian, damping * normal.point_damping)
+    inverse = jax.lax.cond(damping == 0, point_inverse, _small_inverse, damped)
+    reduced, rhs = _schur_complement(structure, normal, inverse)
     reduced = reduced + normal.reduced_hessian + jnp.diag(damping * normal.reduced_damping)
     rhs = normal.reduced_gradient - rhs
     if held is not None:
@@ -684,7 +686,7 @@ def solve_bundle_damped(
     n_e = normal.point_gradient.shape[0]
     coupled = jnp.sum(normal.coupling * _at_columns(structure, x_r_padded)[:, None, :], axis=2)
     coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
-    x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
+    x_e = jnp.sum(inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
     return x_r, x_e
 
 
