@@ -2,15 +2,16 @@
 
     python benchmarks/bal_project_compile.py [--repeats 1] [--json OUT.json] [FILE ...]
 
-For each BAL file (default: Dubrovnik-16 and Ladybug-49 of ../shared/data/bal, or
-$JAXBA_BAL_DATA) `jaxba import bal FILE --out DIR` writes the project, then, alternating,
-`jaxba adjust DIR/NAME.toml` and `jaxba bal FILE` run in fresh processes with
-OPENBLAS_NUM_THREADS=1 and an empty persistent compilation cache each
+For each BAL file (default: Dubrovnik-16 and Ladybug-49 from $JAXBA_BAL_DATA, else
+/work/shared/data/bal, as benchmarks/bal_vs_ceres.py), `jaxba import bal FILE --out DIR`
+writes the project; then, alternating, `jaxba adjust DIR/NAME.toml` and `jaxba bal FILE` run
+in fresh processes with OPENBLAS_NUM_THREADS=1 and an empty persistent compilation cache each
 (JAX_COMPILATION_CACHE_DIR: what a first run on a new machine compiles). Per run: compile
-seconds and programs (results.json: the whole adjustment's `timings` for `adjust`, the solve's
-`compile_seconds` for `bal`), iterations, final cost, the process's CPU seconds (user + system,
-from `resource.getrusage(RUSAGE_CHILDREN)`) and peak RSS. Prints a Markdown table with the
-compile seconds and CPU seconds of `adjust` as a ratio to `bal`'s in the same repeat.
+seconds and programs (results.json: the whole adjustment's `timings` for `adjust`, the
+solve's `compile_seconds` for `bal`), iterations (trial steps, accepted or not, as Ceres
+counts them), the process's CPU seconds (user + system) and peak RSS (GNU time). Prints a
+Markdown table with the compile seconds and CPU seconds of `adjust` as a ratio to `bal`'s
+in the same repeat.
 
 `adjust` does more than `bal` (datum check, statistics, reports), so its compile seconds hold
 the statistics' programs too; the claim measured is that a project's compile time no longer
@@ -21,7 +22,6 @@ import argparse
 import json
 import os
 import pathlib
-import resource
 import statistics
 import subprocess
 import sys
@@ -29,20 +29,21 @@ import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 JAXBA = [sys.executable, "-m", "jaxba"]
-DATA = pathlib.Path(os.environ.get("JAXBA_BAL_DATA", ROOT.parent / "shared" / "data" / "bal"))
+DATA = pathlib.Path(os.environ.get("JAXBA_BAL_DATA", "/work/shared/data/bal"))
 DEFAULT = ["problem-16-22106-pre.txt.bz2", "problem-49-7776-pre.txt.bz2"]
 
 
 def _run(command: list[str], cache: pathlib.Path, expect=(0,)) -> tuple[float, float]:
-    """CPU seconds and peak RSS (MiB) of `command` in a fresh process with an empty cache."""
+    """CPU seconds (user + system) and peak RSS (MiB) of `command` in a fresh process with
+    an empty cache, from GNU time."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", JAX_COMPILATION_CACHE_DIR=str(cache))
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    usage = cache.with_suffix(".time")
+    done = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(usage), *command],
+                          env=env, capture_output=True, text=True, cwd=ROOT)
     if done.returncode not in expect:
         raise RuntimeError(f"{' '.join(command)} exited {done.returncode}:\n{done.stderr}")
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return cpu, after.ru_maxrss / 1024
+    user, system, rss_kib = usage.read_text().split()[-3:]
+    return float(user) + float(system), float(rss_kib) / 1024
 
 
 def _adjust(project: pathlib.Path, tmp: pathlib.Path, k: int) -> dict:

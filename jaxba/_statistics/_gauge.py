@@ -12,7 +12,6 @@ invariant, so this is the solution in the datum.
 """
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._problem._bundle import BundleProblem
@@ -27,10 +26,10 @@ def released(problem: BundleProblem) -> tuple[BundleProblem, Parameters]:
     gauge = np.zeros_like(free)
     gauge[list(problem.gauge)] = True
     free |= gauge
-    as_tree = jax.tree.map(jnp.asarray, unflatten(problem.free, free))
+    as_tree = jax.device_put(unflatten(problem.free, free))
     return (BundleProblem(problem.initial, as_tree, problem.groups, problem.refraction,
                           problem.robust, ties=problem.ties),
-            unflatten(problem.free, gauge))
+            jax.device_put(unflatten(problem.free, gauge)))
 
 
 def to_gauge_datum(problem: BundleProblem, params: Parameters) -> Parameters:
@@ -42,11 +41,8 @@ def to_gauge_datum(problem: BundleProblem, params: Parameters) -> Parameters:
     directions = np.zeros((d, n_all))
     directions[np.arange(d), list(problem.gauge)] = 1.0
     group = InnerConstraints(
-        directions=jnp.asarray(directions),
-        reference=jnp.asarray(flatten(problem.initial)),
-        stddev=jnp.ones((d, 1)),
-        similarity=jnp.asarray(np.eye(7)[:, :d]),
-        centre=jnp.asarray(network_centre(problem)),
+        *jax.device_put((directions, flatten(problem.initial), np.ones((d, 1)), np.eye(7)[:, :d],
+                         network_centre(problem))),
         pose=problem.pose,
     )
     return _inner_datum(group, problem.refraction, params)

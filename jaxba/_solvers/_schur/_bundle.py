@@ -802,7 +802,8 @@ class BundleSchurDescent(
     Schur complement (see the module docstring). y is the full Parameters tree; fixed
     unknowns get a zero step.
 
-    `gauge` (n_r,): 1.0 on the reduced columns of a minimal datum that the damped steps
+    `gauge`: booleans like `problem.free`, True on the unknowns of a minimal datum that the
+    damped steps
     move with the rest (the damping fixes the gauge, as Ceres on BAL's problems) and the
     Gauss-Newton step (λ = 0), whose N is singular along the gauge, holds: its step and
     gᵀN⁻¹g are those of the problem with the datum fixed (gᵀN⁻¹g is the same in any datum:
@@ -812,7 +813,7 @@ class BundleSchurDescent(
     structure: BundleStructure
     min_diagonal: float = 1e-6
     max_diagonal: float = 1e32
-    gauge: Float[Array, " n_r"] | None = None
+    gauge: Parameters | None = None
 
     def init(self, y: Parameters, residual) -> tuple[BundleNormalEquations, optx.RESULTS]:
         shapes = jax.eval_shape(self._normal, y)
@@ -828,7 +829,9 @@ class BundleSchurDescent(
         """x = (N + λD)⁻¹g by the Schur complement: the step -x, gᵀx and whether the
         normal equations were finite (fixed unknowns have zero gradient and step)."""
         normal, result = state
-        held = None if self.gauge is None else self.gauge * (damping == 0)
+        held = None if self.gauge is None else (
+            _reduced_vector(self.structure, self.gauge).astype(normal.reduced_gradient.dtype)
+            * (damping == 0))
         x_r, x_e = solve_bundle_damped(self.structure, normal, damping, held)
         decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
         return self._parameters(-x_r, -x_e), decrement, result
@@ -921,7 +924,7 @@ def solve_schur(
     settings = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), step_tolerance=step_tolerance,
                     function_tolerance=jnp.asarray(function_tolerance))
     if gauge is not None:
-        settings["gauge"] = _reduced_vector(structure, gauge).astype(problem.initial.images.dtype)
+        settings["gauge"] = gauge
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)
