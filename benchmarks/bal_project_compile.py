@@ -51,12 +51,14 @@ def _adjust(project: pathlib.Path, tmp: pathlib.Path, k: int) -> dict:
     cpu, rss = _run([*JAXBA, "adjust", str(project), "--out", str(out)], tmp / f"cache_a{k}",
                     expect=(0, 1))
     data = json.loads((out / "results.json").read_text())
-    sigma = [v["std"] for c in data["cameras"].values() for v in c.values()
-             if isinstance(v, dict) and "std" in v]
+    sigma = [entry["std"] for block in ("cameras", "images", "points")
+             for unknowns in data[block].values() for entry in unknowns.values()
+             if isinstance(entry, dict) and entry.get("status") == "free"]
     return {"compile_s": data["timings"]["seconds"]["compile"],
             "programs": data["timings"]["compilations"], "iterations": data["steps"] - 1,
             "final_cost": None, "sigma0": data["sigma0"], "converged": data["converged"],
-            "nan_camera_sigma": sum(s is None for s in sigma), "cpu_s": cpu, "rss_mib": rss}
+            "no_sigma": sum(s is None for s in sigma), "named": len(data["no_sigma"]),
+            "cpu_s": cpu, "rss_mib": rss}
 
 
 def _bal(path: pathlib.Path, tmp: pathlib.Path, k: int) -> dict:
