@@ -104,3 +104,30 @@ def test_datum_image_must_exist_and_needs_the_dependent_datum(tmp_path):
         _with_settings(truth, datum='"dependent"', datum_image='"img99"')
     with pytest.raises(jaxba.ProjectError, match='datum_image needs datum = "dependent"'):
         _with_settings(truth, datum_image='"img02"')
+
+
+@pytest.mark.parametrize("n_distances", [0, 4])
+def test_schur_frees_the_gauge_and_lands_in_the_datum(tmp_path, n_distances):
+    """The Schur backend solves with the dependent datum's unknowns free (`gauge`) and moves
+    the solution back by a similarity: the same solution, in the datum, as the dense solve
+    that holds them, the datum's unknowns exactly at their values; with distances the
+    similarity has no scale (6 unknowns), without one station coordinate fixes it (7)."""
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_images=10,
+                                          n_targets=40, n_distances=n_distances)
+    project = _with_settings(truth, datum='"dependent"')
+    problem = project.problem
+    assert len(problem.gauge) == (6 if n_distances else 7)
+    flat = jaxba.advanced.flatten(problem.free)
+    assert not flat[list(problem.gauge)].any()  # held in the problem; the solver frees them
+    dense = jaxba.adjust(problem, labels=project.labels, solver="dense")
+    schur = jaxba.adjust(problem, labels=project.labels, solver="schur")
+    assert dense.converged and schur.converged
+    initial = jaxba.advanced.flatten(problem.initial)
+    adjusted = jaxba.advanced.flatten(schur.parameters)
+    np.testing.assert_allclose(adjusted[list(problem.gauge)], initial[list(problem.gauge)],
+                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(adjusted, jaxba.advanced.flatten(dense.parameters),
+                               rtol=GAUGE_RTOL, atol=1e-9)
+    assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-9)
+    sigma = {name: estimates["c"].sigma for name, estimates in schur.cameras.items()}
+    assert sigma == pytest.approx({n: e["c"].sigma for n, e in dense.cameras.items()}, rel=1e-6)

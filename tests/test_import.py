@@ -105,7 +105,8 @@ def test_bal_project_has_the_bal_residuals(tmp_path):
     expected = {(f"img{c}", str(p)): -v for c, p, v in
                 zip(bal.camera_index, bal.point_index, _bal_residuals(bal))}
     groups = [g for g in problem.groups if isinstance(g, jaxba.ImagePoints)]
-    assert len(groups) == 3  # one camera per image
+    assert len(groups) == 1  # one group of the "bal" model, a camera per image in its rows
+    assert len(project.camera_rows) == 3
     for group, residual in zip(groups, problem.whitened(problem.initial)):
         for i, p, v in zip(np.asarray(group.image), np.asarray(group.point),
                            np.asarray(residual)):  # σ = 1 px: whitened = observed - predicted

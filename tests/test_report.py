@@ -108,8 +108,10 @@ def _with_statistics(project, result, *, removed_row: int = 5, seed: int = 1):
         redundancy_numbers=r, normalised_residuals=tuple(w), mdb=r, alpha=0.001,
         critical_value=CRITICAL,
     )
+    # Keyed as `estimate_variance_components` keys them: the image points per camera.
     components = {
-        group.name: jaxba.VarianceComponent(1.0 + 0.1 * k, 10.0 * k + 1.5, int(m.sum()))
+        ("image_points:C1" if k == 0 else group.name):
+            jaxba.VarianceComponent(1.0 + 0.1 * k, 10.0 * k + 1.5, int(m.sum()))
         for k, (group, m) in enumerate(zip(problem.groups, masks))
     }
     rejection = jaxba.Rejection(problem.groups[0].name, removed_row, 0, 7.5)

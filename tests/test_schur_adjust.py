@@ -5,6 +5,7 @@ GNSS/INS, distances, a planted blunder)."""
 
 import json
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +19,10 @@ from jaxba.advanced import flatten
 SIGMA_RTOL = 1e-6  # σ, correlations, covariances: the two solves stop ~1e-6 σ apart
 PARAMETER_SIGMAS = 1e-4  # adjusted unknowns agree to this fraction of their σ
 REDUNDANCY_ATOL = 1e-6
+# √cofactors of a bundle whose point is held by a pseudo-inverse against one whose point
+# coordinate is fixed: the pseudo-inverse drops the rays' ~1e-16 relative information on
+# depth, and the two solves stop ~1e-6 σ apart.
+COFACTOR_RTOL = 1e-5
 
 # ~2 min for the module: one dense and one Schur adjustment with variance components and data
 # snooping (each re-adjusts), shared by every test.
@@ -222,3 +227,48 @@ def test_the_datum_check_and_the_statistics_are_one_program_each(tmp_path):
     assert compiled["statistics"] == 1
     assert 3 <= compiled["solve"] <= 4
     assert sum(compiled.values()) == result.timings.compilations
+
+
+def test_a_point_on_nearly_coincident_rays_alone_has_no_sigma(tmp_path):
+    """Point 2 seen only by img01 and its twin img99 (station 1e-7 m away, the same
+    measurements): N is singular along the point's rays. The Schur backend names its three
+    coordinates, and every other unknown has the σ of the same bundle with one coordinate
+    of point 2 fixed, solved dense (an independent computation: the null direction lies
+    within the point, so its other unknowns' cofactors do not depend on how it is held).
+    The datum check, which would refuse the rays at the approximations, is skipped: the
+    singularity at the solution is what is tested."""
+    truth = jaxba.write_synthetic_project(tmp_path, seed=2, n_images=8, n_targets=30)
+    orientation = tmp_path / "orientation.txt"
+    lines = orientation.read_text().splitlines()
+    first = lines[1].split()
+    twin = ["img99", first[1], repr(float(first[2]) + 1e-7), *first[3:]]
+    orientation.write_text("\n".join([*lines, " ".join(twin)]) + "\n")
+    table = tmp_path / "image_coordinates.txt"
+    rows = table.read_text().splitlines()
+    kept = [r for r in rows if r.startswith("#") or r.split()[1] != "2" or r.startswith("img01 ")]
+    kept += ["img99 " + r.split(maxsplit=1)[1] for r in rows if r.startswith("img01 ")]
+    table.write_text("\n".join(kept) + "\n")
+    project = jaxba.build_project(jaxba.read_project(truth.project_file))
+    result = jaxba.adjust(project.problem, labels=project.labels, solver="schur", check=False)
+    assert result.converged
+    named = {project.labels[k]: why for k, why in result.no_sigma.items()}
+    assert sorted(named) == ["point 2 X", "point 2 Y", "point 2 Z"]
+    assert all("rays (nearly) coincide" in why for why in named.values())
+    std = flatten(result.precision.std)
+    free = flatten(project.problem.free)
+    others = free & np.isfinite(std)
+    assert others.sum() == free.sum() - 3
+
+    # The same bundle, point 2's coordinate along its rays fixed at the Schur solution.
+    row = project.point_ids.index("2")
+    ray = np.asarray(result.parameters.points)[row] - np.asarray(result.parameters.images)[0, :3]
+    axis = int(np.argmax(np.abs(ray)))
+    held = project.problem
+    held = eqx.tree_at(lambda p: p.initial, held, result.parameters)
+    held = eqx.tree_at(lambda p: p.free.points, held,
+                       jnp.asarray(held.free.points).at[row, axis].set(False))
+    dense = jaxba.adjust(held, labels=project.labels, solver="dense")
+    assert dense.converged and not dense.no_sigma, dense.message
+    dense_std = flatten(dense.precision.std)
+    np.testing.assert_allclose(std[others] / result.sigma0,
+                               dense_std[others] / dense.sigma0, rtol=COFACTOR_RTOL)

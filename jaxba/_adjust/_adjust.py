@@ -16,6 +16,7 @@ from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
 from .._statistics._covariance import Precision, precision_from_covariance
 from .._statistics._datum import nonfinite_start_error, whitened_residuals
 from .._statistics._ids import ids_from_labels
+from .._statistics._no_sigma import unknowns_without_sigma
 from .._timing import Timings
 
 
@@ -135,4 +136,5 @@ def adjust(
         timings=timings,
         sigma0_prior=float(sigma0),
         ids=ids,
+        no_sigma=unknowns_without_sigma(problem, parameter_precision) if converged else {},
     )

@@ -3,7 +3,8 @@
 σ̂k² = e_kᵀe_k / r_k, r_k = Σ_{i in k} r_i (the group's share of the redundancy, from
 the diagonal of R). Each group's σ is multiplied by σ̂k and the bundle re-adjusted until
 every σ̂k² is 1 within `tolerance`; the component reported is the product of the factors,
-i.e. the estimated σ of the group relative to its a priori σ.
+i.e. the estimated σ of the group relative to its a priori σ. A group here is a part of an
+observation group (`AbstractObservationGroup.parts`): the image points of one camera.
 """
 
 import dataclasses
@@ -12,8 +13,10 @@ import equinox as eqx
 import numpy as np
 
 from .._problem._bundle import BundleProblem, observation_mask
+from .._problem._observations import named_parts
 from .._statistics._adjustment import Adjustment
 from .._statistics._backends import adjusted_redundancy_numbers
+from .._statistics._ids import index_ids
 from ._adjust import adjust
 from ._snooping import restart_from
 
@@ -34,12 +37,10 @@ def _finite_ratio(stddev, prior) -> np.ndarray:
     return stddev[both] / prior[both] if both.any() else np.array([np.nan])
 
 
-def _group_slices(problem):
-    start = 0
-    for group in problem.groups:
-        size = int(np.size(group.stddev))
-        yield group, slice(start, start + size)
-        start += size
+def _parts(problem, camera_ids):
+    """(k, name, rows) of every part (`named_parts`) of every group k of `problem`."""
+    return [(k, name, rows) for k, group in enumerate(problem.groups)
+            for name, rows in named_parts(group, camera_ids)]
 
 
 def estimate_variance_components(
@@ -57,47 +58,56 @@ def estimate_variance_components(
     is unreliable). Components are relative to the σ of `reference` (default: the
     adjusted problem itself), so a second pass can continue a first one. Returns the
     final adjustment (its σ̂0 ≈ 1 when the components are right), the components by
-    group name, and the number of iterations.
+    part name (the group's name, or "image_points:<camera ID>" per camera: the IDs of
+    `result.ids`), and the number of iterations.
     """
     reference = reference or result.problem
+    camera_ids = (result.ids or index_ids(result.parameters)).cameras
+    parts = _parts(result.problem, camera_ids)
     factors = {
-        group.name: float(np.nanmedian(_finite_ratio(group.stddev, prior.stddev)))
-        for group, prior in zip(result.problem.groups, reference.groups)
+        name: float(np.nanmedian(_finite_ratio(np.asarray(result.problem.groups[k].stddev)[rows],
+                                               np.asarray(reference.groups[k].stddev)[rows])))
+        for k, name, rows in parts
     }
     current = result
     for iteration in range(1, max_iterations + 1):
         problem = current.problem
         r, whitened = adjusted_redundancy_numbers(current)
-        full_r = np.zeros(observation_mask(problem).shape)
-        full_e = np.zeros_like(full_r)
-        full_r[observation_mask(problem)] = r
-        full_e[observation_mask(problem)] = whitened
+        mask = observation_mask(problem)
+        full_r, full_e = np.zeros(mask.shape), np.zeros(mask.shape)
+        full_r[mask], full_e[mask] = r, whitened
+        starts = np.cumsum([0] + [int(np.size(g.stddev)) for g in problem.groups])
         estimates = {}
-        for group, part in _group_slices(problem):
-            r_k = float(np.sum(full_r[part]))
-            variance = float(np.sum(full_e[part] ** 2)) / r_k if r_k > 0 else 1.0
-            estimates[group.name] = (variance, r_k)
+        for k, name, rows in parts:
+            group_r = full_r[starts[k]:starts[k + 1]].reshape(np.shape(problem.groups[k].stddev))
+            group_e = full_e[starts[k]:starts[k + 1]].reshape(group_r.shape)
+            r_k = float(np.sum(group_r[rows]))
+            variance = float(np.sum(group_e[rows] ** 2)) / r_k if r_k > 0 else 1.0
+            estimates[name] = (variance, r_k)
         converged = all(
             abs(v - 1.0) < tolerance for v, r_k in estimates.values() if r_k >= min_redundancy
         )
         if converged:
             break
-        groups = []
-        for group in problem.groups:
-            variance, r_k = estimates[group.name]
+        scale = [np.ones(np.shape(g.stddev)[0]) for g in problem.groups]
+        for k, name, rows in parts:
+            variance, r_k = estimates[name]
             if r_k >= min_redundancy:
-                factors[group.name] *= np.sqrt(variance)
-                group = eqx.tree_at(lambda g: g.stddev, group, group.stddev * np.sqrt(variance))
-            groups.append(group)
-        reweighted = eqx.tree_at(lambda p: p.groups, problem, tuple(groups))
+                factors[name] *= np.sqrt(variance)
+                scale[k][rows] = np.sqrt(variance)
+        groups = tuple(
+            eqx.tree_at(lambda g: g.stddev, group, group.stddev * s[:, None])
+            if (s != 1).any() else group for group, s in zip(problem.groups, scale))
+        reweighted = eqx.tree_at(lambda p: p.groups, problem, groups)
         restart = restart_from(reweighted, current.parameters)
         current = adjust(restart, check=False, **adjust_options)
     components = {
-        group.name: VarianceComponent(
-            sigma0=factors[group.name] * float(np.sqrt(estimates[group.name][0])),
-            redundancy=estimates[group.name][1],
-            n_observations=int(np.sum(np.isfinite(np.asarray(group.stddev)))),
+        name: VarianceComponent(
+            sigma0=factors[name] * float(np.sqrt(estimates[name][0])),
+            redundancy=estimates[name][1],
+            n_observations=int(np.sum(np.isfinite(
+                np.asarray(current.problem.groups[k].stddev)[rows]))),
         )
-        for group in current.problem.groups
+        for k, name, rows in parts
     }
     return current, components, iteration

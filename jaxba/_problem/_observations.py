@@ -5,6 +5,7 @@ Residuals are whitened, e = (observed - computed) / σ, so that the solver minim
 (`mask`), so that padding entries (a coordinate with no observation) count nowhere.
 """
 
+from collections.abc import Hashable, Iterator, Mapping, Sequence
 from typing import ClassVar
 
 import equinox as eqx
@@ -98,6 +99,15 @@ class AbstractObservationGroup(eqx.Module):
         `label` in reports; () where rows are known by their number only."""
         return ()
 
+    def parts(
+        self, camera_ids: Mapping[str, Sequence[Hashable]]
+    ) -> tuple[tuple[str, ...], np.ndarray]:
+        """The parts of the group that reports and variance components treat apart, as
+        (names, index (n,) of every row's part in names); by default one part, the whole
+        group under its name. `camera_ids`: {model: ID per row of `cameras[model]`}."""
+        del camera_ids
+        return (self.name,), np.zeros(np.shape(self.stddev)[0], dtype=int)
+
     def mask(self) -> Bool[Array, "n k"]:
         """True where the residual entry is an observation."""
         return jnp.isfinite(self.stddev)
@@ -105,6 +115,30 @@ class AbstractObservationGroup(eqx.Module):
     def sigma(self) -> Float[Array, "n k"]:
         """A priori σ of every residual entry."""
         return self.stddev
+
+
+def part_names(group: AbstractObservationGroup,
+               camera_ids: Mapping[str, Sequence[Hashable]]) -> np.ndarray:
+    """The name of every row's part (`parts`), (n,) object."""
+    names, index = group.parts(camera_ids)
+    return np.asarray(names, dtype=object)[index]
+
+
+def part_name(group: AbstractObservationGroup, camera_ids: Mapping[str, Sequence[Hashable]],
+              row: int) -> str:
+    """The name of the part (`parts`) that row `row` of `group` belongs to."""
+    names, index = group.parts(camera_ids)
+    return names[int(index[row])]
+
+
+def named_parts(group: AbstractObservationGroup, camera_ids: Mapping[str, Sequence[Hashable]]
+                ) -> Iterator[tuple[str, np.ndarray]]:
+    """(name, rows (m,)) of every part of `group` with rows, in the order of `parts`."""
+    names, index = group.parts(camera_ids)
+    order = np.argsort(index, kind="stable")
+    parts, starts = np.unique(index[order], return_index=True)
+    for k, rows in zip(parts.tolist(), np.split(order, starts[1:])):
+        yield names[k], rows
 
 
 def collinearity_residual(
@@ -159,7 +193,13 @@ class ImagePoints(AbstractObservationGroup):
 
     `constants`: the values of the camera model's constants (`AbstractCamera.constant_names`,
     e.g. (("r0", 12.5),) for "metrology") as (name, value) pairs, shared by all the group's
-    cameras (project files make one group per camera); () for models without constants.
+    cameras (project files make one group per model and constants); () for models without
+    constants.
+
+    `per_camera`: the rows of each camera form a part of their own (`parts`), named
+    "image_points:<camera ID>" (project files: reports, variance components and data
+    snooping per camera, as many cameras as there are in one group and one program);
+    False: the group is one part under its name.
     """
 
     name: str = eqx.field(static=True)
@@ -171,10 +211,21 @@ class ImagePoints(AbstractObservationGroup):
     stddev: Float[Array, "n 2"]
     pose: str = eqx.field(static=True, default="opk")
     constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
+    per_camera: bool = eqx.field(static=True, default=False)
     removed_whole: ClassVar[bool] = True
 
     def kind(self) -> str:
         return "image_points"
+
+    def parts(
+        self, camera_ids: Mapping[str, Sequence[Hashable]]
+    ) -> tuple[tuple[str, ...], np.ndarray]:
+        """One part per camera of the model ("image_points:<camera ID>"; cameras without
+        rows here have none) where `per_camera`, else the whole group."""
+        if not self.per_camera:
+            return (self.name,), np.zeros(np.shape(self.stddev)[0], dtype=int)
+        names = tuple(f"image_points:{cid}" for cid in camera_ids[self.model])
+        return names, np.asarray(self.camera, dtype=int)
 
     def coordinate_names(self) -> tuple[str, ...]:
         return ("x", "y")

@@ -18,7 +18,7 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
-from .._problem._observations import ImagePoints
+from .._problem._observations import ImagePoints, named_parts, part_name
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
@@ -31,6 +31,7 @@ from .._statistics._observation_statistics import (
     is_measurement,
     name_rows,
     observation_ids as ids_of_observation,
+    row_parts,
     with_coordinate,
 )
 
@@ -60,7 +61,8 @@ class ImageResiduals:
     """Image residuals of all image-point groups, sorted by image (file order within one).
 
     `image`, `point` (n,): rows of `project.image_ids` and `project.point_ids`; `group` (n,):
-    the index of the row's group in `result.problem.groups`; `image_ids`, `point_ids`,
+    the index of the row's group in `result.problem.groups`, `part` (n,) the name of its part
+    there ("image_points:<camera ID>", `AbstractObservationGroup.parts`); `image_ids`, `point_ids`,
     `camera_ids` and `units` (n,) object arrays: the IDs, the image's camera and its units.
     `xy` and `v` are (n, 2) in the image units of each row's camera model (`units`: "mm", or
     "pixel" for pixel-unit models such as "opencv"); `v_px` is v in pixels (v divided by the
@@ -75,6 +77,7 @@ class ImageResiduals:
     image: np.ndarray
     point: np.ndarray
     group: np.ndarray
+    part: np.ndarray
     image_ids: np.ndarray
     point_ids: np.ndarray
     camera_ids: np.ndarray
@@ -265,6 +268,7 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
         image=image,
         point=rows.point,
         group=rows.group,
+        part=row_parts(result.problem.groups, rows, project_ids(project).cameras),
         image_ids=np.asarray(project.image_ids, dtype=object)[image],
         point_ids=np.asarray(project.point_ids, dtype=object)[rows.point],
         camera_ids=np.asarray(cameras, dtype=object)[image],
@@ -328,7 +332,7 @@ def rejections(project: Project, result: Adjustment) -> list[dict]:
     groups = {group.name: group for group in result.problem.groups}
     return [
         {
-            "group": rej.group,
+            "group": part_name(groups[rej.group], project_ids(project).cameras, rej.row),
             **observation_ids(project, groups[rej.group], rej.row, rej.coordinate),
             "w": float(rej.w),
         }
@@ -347,27 +351,33 @@ def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySumm
     if reliability is None:
         return None
     parts, groups, worst = [], {}, (-1.0, "")
+    camera_ids = project_ids(project).cameras
     for stats in group_statistics(project, result):
         if not is_measurement(stats.group):
             continue
+        for name, rows in named_parts(stats.group, camera_ids):
+            used = stats.observed[rows] & ~stats.removed[rows]
+            r, w = stats.r[rows][used], np.abs(stats.w[rows][used])
+            finite_w = w[np.isfinite(w)]
+            groups[name] = {
+                "n": int(np.count_nonzero(used)),
+                "redundancy_sum": float(np.nansum(r)),
+                "min_redundancy": float(np.nanmin(r)) if np.isfinite(r).any() else math.nan,
+                "mean_redundancy": float(np.nanmean(r)) if np.isfinite(r).any() else math.nan,
+                "max_abs_w": float(finite_w.max()) if finite_w.size else math.nan,
+                "n_outliers": int(np.count_nonzero(stats.outlier[rows] & used)),
+                "n_removed": int(np.count_nonzero(stats.removed[rows])),
+            }
+            parts.append(r)
         used = stats.observed & ~stats.removed
-        r, w = stats.r[used], np.abs(stats.w[used])
-        finite_w = w[np.isfinite(w)]
-        groups[stats.group.name] = {
-            "n": int(np.count_nonzero(used)),
-            "redundancy_sum": float(np.nansum(r)),
-            "min_redundancy": float(np.nanmin(r)) if np.isfinite(r).any() else math.nan,
-            "mean_redundancy": float(np.nanmean(r)) if np.isfinite(r).any() else math.nan,
-            "max_abs_w": float(finite_w.max()) if finite_w.size else math.nan,
-            "n_outliers": int(np.count_nonzero(stats.outlier & used)),
-            "n_removed": int(np.count_nonzero(stats.removed)),
-        }
-        parts.append(r)
+        finite_w = np.abs(stats.w[used])
+        finite_w = finite_w[np.isfinite(finite_w)]
         if finite_w.size and finite_w.max() > worst[0]:
             abs_w = np.where(used, np.abs(np.nan_to_num(stats.w, nan=0.0)), -1.0)
             row, coordinate = np.unravel_index(np.argmax(abs_w), abs_w.shape)
             ids = observation_ids(project, stats.group, int(row), int(coordinate))
-            worst = (float(finite_w.max()), f"{stats.group.name} {describe(ids)}")
+            named = part_name(stats.group, camera_ids, int(row))
+            worst = (float(finite_w.max()), f"{named} {describe(ids)}")
     r = np.concatenate(parts) if parts else np.zeros(0)
     finite = np.isfinite(r)
     return ReliabilitySummary(
@@ -475,19 +485,22 @@ def row_tuples(table: np.ndarray):
 
 @_shared
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
-    """Per observation group: its number of observations and its part vᵀPv of the total.
+    """Per observation group (per part: `AbstractObservationGroup.parts`, the image points of
+    each camera): its number of observations and its part vᵀPv of the total.
 
     P = σ0² Σ⁻¹ with the a priori σ0 of the project, so vᵀPv = σ0² Σ (v/σ)² over the group's
     real observations; the parts add up to σ̂0² · r.
     """
     prior = project.spec.settings.sigma0
     summaries = {}
+    camera_ids = project_ids(project).cameras
     for group, residual in zip(result.problem.groups, result.residuals):
         mask = np.asarray(group.mask())
         sigma = np.where(mask, np.asarray(group.sigma(), dtype=float), 1.0)
         normalised = np.where(mask, np.asarray(residual, dtype=float) / sigma, 0.0)
-        summaries[group.name] = {
-            "n": int(np.count_nonzero(mask)),
-            "vtpv": float(prior**2 * np.sum(normalised**2)),
-        }
+        for name, rows in named_parts(group, camera_ids):
+            summaries[name] = {
+                "n": int(np.count_nonzero(mask[rows])),
+                "vtpv": float(prior**2 * np.sum(normalised[rows] ** 2)),
+            }
     return summaries

@@ -16,6 +16,7 @@ from ._collect import (
     project_ids,
     rejections,
 )
+from ._no_sigma import no_sigma_lines
 
 LISTED = 5  # observations named in one warning
 
@@ -102,12 +103,13 @@ def warning_lines(project: Project, result: Adjustment) -> list[str]:
       against the χ²(r) quantiles at α/2 and 1 - α/2, α 5 %);
     - observations whose normalised residual |w| exceeds the critical value of the
       reliability's w-test (the largest first, named by image, point or camera);
-    - observations removed by data snooping.
+    - observations removed by data snooping;
+    - unknowns without a σ (N singular at the solution), and why.
     """
     if not result.converged:
         return []
     return [*_variance_factor(project, result), *_large_residuals(project, result),
-            *_removed(project, result)]
+            *_removed(project, result), *no_sigma_lines(project, result)]
 
 
 def _variance_factor(project: Project, result: Adjustment) -> list[str]:

@@ -42,8 +42,8 @@ def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...])
     return list(map("{},{}".format, map(",".join, zip(*texts)), formatted.split("\n")))
 
 
-def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray) -> list[str]:
-    """Rows of the image points; `groups`: the CSV fields of the result's group names."""
+def _image_point_lines(project: Project, result: Adjustment) -> list[str]:
+    """Rows of the image points, each named by its group's part ("image_points:<camera>")."""
     residuals = image_residuals(project, result)
     n = len(residuals.image)
     image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
@@ -53,7 +53,7 @@ def _image_point_lines(project: Project, result: Adjustment, groups: np.ndarray)
     empty = [""] * n
     texts = [
         ["image_points"] * n,
-        groups[residuals.group].tolist(),
+        [_field(part) for part in residuals.part],
         image_ids[residuals.image].tolist(),
         point_ids[residuals.point].tolist(),
         empty,
@@ -87,9 +87,8 @@ def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
 
 def observations_csv(project: Project, result: Adjustment) -> str:
     """observations.csv as text: header `COLUMNS`, image points, then the other observations."""
-    groups = np.array([_field(group.name) for group in result.problem.groups], dtype=object)
     lines = [",".join(COLUMNS)]
-    lines += _image_point_lines(project, result, groups)
+    lines += _image_point_lines(project, result)
     lines += _scalar_lines(other_observations(project, result))
     return "\n".join(lines) + "\n"
 

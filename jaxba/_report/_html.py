@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .._io._project._build import Project
+from .._problem._observations import part_name
 from .._statistics._adjustment import Adjustment
 from ._collect import (
     FIXED,
@@ -23,6 +24,7 @@ from ._collect import (
     is_measurement,
     observation_ids,
     point_table,
+    project_ids,
     rejections,
     reliability_summary,
     residual_summaries,
@@ -239,7 +241,8 @@ def _largest(project: Project, result: Adjustment) -> str:
     for _, stats, row, coordinate in entries[:LARGEST_RESIDUALS]:
         ids = observation_ids(project, stats.group, row, coordinate)
         rows.append([
-            _e(stats.group.name), _e(" ".join(f"{k} {v}" for k, v in ids.items())),
+            _e(part_name(stats.group, project_ids(project).cameras, row)),
+            _e(" ".join(f"{k} {v}" for k, v in ids.items())),
             f"{stats.v[row, coordinate]:.4g}", f"{stats.w[row, coordinate]:.3f}",
             f"{stats.r[row, coordinate]:.3f}",
             "rejected" if stats.removed[row, coordinate] else (

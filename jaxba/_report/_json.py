@@ -26,6 +26,7 @@ from ._collect import (
     residual_summaries,
     shared_tables,
 )
+from ._no_sigma import no_sigma_entries
 from ._paths import OBSERVATIONS_FILE
 
 
@@ -275,6 +276,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "rejections": _nulls(rejections(project, result)),
         "reliability": _reliability(project, result),
         "outliers": _outliers(project, result),
+        "no_sigma": no_sigma_entries(project, result),
     }
     if project.initialisation is not None:
         tree["initialisation"] = _nulls(project.initialisation)

@@ -36,6 +36,7 @@ from ._collect import (
     residual_summaries,
     row_tuples,
 )
+from ._no_sigma import no_sigma_lines
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
 _PX_DECIMALS = 3  # residuals in pixels
@@ -337,6 +338,8 @@ def out_text(project: Project, result: Adjustment) -> str:
     lines = _header(project, result)
     datum = _datum_section(project)
     lines += ["", *datum] if datum else []
+    no_sigma = no_sigma_lines(project, result)
+    lines += ["", *no_sigma] if no_sigma else []
     correlations = camera_correlations(project, result)
     for cid, camera in camera_tables(project, result).items():
         lines += ["", *_camera_section(project, cid, camera)]

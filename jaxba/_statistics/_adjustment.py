@@ -33,6 +33,9 @@ class Adjustment:
     - `sigma0_prior`: the a priori σ0 the adjustment used;
     - `ids`: the IDs of the blocks' rows (`Ids`, from the labels `adjust` was given), None
       for row numbers;
+    - `no_sigma`: {`flatten` position: why} of the free unknowns without a σ at a converged
+      solution where N is singular (`jaxba._statistics._no_sigma`); every other unknown
+      has its σ;
     - filled in by `adjust_project` as the project asks: `reliability` (a `Reliability`),
       `variance_components` ({group: VarianceComponent}) with `variance_iterations`, and
       `rejections` (data snooping, in order of removal).
@@ -58,6 +61,7 @@ class Adjustment:
     rejections: tuple = ()
     sigma0_prior: float = 1.0
     ids: Ids | None = None
+    no_sigma: dict[int, str] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         # The solvers return jax arrays, a batch NumPy: NumPy on every path.

@@ -38,6 +38,7 @@ from ._free_network import (
     minimal_constraints,
     to_inner_datum,
 )
+from ._gauge import released, to_gauge_datum
 from ._schur_datum import check_datum_schur
 from ._schur_reliability import (
     schur_precision_and_redundancy,
@@ -123,6 +124,12 @@ class SchurBackend(Backend):
         check_datum_schur(self.solved, labels=labels, structure=self.structure)
 
     def solve(self, *, max_steps, rtol, atol, on_step=None):
+        if self.problem.gauge and not self.free_network:  # the datum after the solve
+            problem, gauge = released(self.problem)
+            solution = solve_schur(problem, max_steps=max_steps, rtol=rtol, atol=atol,
+                                   on_step=on_step, gauge=gauge)
+            moved = to_gauge_datum(self.problem, solution.parameters)
+            return eqx.tree_at(lambda s: s.parameters, solution, moved)
         solution = solve_schur(self.solved, max_steps=max_steps, rtol=rtol, atol=atol,
                                on_step=on_step, structure=self.structure)
         if not self.free_network:

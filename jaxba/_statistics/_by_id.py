@@ -10,7 +10,7 @@ from .._models._cameras import CAMERA_MODELS
 from .._models._poses import POSE_MODELS
 from .._problem._parameters import POINT_PARAMETER_NAMES, flatten, unflatten
 from ._ids import Ids
-from ._observation_statistics import group_statistics, image_point_rows
+from ._observation_statistics import group_statistics, image_point_rows, row_parts
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 LISTED_IDS = 5  # valid IDs named by a KeyError
@@ -172,9 +172,10 @@ OBSERVATION_COLUMNS = ("image", "point", "camera", "group", "x", "y", "vx", "vy"
 
 def observation_columns(result, ids: Ids) -> dict[str, np.ndarray]:
     """The image points of `result` as columns (`OBSERVATION_COLUMNS`, (n,) NumPy each), sorted
-    by image as NAME.res: IDs, the group's name, x, y, vx, vy in the camera model's image units,
-    redundancy numbers r and normalised residuals w (NaN where not computed), removed by data
-    snooping, outlier (removed or |w| above the critical value)."""
+    by image as NAME.res: IDs, the group's part (`parts`: "image_points:<camera ID>"), x, y,
+    vx, vy in the camera model's image units, redundancy numbers r and normalised residuals w
+    (NaN where not computed), removed by data snooping, outlier (removed or |w| above the
+    critical value)."""
     rows = image_point_rows(group_statistics(result))
     groups = result.problem.groups
     cameras = np.empty(len(rows.group), dtype=object)
@@ -185,7 +186,7 @@ def observation_columns(result, ids: Ids) -> dict[str, np.ndarray]:
         "image": np.asarray(ids.images, dtype=object)[rows.image],
         "point": np.asarray(ids.points, dtype=object)[rows.point],
         "camera": cameras,
-        "group": np.array([group.name for group in groups], dtype=object)[rows.group],
+        "group": row_parts(groups, rows, ids.cameras),
         "x": rows.xy[:, 0], "y": rows.xy[:, 1],
         "vx": rows.v[:, 0], "vy": rows.v[:, 1],
         "rx": rows.r[:, 0], "ry": rows.r[:, 1],

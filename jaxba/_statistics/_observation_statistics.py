@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._problem._observations import AbstractObservationGroup, ImagePoints
+from .._problem._observations import AbstractObservationGroup, ImagePoints, part_names
 from ._ids import Ids
 
 
@@ -43,7 +43,8 @@ class GroupStatistics:
 class ImagePointRows:
     """The image points of all image-point groups, sorted by image (file order within one).
 
-    `group` (n,): the row's group in `result.problem.groups`; `camera`, `image`, `point`
+    `group` (n,): the row's group in `result.problem.groups`, `row` (n,) its row there;
+    `camera`, `image`, `point`
     (n,): rows of the camera (within its group's model), image and point blocks; `xy`, `v`
     (n, 2) in the image units of the row's camera model; `r`, `w` (n, 2) NaN where unknown;
     `removed`: rejected by data snooping (v at the final solution, which did not use it);
@@ -51,6 +52,7 @@ class ImagePointRows:
     """
 
     group: np.ndarray
+    row: np.ndarray
     camera: np.ndarray
     image: np.ndarray
     point: np.ndarray
@@ -180,6 +182,7 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
     order = np.argsort(image, kind="stable")
     return ImagePointRows(
         group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
+        row=stack(lambda k, s: np.arange(len(s.v))).astype(int)[order],
         camera=stack(lambda k, s: s.group.camera).astype(int)[order],
         image=image[order],
         point=stack(lambda k, s: s.group.point).astype(int)[order],
@@ -190,6 +193,16 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
         removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
         outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
     )
+
+
+def row_parts(groups, rows: ImagePointRows, camera_ids) -> np.ndarray:
+    """The part (`AbstractObservationGroup.parts`) of every row of `rows` (n,) object, e.g.
+    "image_points:C1"; `groups`: the problem's groups, `camera_ids` {model: IDs}."""
+    parts = np.empty(len(rows.group), dtype=object)
+    for k in np.unique(rows.group).tolist():
+        here = rows.group == k
+        parts[here] = part_names(groups[k], camera_ids)[rows.row[here]]
+    return parts
 
 
 def outliers(result, statistics: list[GroupStatistics]) -> list[Outlier]:

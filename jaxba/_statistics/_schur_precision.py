@@ -14,11 +14,12 @@ from .._solvers._schur._bundle import (
     BundleStructure,
     _reduced_positions,
     _reduced_vector,
+    _schur_complement,
     _to_parameters,
     bundle_structure,
     compiled_normal_equations,
 )
-from .._solvers._schur._normal import _matmul
+from .._solvers._schur._normal import _matmul, point_inverse, singular_points
 from ._covariance import Precision, SchurCovariance, with_ties
 
 
@@ -109,15 +110,30 @@ def _precision_from_cofactors(
     ), problem)
 
 
-def _reduced_cofactor(problem, structure, reduced, point_inverse) -> tuple[Array, Array]:
+def no_sigma(normal: BundleNormalEquations, eliminated: Float[Array, "n_e1 3 3"]) -> Array:
+    """The eliminated points' 3 x 3 cofactor blocks (n_e + 1, 3, 3; last: padding), NaN for
+    the points whose V_p is singular (`singular_points`): they have no σ."""
+    singular = jnp.append(singular_points(normal.point_hessian), False)
+    return jnp.where(singular[:, None, None], jnp.nan, eliminated)
+
+
+def _reduced_cofactor(problem, structure, normal, reduced, inverse) -> tuple[Array, Array]:
     """S⁻¹ (n_r, n_r; rows and columns of fixed unknowns 0) and the points' V⁻¹ padded
-    with a zero block (n_e + 1, 3, 3), from S (`reduced`) and V⁻¹ (`point_inverse`) as
-    `compiled_normal_equations` returns them."""
+    with a zero block (n_e + 1, 3, 3), from S (`reduced`) and V⁻¹ (`inverse`) as
+    `compiled_normal_equations` returns them; where a point's V_p is singular
+    (`singular_points`) its pseudo-inverse (`point_inverse`) instead, and S formed again
+    with it."""
     dtype = reduced.dtype
     free_r = _reduced_vector(structure, problem.free).astype(dtype)
+    singular = singular_points(normal.point_hessian)
+    inverse = jnp.where(singular[:, None, None], point_inverse(normal.point_hessian), inverse)
+    reduced = jax.lax.cond(
+        singular.any(),
+        lambda: normal.reduced_hessian + _schur_complement(structure, normal, inverse)[0],
+        lambda: reduced)
     factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
     cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
-    return cofactor, jnp.concatenate([point_inverse, jnp.zeros((1, 3, 3), dtype)])
+    return cofactor, jnp.concatenate([inverse, jnp.zeros((1, 3, 3), dtype)])
 
 
 def _observation_cofactors(
@@ -236,9 +252,9 @@ def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.floa
 @eqx.filter_jit
 def _schur_cofactors(problem, structure, params, normal, reduced, point_inverse, sigma0,
                      redundancy):
-    cofactor, inverse = _reduced_cofactor(problem, structure, reduced, point_inverse)
+    cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
     _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
-    points = _point_cofactors(problem, structure, cofactor, eliminated)
+    points = _point_cofactors(problem, structure, cofactor, no_sigma(normal, eliminated))
     residuals = problem.residuals(problem.with_free(params))
     return _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy)
 

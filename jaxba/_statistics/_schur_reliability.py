@@ -42,6 +42,7 @@ from ._schur_precision import (
     _precision_from_cofactors,
     _reduced_cofactor,
     _traced_scalars,
+    no_sigma,
 )
 
 
@@ -124,12 +125,13 @@ def _leverages(problem, structure, params, normal, reduced, point_inverse):
     S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`);
     `normal`, `reduced` S and `point_inverse` V⁻¹ at `params`: `compiled_normal_equations`'s."""
     dtype = normal.reduced_gradient.dtype
-    cofactor, inverse = _reduced_cofactor(problem, structure, reduced, point_inverse)
+    cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
     jr, je, _ = _image_blocks(problem, structure, params,
                               *_free_masks(problem, structure, dtype))
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
-    point_cofactors = _point_cofactors(problem, structure, cofactor, eliminated)
+    point_cofactors = _point_cofactors(problem, structure, cofactor,
+                                       no_sigma(normal, eliminated))
 
     full = problem.with_free(params)
     residuals = problem.residuals(full)

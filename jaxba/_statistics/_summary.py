@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from .._problem._observations import part_name
 from .._problem._parameters import flatten, unflatten
 from ._free_network import InnerConstraints
 from ._ids import Ids
@@ -140,8 +141,8 @@ def outlier_summary(result, ids: Ids, statistics=None,
     groups = result.problem.groups
 
     worst = [
-        (groups[o.group].name, describe(observation_ids(ids, groups[o.group], o.row,
-                                                        o.coordinate)), o.abs_w)
+        (part_name(groups[o.group], ids.cameras, o.row),
+         describe(observation_ids(ids, groups[o.group], o.row, o.coordinate)), o.abs_w)
         for o in found[:listed]
     ]
     return OutlierSummary(float(result.reliability.critical_value),

@@ -11,7 +11,7 @@ from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefracti
 from ..._models._robust import RobustLoss
 from ..._problem._bundle import BundleProblem
 from ..._problem._observations import Distances, ImagePoints, ParameterObservations
-from ..._problem._parameters import Parameters, parameter_labels
+from ..._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from ..._statistics._free_network import inner_constraints
 from ._errors import ProjectError
 from ._spec import ProjectSpec
@@ -172,7 +172,11 @@ def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
 
 
 def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
-    """One ImagePoints group per camera, in its model's units (pixels -> mm for mm-models)."""
+    """One ImagePoints group per camera model and constants (`per_camera`: reports and
+    variance components still part it by camera), each row's camera its row of the model's
+    block; pixels -> mm per row's camera for mm-models. Named "image_points" where there is
+    one group, else "image_points:<model>" (and ":<k>" for a model's cameras with different
+    constants)."""
     table = spec.image_points
     camera_of = {iid: image.camera for iid, image in spec.images.items()}
     cameras = [camera_of[iid] for iid in table.image]
@@ -180,21 +184,33 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
     camera_code = np.array([codes[cid] for cid in cameras], dtype=int)
     image = np.array([image_index[iid] for iid in table.image], dtype=int)
     point = np.array([point_index[pid] for pid in table.point], dtype=int)
-    groups = []
-    for camera_id, code in codes.items():
-        rows = np.flatnonzero(camera_code == code)
-        model, row = camera_rows[camera_id]
-        xy, sigma = measurements(spec, camera_id, rows, grids[camera_id])
+    xy, sigma = np.zeros((len(cameras), 2)), np.zeros((len(cameras), 2))
+    row = np.zeros(len(cameras), dtype=int)
+    kinds: dict[tuple, list[int]] = {}
+    order = np.argsort(camera_code, kind="stable")
+    starts = np.flatnonzero(np.diff(camera_code[order], prepend=-1))
+    for camera_id, rows in zip(codes, np.split(order, starts[1:])):
+        model, row[rows] = camera_rows[camera_id][0], camera_rows[camera_id][1]
+        xy[rows], sigma[rows] = measurements(spec, camera_id, rows, grids[camera_id])
         constants = spec.cameras[camera_id].constants
+        key = (model, tuple((n, constants[n]) for n in CAMERA_MODELS[model].constant_names))
+        kinds.setdefault(key, []).append(codes[camera_id])
+    models = [model for model, _ in kinds]
+    groups = []
+    for k, ((model, constants), members) in enumerate(kinds.items()):
+        rows = np.flatnonzero(np.isin(camera_code, members))
+        name = ("image_points" if len(kinds) == 1 else f"image_points:{model}"
+                if models.count(model) == 1 else f"image_points:{model}:{k}")
         groups.append(ImagePoints(
-            name=f"image_points:{camera_id}",
+            name=name,
             model=model,
-            camera=jnp.full(len(rows), row),
+            camera=jax.device_put(row[rows]),
             image=jax.device_put(image[rows]),
             point=jax.device_put(point[rows]),
-            measured=jax.device_put(xy),
-            stddev=jax.device_put(sigma),
-            constants=tuple((n, constants[n]) for n in CAMERA_MODELS[model].constant_names),
+            measured=jax.device_put(xy[rows]),
+            stddev=jax.device_put(sigma[rows]),
+            constants=constants,
+            per_camera=True,
         ))
     return groups
 
@@ -240,6 +256,13 @@ def _dependent_datum(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray,
         free[far, axis] = False
         summary.update(scale="base", base_image=image_ids[far], base_coordinate=EOP_NAMES[axis])
     return free, summary
+
+
+def _gauge_positions(initial: Parameters, images: np.ndarray) -> tuple[int, ...]:
+    """The `flatten` positions of the EOPs `images` (n_images, 6) marks: the dependent
+    datum's unknowns (`BundleProblem.gauge`)."""
+    positions = unflatten(initial, np.arange(flatten(initial).size)).images
+    return tuple(np.asarray(positions)[images].tolist())
 
 
 def datum_summary(spec: ProjectSpec) -> dict:
@@ -289,9 +312,11 @@ def build_project(spec: ProjectSpec) -> Project:
     point_ids = used_points(spec)
     eop, eop_free, gnss = _images(spec)
     datum = datum_summary(spec)
+    gauge = np.zeros(np.shape(eop_free), dtype=bool)
     if spec.settings.datum == "dependent":
-        eop_free, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
-        eop_free = jnp.asarray(eop_free)
+        held, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
+        gauge = np.asarray(eop_free) & ~held
+        eop_free = jnp.asarray(held)
     xyz, xyz_free, control = _points(spec, point_ids)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     image_index = {iid: k for k, iid in enumerate(image_ids)}
@@ -330,6 +355,7 @@ def build_project(spec: ProjectSpec) -> Project:
         refraction=refraction,
         robust=robust,
         ties=_ties(spec, camera_rows, iop),
+        gauge=_gauge_positions(initial, gauge),
     )
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():

@@ -62,6 +62,7 @@ from ._normal import (
     _small_inverse,
     marquardt_diagonal,
     pair_block_sums,
+    point_inverse,
 )
 from ._pairs import block_rows, same_point_pairs
 
@@ -693,21 +694,30 @@ def _distance_jacobians(
 
 
 def solve_bundle_damped(
-    structure: BundleStructure, normal: BundleNormalEquations, damping: Scalar
+    structure: BundleStructure, normal: BundleNormalEquations, damping: Scalar,
+    held: Float[Array, " n_r"] | None = None,
 ) -> tuple[Float[Array, " n_r"], Float[Array, "n_e 3"]]:
-    """x = (JᵀJ + λD)⁻¹ Jᵀe as (x_r, x_e) by the Schur complement on the eliminated points."""
+    """x = (JᵀJ + λD)⁻¹ Jᵀe as (x_r, x_e) by the Schur complement on the eliminated points;
+    `held` (n_r,) 1.0 on reduced columns held (x_r = 0 there: their rows and columns of S
+    and of the right-hand side dropped, which is S of the problem with them fixed). The
+    undamped solve (λ = 0) takes pseudo-inverses of singular point blocks (`point_inverse`:
+    a point on nearly coincident rays leaves the Gauss-Newton step and gᵀN⁻¹g finite)."""
     dtype = normal.reduced_gradient.dtype
-    point_inverse = _small_inverse(
-        _add_diagonal(normal.point_hessian, damping * normal.point_damping)
-    )
-    reduced, rhs = _schur_complement(structure, normal, point_inverse)
+    damped = _add_diagonal(normal.point_hessian, damping * normal.point_damping)
+    inverse = jax.lax.cond(damping == 0, point_inverse, _small_inverse, damped)
+    reduced, rhs = _schur_complement(structure, normal, inverse)
     reduced = reduced + normal.reduced_hessian + jnp.diag(damping * normal.reduced_damping)
-    x_r = cholesky_solve(reduced, normal.reduced_gradient - rhs)
+    rhs = normal.reduced_gradient - rhs
+    if held is not None:
+        kept = 1.0 - held
+        reduced = reduced * kept[:, None] * kept[None, :] + jnp.diag(held)
+        rhs = rhs * kept
+    x_r = cholesky_solve(reduced, rhs)
     x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
     n_e = normal.point_gradient.shape[0]
     coupled = jnp.sum(normal.coupling * _at_columns(structure, x_r_padded)[:, None, :], axis=2)
     coupled = jax.ops.segment_sum(coupled, structure.image_point, n_e + 1)[:n_e]
-    x_e = jnp.sum(point_inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
+    x_e = jnp.sum(inverse * (normal.point_gradient - coupled)[:, None, :], axis=2)
     return x_r, x_e
 
 
@@ -821,12 +831,20 @@ class BundleSchurDescent(
 ):
     """Damped Newton step -(JᵀJ + λD)⁻¹ Jᵀe, λ = 1/radius, of a `BundleProblem` by the
     Schur complement (see the module docstring). y is the full Parameters tree; fixed
-    unknowns get a zero step."""
+    unknowns get a zero step.
+
+    `gauge`: booleans like `problem.free`, True on the unknowns of a minimal datum that the
+    damped steps
+    move with the rest (the damping fixes the gauge, as Ceres on BAL's problems) and the
+    Gauss-Newton step (λ = 0), whose N is singular along the gauge, holds: its step and
+    gᵀN⁻¹g are those of the problem with the datum fixed (gᵀN⁻¹g is the same in any datum:
+    g is orthogonal to the gauge's directions). None: no gauge released."""
 
     problem: BundleProblem
     structure: BundleStructure
     min_diagonal: float = 1e-6
     max_diagonal: float = 1e32
+    gauge: Parameters | None = None
 
     def init(self, y: Parameters, residual) -> tuple[BundleNormalEquations, optx.RESULTS]:
         # Zeros shaped from the structure: `jax.eval_shape(self._normal, y)` traced the
@@ -843,7 +861,10 @@ class BundleSchurDescent(
         """x = (N + λD)⁻¹g by the Schur complement: the step -x, gᵀx and whether the
         normal equations were finite (fixed unknowns have zero gradient and step)."""
         normal, result = state
-        x_r, x_e = solve_bundle_damped(self.structure, normal, damping)
+        held = None if self.gauge is None else (
+            _reduced_vector(self.structure, self.gauge).astype(normal.reduced_gradient.dtype)
+            * (damping == 0))
+        x_r, x_e = solve_bundle_damped(self.structure, normal, damping, held)
         decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
         return self._parameters(-x_r, -x_e), decrement, result
 
@@ -865,10 +886,11 @@ def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]
     return problem.residuals(problem.with_free(y))
 
 
-def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance, function_tolerance):
+def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance, function_tolerance,
+                       gauge=None):
     return LevenbergMarquardt(
-        rtol, atol, BundleSchurDescent(problem, structure), step_tolerance=step_tolerance,
-        function_tolerance=function_tolerance)
+        rtol, atol, BundleSchurDescent(problem, structure, gauge=gauge),
+        step_tolerance=step_tolerance, function_tolerance=function_tolerance)
 
 
 def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
@@ -905,6 +927,7 @@ def solve_schur(
     function_tolerance: float = 0.0,
     structure: BundleStructure | None = None,
     on_step: Callable[[StepInfo], None] | None = None,
+    gauge: Parameters | None = None,
 ) -> Solution:
     """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
     Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
@@ -921,7 +944,9 @@ def solve_schur(
     it). As for `solve`: without `on_step` one compiled `optx.least_squares`; with it, one
     compiled step at a time, `on_step(StepInfo)` hearing every step.
     Memory O(n_obs m + n_r²), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
-    distance points.
+    distance points. `gauge`: booleans like `problem.free`, True on free unknowns of a
+    minimal datum that only the Gauss-Newton steps hold (`BundleSchurDescent.gauge`; the
+    solution is then in no particular datum); None: none.
     """
     del free_index
     if structure is None:
@@ -932,6 +957,8 @@ def solve_schur(
     settings = dict(rtol=jax.device_put(rtol), atol=jax.device_put(atol),
                     step_tolerance=step_tolerance,
                     function_tolerance=jax.device_put(function_tolerance))
+    if gauge is not None:
+        settings["gauge"] = gauge
     if on_step is None:
         return _solve_schur(problem, structure, max_steps=max_steps, **settings)
     solver = _make_schur_solver(problem, structure, **settings)

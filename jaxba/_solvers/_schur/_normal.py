@@ -90,6 +90,39 @@ def _small_inverse(a: Float[Array, "n m m"]) -> Float[Array, "n m m"]:
     return augmented[:, :, m:]
 
 
+# A point's 3 x 3 block of N whose smallest eigenvalue is below this fraction of its largest
+# is singular: its inverse would hold no correct digit beyond ε/POINT_RCOND ~ 1e-4 (rays
+# within ~1e-6 rad of each other: the point's depth along them is not determined).
+POINT_RCOND = 1e-12
+
+
+def singular_points(point_hessian: Float[Array, "n 3 3"]) -> Array:
+    """(n,) True where a point's block V_p is singular (`POINT_RCOND`)."""
+    values = jnp.linalg.eigvalsh(point_hessian)
+    return values[:, 0] <= POINT_RCOND * values[:, -1]
+
+
+def point_inverse(point_hessian: Float[Array, "n 3 3"]) -> Float[Array, "n 3 3"]:
+    """V_p⁻¹ of every point (`_small_inverse`); the pseudo-inverse where V_p is singular
+    (`singular_points`). The direction N does not determine is then the point's own (moving
+    it along its rays moves no residual, so W_p is 0 along it too), and S = U - W V⁺ Wᵀ is
+    the S of the other unknowns, which stay determined. The eigen-decompositions run only
+    where a block's reciprocal condition, estimated as 1 / (‖V‖_F ‖V⁻¹‖_F), is small."""
+    inverse = _small_inverse(point_hessian)
+    estimate = 1.0 / (jnp.linalg.norm(point_hessian, axis=(1, 2))
+                      * jnp.linalg.norm(inverse, axis=(1, 2)))
+    suspect = ~(estimate > 10 * POINT_RCOND)  # NaN (a singular elimination) included
+
+    def pseudo(_):
+        values, vectors = jnp.linalg.eigh(point_hessian)
+        kept = values > POINT_RCOND * values[:, -1:]
+        inverse_values = jnp.where(kept, 1.0 / jnp.where(kept, values, 1.0), 0.0)
+        pseudo = jnp.einsum("nij,nj,nkj->nik", vectors, inverse_values, vectors)
+        return jnp.where(kept.all(axis=1)[:, None, None], inverse, pseudo)
+
+    return jax.lax.cond(suspect.any(), pseudo, lambda _: inverse, None)
+
+
 def _add_diagonal(
     matrices: Float[Array, "m n n"], diagonals: Float[Array, "m n"]
 ) -> Float[Array, "m n n"]:
