@@ -113,11 +113,11 @@ def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractOb
         for field in dataclasses.fields(group)
         if not field.metadata.get("static", False) and field.name != "stddev"
     }
-    padded = {key: jax.device_put(_pad_rows(value, n)) for key, value in leaves.items()}
+    padded = {key: _pad_rows(value, n) for key, value in leaves.items()}
     stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
     stddev[n_real:] = np.inf
+    padded["stddev"] = stddev
     group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
-    group = eqx.tree_at(lambda g: g.stddev, group, jax.device_put(stddev))
     return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
 
 
@@ -125,8 +125,8 @@ def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | No
     def pad(leaf, like):
         n = np.shape(like)[0]
         if fill_free is None:
-            return jax.device_put(_pad_rows(leaf, n))
-        return jax.device_put(_pad_rows(leaf, n, fill=fill_free))
+            return _pad_rows(leaf, n)
+        return _pad_rows(leaf, n, fill=fill_free)
 
     return jax.tree.map(pad, params, shapes)
 
@@ -286,10 +286,16 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
     padded, free_index, live = _pad_each(problems, shape)
     plans = _plans(padded, free_index, live)
-    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+    # Padded in NumPy, stacked in NumPy, one transfer per leaf.
+    stacked = jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
+    if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated
+        one = pad_plans(plans[:1], shape.keys)
+        plan = jax.tree.map(lambda leaf: jax.device_put(np.repeat(leaf, len(plans), 0)), one)
+    else:
+        plan = pad_plans(plans, shape.keys)
     return PaddedBatch(
         problem=stacked,
-        plan=pad_plans(plans, shape.keys),
+        plan=plan,
         problems=problems,
         n_free=np.array([p.n_unknowns() for p in problems]),
         n_observations=np.array([p.n_observations() for p in problems]),
