@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._adjust import _batch
 from jaxba._adjust._batch import adjust_batch, pad_problems
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
 from jaxba._cli._main import main
@@ -202,8 +203,6 @@ def test_summary_names_parameters_by_model_and_tests_the_variance_factor(
 def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):
     """Three projects of three sizes, one per chunk: padded to one shape, they are solved by
     one compiled program (traced once), not one per size."""
-    from jaxba._adjust import _batch
-
     _, paths, _ = projects
     traced = []
 
@@ -217,3 +216,20 @@ def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeyp
     rows = run_batch(paths, tmp_path / "out", chunk_size=1)
     assert [row["mode"] for row in rows] == ["batch"] * 3
     assert len(traced) == 1
+
+
+def test_batched_datum_check_equals_check_datum(projects, tmp_path):
+    """The batched datum screen lets the good projects through and gives a defective one the
+    error `check_datum` raises for it alone (no control, scale from the distances: the six
+    defects of a rigid motion)."""
+    _, _, built = projects
+    defect = jaxba.write_synthetic_project(tmp_path / "free", name="free", seed=3, n_images=6,
+                                           n_targets=20, datum="none")
+    free = jaxba.build_project(jaxba.read_project(defect.project_file))
+    batch = [p.problem for p in built] + [free.problem]
+    assert len({_batch._signature(problem) for problem in batch}) == 1
+    errors = jaxba.check_datum_batch(batch, labels=[p.labels for p in [*built, free]])
+    assert errors[:3] == [None, None, None]
+    with pytest.raises(jaxba.DatumError) as alone:
+        jaxba.check_datum(free.problem, labels=free.labels)
+    assert isinstance(errors[3], jaxba.DatumError) and str(errors[3]) == str(alone.value)

@@ -467,6 +467,12 @@ def residual_summaries(residuals: ImageResiduals) -> dict:
     }
 
 
+@_shared
+def image_residual_summaries(project: Project, result: Adjustment) -> dict:
+    """`residual_summaries` of the result's image residuals (gathered once per write)."""
+    return residual_summaries(image_residuals(project, result))
+
+
 def row_tuples(table: np.ndarray):
     """The rows of `table` (n, m) as tuples of Python numbers, one at a time (the columns are
     converted at once: no list per row for the garbage collector to walk)."""
