@@ -247,11 +247,13 @@ def _check_kind(problems) -> None:
 def batch_shape(problems) -> BatchShape:
     """The smallest shape that holds every one of `problems` (bundles of one kind), their
     plans included: chunks of them padded to it (`pad_problems(chunk, shape)`) share one
-    compiled program. Pads every problem once to find the plans' sizes."""
+    compiled program. Pads one problem of each distinct structure (`_structure`) to find
+    the plans' sizes."""
     problems = tuple(problems)
     _check_kind(problems)
     blocks = _block_shape(problems)
-    padded, free_index, live = _pad_each(problems, blocks)
+    distinct = {_structure(p, free_indices(p), None): p for p in problems}
+    padded, free_index, live = _pad_each(tuple(distinct.values()), blocks)
     plans = _plans(padded, free_index, live)
     keys = tuple(None if slots is None else
                  tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))

@@ -39,6 +39,7 @@ from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
 from ._batch_solve import Chunk, Outcome, solve_chunk
 
 CHUNK = 10  # projects per vmapped solve (one Dask task), by default
+WRITERS = 2  # threads writing reports while the chunks are solved
 
 
 def _needs_single(project) -> bool:
@@ -152,13 +153,14 @@ def _solve(run, chunks, say, finished, total: int) -> None:
     """Solve `chunks` on `run`, record the outcomes and write the reports as they come; a
     chunk of several projects whose task raised is tried again one project at a time.
 
-    The reports of a chunk are written by one writer thread while the next chunk is solved
-    (XLA, file writes and fsync release the GIL); what each project became is said here, in
-    order, as its reports are done."""
+    The reports of a chunk are written by a writer thread while the next chunk is solved
+    (XLA, file writes and fsync release the GIL; `WRITERS` threads, so that one formats
+    while another waits for the disk); what each project became is said here, in order, as
+    its reports are done."""
     from ..._report import write_reports
 
     done = 0
-    writer = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxba-reports")
+    writer = concurrent.futures.ThreadPoolExecutor(WRITERS, thread_name_prefix="jaxba-reports")
     written: collections.deque = collections.deque()
 
     def report(block: bool) -> None:
