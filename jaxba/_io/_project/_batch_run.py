@@ -5,16 +5,16 @@ Plain Python around the jitted core. Projects are read and their outputs checked
 skipped. The others are built one by one; a file or datum error marks that project failed
 and the others go on. Projects of one kind (same observation groups, camera models,
 iteration settings) are padded to one shape and solved in vmapped chunks of `CHUNK`
-(`_batch_solve`): one compiled program for all of them (datum check, solve, statistics). A project that asks for a robust loss,
-variance components or data snooping is adjusted alone with `adjust_project` (those are
-sequential re-adjustments); its summary row says so.
+(`_batch_solve`): one compiled program for all of them (datum check, solve, statistics).
+A project that asks for a robust loss, variance components or data snooping is adjusted
+alone with `adjust_project` (those are sequential re-adjustments); its summary row says so.
 
 The chunks run on an executor (`jaxba._dask`): in this process, one after the other, or on
 the workers of a Dask cluster, all at once; everything else (grouping, failures, reports,
 summary) is the same code for both. Reports are written here as each chunk's results come
-back, by writer threads while the next chunks are solved. A chunk whose task raised (a worker that kept dying under it, a bug) is tried again
-one project at a time, so that only the project at fault fails, with the exception as its
-reason.
+back, by writer threads while the next chunks are solved. A chunk whose task raised (a
+worker that kept dying under it, a bug) is tried again one project at a time, so that only
+the project at fault fails, with the exception as its reason.
 """
 
 import collections

@@ -4,10 +4,10 @@
 
 A chunk is projects of one kind padded once and solved in one vmapped program that also
 checks their datum and computes their statistics (`adjust_padded`), or one project adjusted
-alone (`adjust_project`:
-robust loss, variance components or data snooping). The chunks of one group are padded to
-the group's shape and to one length (a short chunk is filled up with copies of its last
-project, whose results are dropped): one compiled program serves them all.
+alone (`adjust_project`: robust loss, variance components or data snooping). The chunks of
+one group are padded to the group's shape and to one length (a short chunk is filled up
+with copies of its last project, whose results are dropped): one compiled program serves
+them all.
 """
 
 import dataclasses
