@@ -134,7 +134,7 @@ def main():
             opencv.append(seconds)
         with open(out / "summary.csv", newline="") as file:
             rows = list(csv.DictReader(file))
-        ours = np.array([[float(row[f"C1.{n}"]) for n in ("fx", "fy", "cx", "cy")]
+        ours = np.array([[float(row[f"C1.opencv.{n}"]) for n in ("fx", "fy", "cx", "cy")]
                          for row in rows])
         difference = np.max(np.abs(ours - np.load(estimates)))
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")

@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._adjust import _batch
 from jaxba._adjust._batch import adjust_batch, pad_problems
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
 from jaxba._cli._main import main
 from jaxba._io._project._batch_run import run_batch
+from jaxba._models._cameras import CAMERA_MODELS
+from jaxba._statistics._summary import variance_test
 
 BATCH_RTOL = 1e-8  # issue 6: each batch result equals the single adjustment to 1e-8 relative
 SIZES = ((6, 20), (8, 26), (7, 30))  # (images, targets): three shapes padded to one
@@ -118,11 +121,12 @@ def test_run_batch_reports_and_failures(projects, tmp_path):
     assert "datum" in rows[4]["reason"] and "broken.toml" in rows[3]["reason"]
     for k in range(3):
         assert (out / f"p{k}" / "results.json").exists() and (out / f"p{k}" / f"p{k}.out").exists()
-        assert rows[k]["C1.c.std"] > 0
+        assert rows[k]["C1.smac.c.std"] > 0
     summary = json.loads((out / "summary.json").read_text())
     assert [r["name"] for r in summary[:3]] == ["p0", "p1", "p2"]
     header = (out / "summary.csv").read_text().splitlines()[0].split(",")
-    assert {"name", "status", "converged", "sigma0", "C1.c", "C1.c.std"} <= set(header)
+    assert {"name", "status", "converged", "sigma0", "C1.smac.c", "C1.smac.c.std",
+            "variance_test.statistic", "variance_test.passed"} <= set(header)
     assert any(line.startswith("[3/4]") or line.startswith("[4/4]") for line in lines)
     assert len(finished) == 5  # every project once, the one that failed to read included
 
@@ -169,3 +173,63 @@ def test_chunked_batch_equals_one_vmapped_batch(projects):
     for k in range(len(built)):
         assert _flat_close(jax.tree.map(lambda leaf: leaf[k], chunked.parameters),
                            jax.tree.map(lambda leaf: leaf[k], whole.parameters), BATCH_RTOL)
+
+
+def test_summary_names_parameters_by_model_and_tests_the_variance_factor(
+        projects, batch_and_single, tmp_path):
+    """summary rows: `<camera>.<model>.<parameter>` columns and the χ² test of σ̂0, each equal
+    to the single adjustment's (`variance_test`, the test of NAME.out and results.json)."""
+    _, paths, built = projects
+    _, single = batch_and_single
+    rows = run_batch(paths, tmp_path / "out")
+    for row, project, result in zip(rows, built, single):
+        test = variance_test(result)
+        assert row["variance_test.alpha"] == test.alpha
+        for key in ("statistic", "low", "high"):
+            assert row[f"variance_test.{key}"] == pytest.approx(getattr(test, key),
+                                                                rel=BATCH_RTOL)
+        assert row["variance_test.passed"] == test.passed
+        assert row["variance_test.passed"] == (
+            row["variance_test.low"] <= row["variance_test.statistic"] <= row["variance_test.high"])
+        for camera_id, (model, index) in project.camera_rows.items():
+            names = CAMERA_MODELS[model].parameter_names
+            values = np.asarray(result.parameters.cameras[model])[index]
+            for name, value in zip(names, values):
+                assert row[f"{camera_id}.{model}.{name}"] == pytest.approx(
+                    value, rel=BATCH_RTOL, abs=1e-12)
+        assert not [key for key in row if key.startswith("C1.") and key.count(".") < 2]
+
+
+def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):
+    """Three projects of three sizes, one per chunk: padded to one shape, they are solved by
+    one compiled program (traced once), not one per size."""
+    _, paths, _ = projects
+    traced = []
+
+    def counted(*args, **kwargs):
+        traced.append(1)
+        return statistics_one(*args, **kwargs)
+
+    statistics_one = _batch._statistics_one
+    monkeypatch.setattr(_batch, "_statistics_one", counted)
+    jax.clear_caches()
+    rows = run_batch(paths, tmp_path / "out", chunk_size=1)
+    assert [row["mode"] for row in rows] == ["batch"] * 3
+    assert len(traced) == 1
+
+
+def test_batched_datum_check_equals_check_datum(projects, tmp_path):
+    """The batched datum screen lets the good projects through and gives a defective one the
+    error `check_datum` raises for it alone (no control, scale from the distances: the six
+    defects of a rigid motion)."""
+    _, _, built = projects
+    defect = jaxba.write_synthetic_project(tmp_path / "free", name="free", seed=3, n_images=6,
+                                           n_targets=20, datum="none")
+    free = jaxba.build_project(jaxba.read_project(defect.project_file))
+    batch = [p.problem for p in built] + [free.problem]
+    assert len({_batch._signature(problem) for problem in batch}) == 1
+    errors = jaxba.check_datum_batch(batch, labels=[p.labels for p in [*built, free]])
+    assert errors[:3] == [None, None, None]
+    with pytest.raises(jaxba.DatumError) as alone:
+        jaxba.check_datum(free.problem, labels=free.labels)
+    assert isinstance(errors[3], jaxba.DatumError) and str(errors[3]) == str(alone.value)

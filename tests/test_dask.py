@@ -125,7 +125,7 @@ def test_chunks_of_a_group_share_one_compiled_shape(projects):
 def test_dask_batch_equals_the_in_process_batch(local, on_dask):
     (local_out, local_rows), (out, rows, lines) = local, on_dask
     assert [r["status"] for r in local_rows] == ["ok"] * N_PROJECTS
-    assert local_rows[0]["C1.c.std"] > 0
+    assert local_rows[0]["C1.smac.c.std"] > 0
     _assert_rows_equal(rows, local_rows)
     _assert_reports_equal(out, local_out)
     assert any(line.startswith("solving on Dask scheduler") and "(2 workers" in line

@@ -20,31 +20,38 @@ once per batch element, which would make compile time grow with the batch size.
 """
 
 import dataclasses
+import hashlib
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from .._problem._bundle import (
     BundleProblem,
     free_indices,
     observation_mask,
     observed_minus_computed,
-    params_from_free,
 )
-from .._problem._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
+from .._problem._linearisation import (
+    LinearisationPlan,
+    _row_blocks,
+    _whole_group_jacobian,
+    linearisation_plan,
+    live_slots,
+    normal_equations,
+    pad_plans,
+)
 from .._problem._observations import AbstractObservationGroup
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from .._solvers._dense import solve
 from .._solvers._progress import Iteration
 from .._solvers._solution import Solution
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
-from .._statistics._datum import DatumError, check_datum_with_jacobian
+from .._statistics._datum import DatumError, check_columns, check_datum
 from .._statistics._reliability import reliability_from_redundancy
 
 
@@ -106,11 +113,11 @@ def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractOb
         for field in dataclasses.fields(group)
         if not field.metadata.get("static", False) and field.name != "stddev"
     }
-    padded = {key: jax.device_put(_pad_rows(value, n)) for key, value in leaves.items()}
+    padded = {key: _pad_rows(value, n) for key, value in leaves.items()}
     stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
     stddev[n_real:] = np.inf
+    padded["stddev"] = stddev
     group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
-    group = eqx.tree_at(lambda g: g.stddev, group, jax.device_put(stddev))
     return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
 
 
@@ -118,8 +125,8 @@ def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | No
     def pad(leaf, like):
         n = np.shape(like)[0]
         if fill_free is None:
-            return jax.device_put(_pad_rows(leaf, n))
-        return jax.device_put(_pad_rows(leaf, n, fill=fill_free))
+            return _pad_rows(leaf, n)
+        return _pad_rows(leaf, n, fill=fill_free)
 
     return jax.tree.map(pad, params, shapes)
 
@@ -199,6 +206,34 @@ def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndar
     return padded, free_index, live
 
 
+def _structure(problem: BundleProblem, free_index: np.ndarray, live) -> bytes:
+    """A digest of all that `linearisation_plan(problem, free_index, live)` reads: the
+    integer (index) arrays and observed entries of every group, the free index, the ties and
+    the live slots. Padded problems of one kind and equal digests have equal plans."""
+    digest = hashlib.blake2b(repr((problem.ties, live)).encode())
+    digest.update(np.asarray(free_index).tobytes())
+    for group in problem.groups:
+        for leaf in jax.tree.leaves(group):
+            leaf = np.asarray(leaf)
+            if leaf.dtype.kind in "biu":
+                digest.update(repr(leaf.shape).encode())
+                digest.update(leaf.tobytes())
+        digest.update(np.isfinite(np.asarray(group.stddev)).tobytes())
+    return digest.digest()
+
+
+def _plans(padded, free_index, live) -> list[LinearisationPlan]:
+    """`linearisation_plan` of every padded problem, computed once per distinct structure
+    (a batch of calibrations of one target and one set of images has one)."""
+    known, plans = {}, []
+    for one, index in zip(padded, free_index):
+        key = _structure(one, index, live)
+        if key not in known:
+            known[key] = linearisation_plan(one, index, live)
+        plans.append(known[key])
+    return plans
+
+
 def _check_kind(problems) -> None:
     reference = _signature(problems[0])
     for k, problem in enumerate(problems):
@@ -212,12 +247,14 @@ def _check_kind(problems) -> None:
 def batch_shape(problems) -> BatchShape:
     """The smallest shape that holds every one of `problems` (bundles of one kind), their
     plans included: chunks of them padded to it (`pad_problems(chunk, shape)`) share one
-    compiled program. Pads every problem once to find the plans' sizes."""
+    compiled program. Pads one problem of each distinct structure (`_structure`) to find
+    the plans' sizes."""
     problems = tuple(problems)
     _check_kind(problems)
     blocks = _block_shape(problems)
-    padded, free_index, live = _pad_each(problems, blocks)
-    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
+    distinct = {_structure(p, free_indices(p), None): p for p in problems}
+    padded, free_index, live = _pad_each(tuple(distinct.values()), blocks)
+    plans = _plans(padded, free_index, live)
     keys = tuple(None if slots is None else
                  tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
                  for g, slots in enumerate(live))
@@ -250,11 +287,17 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
     padded, free_index, live = _pad_each(problems, shape)
-    plans = [linearisation_plan(one, index, live) for one, index in zip(padded, free_index)]
-    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+    plans = _plans(padded, free_index, live)
+    # Padded in NumPy, stacked in NumPy, one transfer per leaf.
+    stacked = jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
+    if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated
+        one = pad_plans(plans[:1], shape.keys)
+        plan = jax.tree.map(lambda leaf: jax.device_put(np.repeat(leaf, len(plans), 0)), one)
+    else:
+        plan = pad_plans(plans, shape.keys)
     return PaddedBatch(
         problem=stacked,
-        plan=pad_plans(plans, shape.keys),
+        plan=plan,
         problems=problems,
         n_free=np.array([p.n_unknowns() for p in problems]),
         n_observations=np.array([p.n_observations() for p in problems]),
@@ -305,111 +348,150 @@ def broadcast_plan(plan: LinearisationPlan, n: int) -> LinearisationPlan:
 class BatchStatistics(eqx.Module):
     """Per problem (leading batch axis): cost ½eᵀe at the start and the solution, the
     cofactor matrix (JᵀJ)⁻¹ of the (padded) free unknowns, the leverages diag(J(JᵀJ)⁻¹Jᵀ)
-    of every residual entry and the whitened residuals e."""
+    of every residual entry, the whitened residuals e and `suspect`, the datum screen at
+    the approximations (`_datum_suspect`)."""
 
     initial_cost: Float[Array, " n_batch"]
     cofactor: Float[Array, "n_batch n_free n_free"]
     leverage: Float[Array, "n_batch n_residuals"]
     whitened: Float[Array, "n_batch n_residuals"]
+    suspect: Bool[Array, " n_batch"]
 
 
-def _jacobian_one(problem: BundleProblem, params: Parameters, index) -> tuple:
-    """Whitened Jacobian d e / d x[index] (padded rows 0) and e at `params`."""
-    at = eqx.tree_at(lambda p: p.initial, problem, params)
-
-    def whitened(x_free):
-        values = params_from_free(at, x_free, index)
-        return jnp.concatenate([jnp.ravel(e) for e in problem.whitened(values)])
-
-    x_free = ravel_pytree(params)[0][index]
-    return jax.jacfwd(whitened)(x_free), whitened(x_free)
+def _equilibrated(normal, real) -> tuple[Array, Array]:
+    """D N D with D = 1/‖column‖ (0 for a padded or unobserved unknown), the padded
+    unknowns' (zero) block replaced by I so that they drop out; and D."""
+    norms = jnp.sqrt(jnp.diag(normal))
+    scale = jnp.where(real & (norms > 0), 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
+    return normal * scale[:, None] * scale[None, :] + jnp.diag(jnp.where(real, 0.0, 1.0)), scale
 
 
-@eqx.filter_jit
-def batch_jacobian(problem: BundleProblem, parameters: Parameters, free_index) -> tuple:
-    """`_jacobian_one` vmapped: (n_batch, n_residuals, n_free) and (n_batch, n_residuals)."""
-    return jax.vmap(_jacobian_one)(problem, parameters, free_index)
+def _datum_suspect(problem: BundleProblem, plan: LinearisationPlan, n_free, rtol: float):
+    """False where the datum is surely defined at the approximations: N = JᵀJ finite, every
+    real column observed, and the equilibrated N's eigenvalues λ = s² (s the singular values
+    of the equilibrated J) with λ_min/λ_max above 4·rtol² + 1e-12: a defect, s_min/s_max <
+    rtol, lies below it even with N's rounding (~1e-16 λ_max). True: `check_datum` decides
+    (the exact test, from J itself, and the message)."""
+    normal = normal_equations(problem, problem.initial, plan)[0]
+    real = jnp.arange(plan.n_free) < n_free
+    finite = jnp.all(jnp.isfinite(normal))
+    observed = jnp.all(jnp.where(real, jnp.diag(normal) > 0, True))
+    scaled = _equilibrated(jnp.where(finite, normal, 1.0), real)[0]
+    eigenvalues = jnp.linalg.eigvalsh(jnp.where(finite, scaled, jnp.eye(plan.n_free)))
+    regular = eigenvalues[0] > (4 * rtol**2 + 1e-12) * eigenvalues[-1]
+    return ~(finite & observed & regular)
 
 
-def _statistics_one(problem: BundleProblem, params: Parameters, index, n_free) -> tuple:
-    jacobian, whitened = _jacobian_one(problem, params, index)
-    real = jnp.arange(index.shape[0]) < n_free
-    norms = jnp.linalg.norm(jacobian, axis=0)
-    column_scale = jnp.where(real & (norms > 0), 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
-    scaled = jacobian * column_scale
-    # Padded unknowns: their (zero) block of N replaced by I, so they drop out.
-    normal = scaled.T @ scaled + jnp.diag(jnp.where(real, 0.0, 1.0))
-    factor = jax.scipy.linalg.cho_factor(normal)
-    inverse = jax.scipy.linalg.cho_solve(factor, jnp.eye(index.shape[0]))
-    leverage = jnp.sum(scaled * (inverse @ scaled.T).T, axis=1)
-    cofactor = column_scale[:, None] * inverse * column_scale[None, :]
-    at = eqx.tree_at(lambda p: p.initial, problem, params)
-    initial = 0.5 * sum(jnp.sum(e**2) for e in at.whitened(problem.initial))
-    return initial, cofactor, leverage, whitened
+def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPlan, cofactor):
+    """diag(J Q Jᵀ) of every residual entry (flat, in `problem.whitened`'s order), Q the
+    cofactor matrix (n_free, n_free): per key of the plan from the rows' Jacobian blocks and
+    Q's block of the key's columns (no dense Jacobian); whole groups from their Jacobian."""
+    n = plan.n_free
+    padded = jnp.zeros((n + 1, n + 1), cofactor.dtype).at[:n, :n].set(cofactor)
+    parts = []
+    for group, rows, columns, slots in zip(
+        problem.groups, plan.key_rows, plan.key_columns, plan.live
+    ):
+        n_rows, k = jnp.shape(group.stddev)
+        if slots is None:
+            jacobian, _ = _whole_group_jacobian(problem, params, plan.free_index, [group])
+            parts.append(jnp.einsum("ei,ij,ej->e", jacobian, cofactor, jacobian))
+            continue
+        if not slots:
+            parts.append(jnp.zeros(n_rows * k, cofactor.dtype))
+            continue
+        blocks = _row_blocks(problem, group, params)[1][:, :, list(slots)]
+        blocks = jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]
+        block_q = padded[columns[:, :, None], columns[:, None, :]]
+        leverage = jnp.einsum("kmci,kij,kmcj->kmc", blocks, block_q, blocks)
+        target = jnp.where(rows >= 0, rows, n_rows)  # key padding: a dropped extra row
+        parts.append(jnp.zeros((n_rows + 1, k), cofactor.dtype).at[target].set(leverage)
+                     [:n_rows].ravel())
+    return jnp.concatenate(parts)
+
+
+def _statistics_one(problem: BundleProblem, plan: LinearisationPlan, params: Parameters,
+                    n_free, datum_rtol: float) -> BatchStatistics:
+    real = jnp.arange(plan.n_free) < n_free
+    scaled, scale = _equilibrated(normal_equations(problem, params, plan)[0], real)
+    inverse = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(scaled),
+                                         jnp.eye(plan.n_free))
+    cofactor = scale[:, None] * inverse * scale[None, :]
+    whitened = jnp.concatenate([jnp.ravel(e) for e in problem.whitened(params)])
+    initial = 0.5 * sum(jnp.sum(e**2) for e in problem.whitened(problem.initial))
+    return BatchStatistics(initial, cofactor, _leverages(problem, params, plan, cofactor),
+                           whitened, _datum_suspect(problem, plan, n_free, datum_rtol))
+
+
+def _each(function, problem, plan, n_free, chunk_size):
+    """`function(problem, plan, n_free)` of every problem of a padded batch: vmapped, or
+    `chunk_size` at a time (vmapped) one chunk after the other (`jax.lax.map`)."""
+    arrays, static = eqx.partition((problem, plan), eqx.is_array)
+
+    def one(args):
+        arrays, n = args
+        return function(*eqx.combine(arrays, static), n)
+
+    if chunk_size is None:
+        return jax.vmap(one)((arrays, n_free))
+    return jax.lax.map(one, (arrays, n_free), batch_size=chunk_size)
 
 
 @eqx.filter_jit
 def batch_statistics(
-    problem: BundleProblem, parameters: Parameters, free_index, n_free
+    problem: BundleProblem, plan: LinearisationPlan, parameters: Parameters, n_free, *,
+    datum_rtol: float = 1e-9,
 ) -> BatchStatistics:
     """Dense statistics of every problem of a padded batch at `parameters`, vmapped."""
-    return BatchStatistics(*jax.vmap(_statistics_one)(problem, parameters, free_index, n_free))
+    return jax.vmap(lambda problem, plan, params, n: _statistics_one(
+        problem, plan, params, n, datum_rtol))(problem, plan, parameters, n_free)
 
 
-def _take(tree, k: int):
-    return jax.tree.map(lambda leaf: np.asarray(leaf[k]), tree)
+@eqx.filter_jit
+def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, chunk_size):
+    """Solve and statistics of every problem of a padded batch: one compiled program."""
+
+    def one(problem, plan, n):
+        solution = solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+        return solution, _statistics_one(problem, plan, solution.parameters, n, datum_rtol)
+
+    return _each(one, problem, plan, n_free, chunk_size)
 
 
-def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
-    return jax.tree.map(lambda leaf, ref: jax.device_put(leaf[: np.shape(ref)[0]]), padded, like)
+@eqx.filter_jit
+def _screen_program(problem, plan, n_free, datum_rtol):
+    return _each(lambda problem, plan, n: _datum_suspect(problem, plan, n, datum_rtol),
+                 problem, plan, n_free, None)
 
 
-def _unpad_residuals(padded_problem: BundleProblem, problem: BundleProblem, flat) -> list:
-    """Split a flat padded residual vector into the real rows of each group of `problem`."""
-    parts, start = [], 0
-    for padded_group, group in zip(padded_problem.groups, problem.groups):
-        shape = np.shape(padded_group.stddev)[1:]
-        size = int(np.prod(np.shape(padded_group.stddev)[1:])) * np.shape(padded_group.stddev)[0]
-        block = np.asarray(flat[start:start + size]).reshape(-1, *shape)
-        parts.append(block[: np.shape(group.stddev)[0]])
-        start += size
-    return parts
-
-
-def _real_rows(padded_problem: BundleProblem, problem: BundleProblem) -> np.ndarray:
-    """Positions in the padded flat residual vector of the real observations of `problem`
-    (the rows `dense_jacobian(problem, ...)` has, in its order)."""
-    rows, start = [], 0
-    for padded_group, group in zip(padded_problem.groups, problem.groups):
-        size = int(np.size(group.stddev))
-        rows.append(start + np.arange(size))
-        start += int(np.size(padded_group.stddev))
-    return np.concatenate(rows)[observation_mask(problem)]
+def _datum_error(problem, suspect: bool, labels, rtol: float) -> DatumError | None:
+    """`check_datum`'s error of one problem, or None: the exact check where the batched
+    screen found it `suspect`; otherwise the structural checks only (redundancy, separable
+    camera parameters: `check_columns`, its finite and observed columns screened)."""
+    try:
+        if suspect:
+            check_datum(problem, labels=labels, rtol=rtol)
+        else:
+            n = problem.n_unknowns()
+            check_columns(problem, np.ones(n, bool), np.ones(n),
+                          labels or parameter_labels(problem.initial))
+    except DatumError as error:
+        return error
+    return None
 
 
 def check_datum_batch(
     problems, *, labels: list | None = None, rtol: float = 1e-9, shape: BatchShape | None = None
 ) -> list[DatumError | None]:
-    """`check_datum` of every problem, with one vmapped Jacobian for all (one compilation):
+    """`check_datum` of every problem, screened in one vmapped program (one compilation):
     per problem None, or the `DatumError` that `check_datum` would raise. `shape`: as
     `pad_problems`'."""
     batch = pad_problems(problems, shape)
-    jacobian, _ = jax.device_get(
-        batch_jacobian(batch.problem, batch.problem.initial, batch.free_index)
-    )
+    suspect = np.asarray(_screen_program(batch.problem, batch.plan, jax.device_put(batch.n_free),
+                                         rtol))
     labels = labels if labels is not None else [None] * batch.n_batch
-    found = []
-    host = jax.device_get(batch.problem)
-    for k, problem in enumerate(batch.problems):
-        padded = _take(host, k)
-        real = jacobian[k][_real_rows(padded, problem)][:, : batch.n_free[k]]
-        try:
-            check_datum_with_jacobian(problem, real, labels=labels[k], rtol=rtol)
-        except DatumError as error:
-            found.append(error)
-        else:
-            found.append(None)
-    return found
+    return [_datum_error(problem, bool(flag), names, rtol)
+            for problem, flag, names in zip(batch.problems, suspect, labels)]
 
 
 def adjust_batch(
@@ -423,41 +505,86 @@ def adjust_batch(
     familywise: bool | list[bool] = False,
     shape: BatchShape | None = None,
 ) -> list[Adjustment]:
-    """Adjust bundles of one kind in one padded, jitted, vmapped solve; then their
-    statistics in one vmapped call.
+    """Adjust bundles of one kind in one padded, jitted, vmapped program: the solve and
+    the statistics of each.
 
     Each returned `Adjustment` equals `adjust(problem)` of that problem alone (to rounding):
     parameters, σ̂0² = σ0² eᵀe / r, Cxx = σ̂0² (σ0² JᵀJ)⁻¹, residuals. Its `iterations`
     hold only the start and the solution (no per-step report inside a batch). With `alpha`
     (one per problem or one for all) `reliability` is filled in as `reliability(result,
-    alpha=..., familywise=...)` would. No datum check: call `check_datum` first (the CLI's
-    `run_batch` does). `shape`: the padded shape (`pad_problems`).
+    alpha=..., familywise=...)` would. No datum check: call `check_datum` first, or
+    `adjust_padded(..., check=True)` (the CLI's `run_batch` does). `shape`: the padded
+    shape (`pad_problems`).
     """
-    batch = pad_problems(problems, shape)
+    return adjust_padded(pad_problems(problems, shape), sigma0=sigma0, max_steps=max_steps,
+                         rtol=rtol, atol=atol, alpha=alpha, familywise=familywise)
+
+
+def adjust_padded(
+    batch: PaddedBatch,
+    *,
+    sigma0: float | list[float] = 1.0,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    alpha: float | list[float] | None = None,
+    familywise: bool | list[bool] = False,
+    check: bool = False,
+    labels: list | None = None,
+    datum_rtol: float = 1e-9,
+    chunk_size: int | None = None,
+) -> list[Adjustment | DatumError]:
+    """`adjust_batch` of a padded batch (`pad_problems`). With `check`, the datum of every
+    problem is checked in the same program (`check_datum_batch`'s screen; `labels`: one
+    list per problem, or None): a problem whose datum is not defined gets its `DatumError`
+    in place of an Adjustment. `chunk_size`: as `solve_batch`'s."""
     n = batch.n_batch
     sigma0s = [sigma0] * n if np.ndim(sigma0) == 0 else list(sigma0)
     alphas = [alpha] * n if alpha is None or np.ndim(alpha) == 0 else list(alpha)
     familywises = [familywise] * n if np.ndim(familywise) == 0 else list(familywise)
-    solution = solve_batch(batch.problem, batch.plan, max_steps=max_steps, rtol=rtol, atol=atol)
-    stats = batch_statistics(batch.problem, solution.parameters, batch.free_index,
-                             jnp.asarray(batch.n_free))
-    solution, stats = jax.device_get((solution, stats))
-    host = jax.device_get(batch.problem)
-    padded_problems = [_take(host, k) for k in range(n)]
+    labels = labels if labels is not None else [None] * n
+    solution, stats = jax.device_get(_adjust_program(
+        batch.problem, batch.plan, jax.device_put(batch.n_free), max_steps, rtol, atol,
+        datum_rtol, chunk_size))
+    layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
     results = []
     for k, problem in enumerate(batch.problems):
+        if check:
+            error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol)
+            if error is not None:
+                results.append(error)
+                continue
         results.append(_adjustment(
-            problem, padded_problems[k], _take(solution, k), _take(stats, k),
-            int(batch.n_free[k]), sigma0s[k], alphas[k], familywises[k],
+            problem, layout, _take(solution, k), _take(stats, k), int(batch.n_free[k]),
+            sigma0s[k], alphas[k], familywises[k],
         ))
     return results
 
 
-def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familywise):
+def _take(tree, k: int):
+    return jax.tree.map(lambda leaf: leaf[k], tree)
+
+
+def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
+    return jax.tree.map(lambda leaf, ref: leaf[: np.shape(ref)[0]], padded, like)
+
+
+def _unpad_residuals(layout: list[tuple], problem: BundleProblem, flat) -> list:
+    """Split a flat padded residual vector (groups of (rows, k) as `layout`) into the real
+    rows of each group of `problem`."""
+    parts, start = [], 0
+    for shape, group in zip(layout, problem.groups):
+        size = int(np.prod(shape))
+        parts.append(flat[start:start + size].reshape(shape)[: np.shape(group.stddev)[0]])
+        start += size
+    return parts
+
+
+def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familywise):
     params = _unpad_parameters(solution.parameters, problem.initial)
     n_obs = problem.n_observations()
     redundancy = n_obs - n_free
-    whitened = _unpad_residuals(padded, problem, stats.whitened)
+    whitened = _unpad_residuals(layout, problem, stats.whitened)
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
     sigma0_squared = sigma0**2 * 2 * final_cost / redundancy
     covariance = (sigma0_squared / sigma0**2) * stats.cofactor[:n_free, :n_free]
@@ -483,7 +610,7 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
     )
     if alpha is None:
         return result
-    leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(padded, problem,
+    leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
                                                                       stats.leverage)])
     flat_e = np.concatenate([np.ravel(e) for e in whitened])
     mask = observation_mask(problem)
@@ -494,6 +621,6 @@ def _adjustment(problem, padded, solution, stats, n_free, sigma0, alpha, familyw
 
 
 __all__ = [
-    "BatchShape", "PaddedBatch", "adjust_batch", "batch_shape", "batch_statistics",
+    "BatchShape", "PaddedBatch", "adjust_batch", "adjust_padded", "batch_shape", "batch_statistics",
     "check_datum_batch", "pad_problems", "solve_batch",
 ]

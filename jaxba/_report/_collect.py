@@ -13,6 +13,7 @@ import contextlib
 import dataclasses
 import functools
 import math
+import threading
 
 import numpy as np
 
@@ -126,21 +127,23 @@ class ReliabilitySummary:
     groups: dict[str, dict]
 
 
-_memo: dict | None = None  # (function, id(project), id(result)) -> (project, result, value)
+# Per thread (reports of several projects may be written at once, one per thread):
+# .memo maps (function, id(project), id(result)) -> (project, result, value).
+_tables = threading.local()
 
 
 @contextlib.contextmanager
 def shared_tables():
     """While open, each table below is gathered once per (project, result) and shared by every
     writer that asks for it (the reports ask for the residuals, the group statistics and the
-    point tables several times each). The tables are read-only to their callers."""
-    global _memo
-    outer = _memo
-    _memo = {} if outer is None else outer
+    point tables several times each), in this thread. The tables are read-only to their
+    callers."""
+    outer = getattr(_tables, "memo", None)
+    _tables.memo = {} if outer is None else outer
     try:
         yield
     finally:
-        _memo = outer
+        _tables.memo = outer
 
 
 def _shared(function):
@@ -148,12 +151,13 @@ def _shared(function):
 
     @functools.wraps(function)
     def wrapper(project, result):
-        if _memo is None:
+        memo = getattr(_tables, "memo", None)
+        if memo is None:
             return function(project, result)
         key = (function.__name__, id(project), id(result))
-        if key not in _memo:  # project and result kept: their ids cannot be reused meanwhile
-            _memo[key] = (project, result, function(project, result))
-        return _memo[key][2]
+        if key not in memo:  # project and result kept: their ids cannot be reused meanwhile
+            memo[key] = (project, result, function(project, result))
+        return memo[key][2]
 
     return wrapper
 
@@ -475,6 +479,12 @@ def residual_summaries(residuals: ImageResiduals) -> dict:
         "cameras": residual_summary(residuals, camera_codes[image_codes], cameras),
         "images": residual_summary(residuals, image_codes, residuals.image_ids[first].tolist()),
     }
+
+
+@_shared
+def image_residual_summaries(project: Project, result: Adjustment) -> dict:
+    """`residual_summaries` of the result's image residuals (gathered once per write)."""
+    return residual_summaries(image_residuals(project, result))
 
 
 def row_tuples(table: np.ndarray):

@@ -19,7 +19,7 @@ from ._collect import (
     camera_tables,
     group_statistics,
     group_summaries,
-    image_residuals,
+    image_residual_summaries,
     image_table,
     is_measurement,
     observation_ids,
@@ -27,7 +27,6 @@ from ._collect import (
     project_ids,
     rejections,
     reliability_summary,
-    residual_summaries,
 )
 
 MAX_POINT_ROWS = 1000  # rows of the points table; all of them are in results.json and NAME.sigma
@@ -143,7 +142,7 @@ def _summary(project: Project, result: Adjustment) -> str:
         ["σ0 a priori", f"{project.spec.settings.sigma0:.6g}"],
         ["σ̂0 a posteriori", f'<span id="sigma0">{sigma0:.6g}</span>'],
     ]
-    summary = residual_summaries(image_residuals(project, result))["all"]
+    summary = image_residual_summaries(project, result)["all"]
     for unit, key in (("µm", "mm"), ("px", "px")):
         x, y = summary[f"rms_x_{key}"], summary[f"rms_y_{key}"]
         if math.isfinite(x) and math.isfinite(y):
@@ -188,7 +187,7 @@ def _parameter_rows(table, extra=None) -> list[list[str]]:
 
 def _images(project: Project, result: Adjustment) -> str:
     table = image_table(project, result)
-    per_image = residual_summaries(image_residuals(project, result))["images"]
+    per_image = image_residual_summaries(project, result)["images"]
     extra = []
     for iid in table.ids:
         entry = per_image.get(iid)

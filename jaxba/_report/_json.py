@@ -15,7 +15,7 @@ from ._collect import (
     camera_units,
     group_statistics,
     group_summaries,
-    image_residuals,
+    image_residual_summaries,
     image_table,
     point_ellipsoids,
     point_table,
@@ -23,7 +23,6 @@ from ._collect import (
     project_units,
     rejections,
     reliability_summary,
-    residual_summaries,
     shared_tables,
 )
 from ._no_sigma import no_sigma_entries
@@ -265,7 +264,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "images": {iid: _entries(images, k) for k, iid in enumerate(images.ids)},
         "image_cameras": {iid: project.spec.images[iid].camera for iid in images.ids},
         "points": points,
-        "image_residuals": _nulls(residual_summaries(image_residuals(project, result))),
+        "image_residuals": _nulls(image_residual_summaries(project, result)),
         "observation_groups": _nulls(group_summaries(project, result)),
         "correlations": _correlations(project, result),
         "variance_components": _variance_components(result),

@@ -53,10 +53,17 @@ def check_folder(out_dir) -> None:
         raise OutputError(f"{out_dir}: output folder: cannot write into {existing}: {reason}")
 
 
+def resolved(paths: Iterable[os.PathLike]) -> frozenset[pathlib.Path]:
+    """`paths` resolved, as a set: the `inputs` of `check_targets` and `check_outputs` when
+    many outputs are checked against the same inputs (each resolved once, not per check)."""
+    return frozenset(pathlib.Path(path).resolve() for path in paths)
+
+
 def check_targets(paths: Iterable[pathlib.Path], inputs: Iterable[os.PathLike], owner: str) -> None:
     """Raise `OutputError` naming the first of `paths` that is one of `inputs` (compared
-    resolved) or a folder; `owner` (e.g. "project 'lab'") says whose inputs they are."""
-    inputs = {pathlib.Path(path).resolve() for path in inputs}
+    resolved; a frozenset is taken as already `resolved`) or a folder; `owner` (e.g.
+    "project 'lab'") says whose inputs they are."""
+    inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)
     for path in paths:
         if path.resolve() in inputs:
             raise OutputError(
@@ -72,11 +79,12 @@ def check_outputs(
 ) -> dict[str, pathlib.Path]:
     """`report_paths`, after checking that `out_dir` is writable (`check_folder`) and that
     no report is an input file of the project (or one of `inputs`, e.g. those of the other
-    projects of a batch) or a folder.
+    projects of a batch, best as one `resolved` set for them all) or a folder.
 
     Raises `OutputError` naming the file; call it before adjusting to fail early.
     """
     check_folder(out_dir)
     paths = report_paths(spec, out_dir)
-    check_targets(paths.values(), [*spec.input_files, *inputs], f"project {spec.name!r}")
+    inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)
+    check_targets(paths.values(), resolved(spec.input_files) | inputs, f"project {spec.name!r}")
     return paths

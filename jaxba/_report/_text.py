@@ -24,6 +24,7 @@ from ._collect import (
     describe,
     group_statistics,
     group_summaries,
+    image_residual_summaries,
     image_residuals,
     image_table,
     in_pixel_frame,
@@ -298,7 +299,7 @@ def _point_section(points: ParameterTable) -> list[str]:
 
 
 def _residual_summary_section(project: Project, result: Adjustment) -> list[str]:
-    summaries = residual_summaries(image_residuals(project, result))
+    summaries = image_residual_summaries(project, result)
     in_pixels = project_units(project) == PIXEL
     rows = []
     for name, summary in [*summaries["cameras"].items(), ("all", summaries["all"])]:

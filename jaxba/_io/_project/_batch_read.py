@@ -9,7 +9,7 @@ import dataclasses
 import json
 import pathlib
 
-from ..._report._paths import check_folder, check_outputs, check_targets, report_paths
+from ..._report._paths import check_folder, check_outputs, check_targets, report_paths, resolved
 from . import ProjectError, read_project
 from ._spec import ProjectSpec
 
@@ -66,8 +66,9 @@ def read_batch(paths, out_dir) -> list[BatchEntry]:
             continue
         entry.name = entry.spec.name
         entry.out_dir = out_dir / _unique_folder(entry.spec.name, taken)
-    inputs = [file for entry in entries
-              for file in (entry.spec.input_files if entry.spec else (entry.path,))]
+    # Each input resolved once: every report of every project is checked against them all.
+    inputs = resolved(file for entry in entries
+                      for file in (entry.spec.input_files if entry.spec else (entry.path,)))
     check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
     for entry in entries:
         if entry.spec is not None:

@@ -5,18 +5,20 @@ Plain Python around the jitted core. Projects are read and their outputs checked
 skipped. The others are built one by one; a file or datum error marks that project failed
 and the others go on. Projects of one kind (same observation groups, camera models,
 iteration settings) are padded to one shape and solved in vmapped chunks of `CHUNK`
-(`_batch_solve`): one compilation for all of them. A project that asks for a robust loss,
-variance components or data snooping is adjusted alone with `adjust_project` (those are
-sequential re-adjustments); its summary row says so.
+(`_batch_solve`): one compiled program for all of them (datum check, solve, statistics).
+A project that asks for a robust loss, variance components or data snooping is adjusted
+alone with `adjust_project` (those are sequential re-adjustments); its summary row says so.
 
 The chunks run on an executor (`jaxba._dask`): in this process, one after the other, or on
 the workers of a Dask cluster, all at once; everything else (grouping, failures, reports,
 summary) is the same code for both. Reports are written here as each chunk's results come
-back. A chunk whose task raised (a worker that kept dying under it, a bug) is tried again
-one project at a time, so that only the project at fault fails, with the exception as its
-reason.
+back, by writer threads while the next chunks are solved. A chunk whose task raised (a
+worker that kept dying under it, a bug) is tried again one project at a time, so that only
+the project at fault fails, with the exception as its reason.
 """
 
+import collections
+import concurrent.futures
 import csv
 import io
 import json
@@ -31,11 +33,13 @@ from ..._adjust._batch import _signature, batch_shape
 from ..._dask import check_scheduler, executor
 from ..._models._cameras import CAMERA_MODELS
 from ..._report._atomic import replace_files
+from ..._statistics._summary import variance_test
 from . import ProjectError, build_project
 from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
 from ._batch_solve import Chunk, Outcome, solve_chunk
 
 CHUNK = 10  # projects per vmapped solve (one Dask task), by default
+WRITERS = 2  # threads writing reports while the chunks are solved
 
 
 def _needs_single(project) -> bool:
@@ -62,9 +66,12 @@ def run_batch(
     written (`OutputError`, from `read_batch`; `entries`: its result, if already read).
 
     Each row: path, name, status ("ok", "not converged", "failed"), reason, mode ("batch",
-    "single" or "resumed"), converged, sigma0, redundancy, and per camera parameter
-    `<camera>.<name>` and `<camera>.<name>.std` (the model's units: mm for mm-models,
-    pixels for "opencv").
+    "single" or "resumed"), converged, sigma0, redundancy, the two-sided χ² test of σ̂0
+    against σ0 (`variance_test`: variance_test.alpha, .statistic = r σ̂0²/σ0², .low, .high
+    (its bounds), .passed; empty without redundancy), and per camera parameter
+    `<camera>.<model>.<name>` and `<camera>.<model>.<name>.std` (e.g. C1.opencv.fx: one
+    name means one parameter across projects of different models; the model's units: mm
+    for mm-models, pixels for "opencv").
 
     `scheduler`: where the chunks are solved: None in this process; "local" or "local:N"
     (a Dask cluster of N worker processes started for the run), a Dask scheduler's address
@@ -144,35 +151,60 @@ def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], 
 
 def _solve(run, chunks, say, finished, total: int) -> None:
     """Solve `chunks` on `run`, record the outcomes and write the reports as they come; a
-    chunk of several projects whose task raised is tried again one project at a time."""
+    chunk of several projects whose task raised is tried again one project at a time.
+
+    The reports of a chunk are written by a writer thread while the next chunk is solved
+    (XLA, file writes and fsync release the GIL; `WRITERS` threads, so that one formats
+    while another waits for the disk); what each project became is said here, in order, as
+    its reports are done."""
     from ..._report import write_reports
 
     done = 0
-    while chunks:
-        batched = sum(len(members) for members, chunk in chunks if not chunk.single)
-        if batched:
-            n_batches = sum(not chunk.single for _, chunk in chunks)
-            say(f"solving {batched} project(s) in {n_batches} padded batch(es)")
-        again = []
-        for k, outcomes in run.map(solve_chunk, [chunk for _, chunk in chunks]):
-            members, chunk = chunks[k]
-            if isinstance(outcomes, BaseException):
-                if len(members) > 1:
-                    say(f"a batch of {len(members)} failed ({type(outcomes).__name__});"
-                        " trying its projects one by one")
-                    again += [([e], Chunk((e.project,), chunk.single, chunk.shape, 1))
-                              for e in members]
-                    continue
-                reason = f"{type(outcomes).__name__}: {outcomes}".strip()
-                outcomes = [Outcome("single" if chunk.single else "", reason=reason)]
-            for entry, outcome in zip(members, outcomes):
-                _record(entry, outcome, write_reports)
+    writer = concurrent.futures.ThreadPoolExecutor(WRITERS, thread_name_prefix="jaxba-reports")
+    written: collections.deque = collections.deque()
+
+    def report(block: bool) -> None:
+        nonlocal done
+        while written and (block or written[0][1].done()):
+            members, future = written.popleft()
+            future.result()
+            for entry in members:
                 done += 1
                 sigma0 = f"sigma0 {entry.result.sigma0:.4f}" if entry.result is not None else ""
                 say(f"[{done:{len(str(total))}d}/{total}] {entry.name}: {entry.status}"
                     f" {sigma0} {entry.reason}".rstrip())
                 finished()
-        chunks = again
+
+    try:
+        while chunks:
+            batched = sum(len(members) for members, chunk in chunks if not chunk.single)
+            if batched:
+                n_batches = sum(not chunk.single for _, chunk in chunks)
+                say(f"solving {batched} project(s) in {n_batches} padded batch(es)")
+            again = []
+            for k, outcomes in run.map(solve_chunk, [chunk for _, chunk in chunks]):
+                members, chunk = chunks[k]
+                if isinstance(outcomes, BaseException):
+                    if len(members) > 1:
+                        say(f"a batch of {len(members)} failed ({type(outcomes).__name__});"
+                            " trying its projects one by one")
+                        again += [([e], Chunk((e.project,), chunk.single, chunk.shape, 1))
+                                  for e in members]
+                        continue
+                    reason = f"{type(outcomes).__name__}: {outcomes}".strip()
+                    outcomes = [Outcome("single" if chunk.single else "", reason=reason)]
+                written.append((members, writer.submit(_record_all, members, outcomes,
+                                                       write_reports)))
+                report(block=False)
+            report(block=True)
+            chunks = again
+    finally:
+        writer.shutdown(wait=True, cancel_futures=True)
+
+
+def _record_all(members: list[BatchEntry], outcomes: list[Outcome], write_reports) -> None:
+    for entry, outcome in zip(members, outcomes):
+        _record(entry, outcome, write_reports)
 
 
 def _record(entry: BatchEntry, outcome: Outcome, write_reports) -> None:
@@ -205,31 +237,47 @@ def _summary_row(entry: BatchEntry) -> dict:
     row = {"path": str(entry.path), "name": entry.name, "status": entry.status,
            "reason": entry.reason, "mode": entry.mode}
     if entry.previous is not None:
-        return row | _previous_row(entry.previous)
+        return row | _previous_row(entry.previous, entry.spec)
     result = entry.result
     row["converged"] = bool(result.converged) if result is not None else False
     row["sigma0"] = result.sigma0 if result is not None else None
     row["redundancy"] = result.precision.redundancy if result is not None else None
     if result is None:
         return row
+    row |= _test_columns(variance_test(result))
     for camera_id, (model, index) in entry.project.camera_rows.items():
         values = np.asarray(result.parameters.cameras[model])[index]
         stds = np.asarray(result.precision.std.cameras[model])[index]
         for name, value, std in zip(CAMERA_MODELS[model].parameter_names, values, stds):
-            row[f"{camera_id}.{name}"] = float(value)
-            row[f"{camera_id}.{name}.std"] = float(std)
+            row[f"{camera_id}.{model}.{name}"] = float(value)
+            row[f"{camera_id}.{model}.{name}.std"] = float(std)
     return row
 
 
-def _previous_row(results: dict) -> dict:
-    """The summary columns of a project from its results.json (null: a non-finite number)."""
+TEST_COLUMNS = ("alpha", "statistic", "low", "high", "passed")
+
+
+def _test_columns(test) -> dict:
+    """The χ² test of σ̂0 (a `VarianceTest`, or results.json's "variance_test"; None: no
+    redundancy) as the columns variance_test.alpha, .statistic, .low, .high, .passed."""
+    if test is None:
+        return dict.fromkeys((f"variance_test.{key}" for key in TEST_COLUMNS), None)
+    get = test.get if isinstance(test, dict) else lambda key: getattr(test, key)
+    return {f"variance_test.{key}": get(key) for key in TEST_COLUMNS}
+
+
+def _previous_row(results: dict, spec) -> dict:
+    """The summary columns of a project from its results.json (null: a non-finite number);
+    the camera models from its project files."""
     row = {"converged": bool(results["converged"]), "sigma0": results["sigma0"],
            "redundancy": results["redundancy"]}
+    row |= _test_columns(results.get("variance_test"))
     for camera_id, parameters in results["cameras"].items():
+        model = spec.cameras[camera_id].model_key
         for name, entry in parameters.items():
             if entry["status"] != "constant":
-                row[f"{camera_id}.{name}"] = entry["value"]
-                row[f"{camera_id}.{name}.std"] = entry["std"]
+                row[f"{camera_id}.{model}.{name}"] = entry["value"]
+                row[f"{camera_id}.{model}.{name}.std"] = entry["std"]
     return row
 
 

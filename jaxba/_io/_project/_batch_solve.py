@@ -2,18 +2,19 @@
 `Outcome` per project out (`solve_chunk`); `run_batch` hands the chunks to an executor
 (`jaxba._dask`: in this process or on Dask workers) and writes the reports itself.
 
-A chunk is projects of one kind solved in one padded, vmapped call (datum check first,
-`check_datum_batch`, then `adjust_batch`), or one project adjusted alone (`adjust_project`:
-robust loss, variance components or data snooping). The chunks of one group are padded to
-the group's shape and to one length (a short chunk is filled up with copies of its last
-project, whose results are dropped): one compiled program serves them all.
+A chunk is projects of one kind padded once and solved in one vmapped program that also
+checks their datum and computes their statistics (`adjust_padded`), or one project adjusted
+alone (`adjust_project`: robust loss, variance components or data snooping). The chunks of
+one group are padded to the group's shape and to one length (a short chunk is filled up
+with copies of its last project, whose results are dropped): one compiled program serves
+them all.
 """
 
 import dataclasses
 import math
 
 from ..._adjust._adjust import NotConvergedError
-from ..._adjust._batch import BatchShape, adjust_batch, check_datum_batch
+from ..._adjust._batch import BatchShape, adjust_padded, pad_problems
 from ..._statistics._adjustment import Adjustment
 from ..._statistics._datum import DatumError
 from . import adjust_project
@@ -52,26 +53,20 @@ def solve_chunk(chunk: Chunk) -> list[Outcome]:
             return [Outcome("single", reason=str(error))]
     projects = list(chunk.projects)
     filled = projects + [projects[-1]] * max(chunk.size - len(projects), 0)
-    errors = check_datum_batch([p.problem for p in filled], labels=[p.labels for p in filled],
-                               shape=chunk.shape)[:len(projects)]
-    outcomes = [None if error is None else Outcome("", reason=f"{p.spec.path}: {error}")
-                for p, error in zip(projects, errors)]
-    good = [p for p, outcome in zip(projects, outcomes) if outcome is None]
-    if not good:
-        return outcomes
-    good += [good[-1]] * max(chunk.size - len(good), 0)
-    settings = [p.spec.settings for p in good]
-    results = iter(adjust_batch(
-        [p.problem for p in good],
+    settings = [p.spec.settings for p in filled]
+    results = adjust_padded(
+        pad_problems([p.problem for p in filled], chunk.shape),
         sigma0=[s.sigma0 for s in settings],
         max_steps=settings[0].max_iterations,
         rtol=settings[0].rtol,
         atol=settings[0].atol,
         alpha=[s.snooping_alpha for s in settings],
         familywise=[s.snooping_familywise for s in settings],
-        shape=chunk.shape,
-    ))
-    return [outcome or _batch_outcome(next(results)) for outcome in outcomes]
+        check=True,
+        labels=[p.labels for p in filled],
+    )[:len(projects)]
+    return [Outcome("", reason=f"{p.spec.path}: {result}") if isinstance(result, DatumError)
+            else _batch_outcome(result) for p, result in zip(projects, results)]
 
 
 def _batch_outcome(result: Adjustment) -> Outcome:
