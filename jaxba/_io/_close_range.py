@@ -16,7 +16,8 @@ matched features is not. This block has what makes real ones hard for a solver:
 One SMAC camera C1 (format, pixel size: `jaxba._io._synthetic`), xp, yp, c, K1, K2 free;
 noise 0.25 px; approximations: stations ± 2 cm, angles ± 0.3°, wall points ± 1 cm (σ of a
 normal perturbation), far points intersected from orientations with `WEAK_RAY_ERROR` of
-those errors (off by decimetres to metres in depth, as a real block's), c rounded to 0.1 mm, distortion 0. Frames and units: `jaxba._io._synthetic`.
+those errors (off by decimetres to metres in depth, as a real block's), c rounded to
+0.1 mm, distortion 0. Frames and units: `jaxba._io._synthetic`.
 """
 
 import json
@@ -201,7 +202,6 @@ def write_close_range_project(
     used = sorted(views)
 
     image_ids = [f"img{k + 1:02d}" for k in range(n_images)]
-    point_ids = [str(p + 1) for p in used]
     noise = NOISE_PX * PIXEL_SIZE[0]
     rows = [[image_ids[i], str(p + 1), *(f"{v:.8f}" for v in measured[i][p]
                                          + rng.normal(0.0, noise, 2))]
