@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._io._close_range import write_close_range_project
 from jaxba._statistics._backends import DenseBackend, SchurBackend
 from jaxba._statistics._datum import similarity_transform
 from jaxba._statistics._free_network import (
@@ -187,8 +186,8 @@ def unkind(tmp_path_factory):
     here it is adjusted with the dependent datum and as a free network, on both backends."""
     results = {}
     for datum in ("dependent", "free"):
-        truth = write_close_range_project(tmp_path_factory.mktemp(datum), seed=3,
-                                          n_images=12, n_points=400, datum=datum)
+        truth = jaxba.write_close_range_project(tmp_path_factory.mktemp(datum), seed=3,
+                                                n_images=12, n_points=400, datum=datum)
         project = jaxba.build_project(jaxba.read_project(truth.project_file))
         for solver in ("schur", "dense"):
             results[datum, solver] = jaxba.adjust_project(project, solver=solver)
