@@ -64,6 +64,7 @@ def test_dependent_datum_with_distances_fixes_six_eops(with_distances):
                             "image", "img03", "fixed,", "scale", "from", "the", "distances"]]
     data = json.loads(results_json(project, dependent))
     assert data["datum"]["image"] == "img03" and data["datum"]["scale"] == "distances"
+    assert data["datum"]["description"] == " ".join(datum_lines[0][1:])  # as in NAME.out
     assert all(data["images"]["img03"][name]["status"] == "fixed" for name in EOPS)
 
 

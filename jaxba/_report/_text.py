@@ -21,6 +21,7 @@ from ._collect import (
     camera_correlations,
     camera_tables,
     camera_units,
+    datum_text,
     describe,
     group_statistics,
     group_summaries,
@@ -133,23 +134,10 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("unknowns", str(precision.n_unknowns)),
         ("redundancy", str(precision.redundancy)),
         ("solver backend", result.backend),
-        *((name, _datum_line(project, text) if name == "datum" else text) for name, text in
+        *((name, datum_text(project, result) if name == "datum" else text) for name, text in
           statistical_items(result, project_ids(project), group_statistics(project, result))),
     ]
     return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
-
-
-def _datum_line(project: Project, fallback: str) -> str:
-    """The header's one description of the datum: a dependent relative orientation by the
-    image and coordinates it fixes (its bundle holds only fixed EOPs, which `fallback`,
-    `datum_description`, would call control), any other datum by `fallback`."""
-    datum = project.datum
-    if datum["kind"] != "dependent":
-        return fallback
-    scale = (f"{datum['base_coordinate']} of image {datum['base_image']} fixed (the longest "
-             "base: the scale)" if datum["scale"] == "base" else "scale from the distances")
-    return (f"dependent relative orientation: {' '.join(datum['fixed'])} of image "
-            f"{datum['image']} fixed, {scale}")
 
 
 def _datum_section(project: Project) -> list[str]:
