@@ -176,12 +176,13 @@ def inner_constraint_group(problem: BundleProblem) -> InnerConstraints | None:
 
 def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundleProblem:
     """The free network `problem` with a minimal datum instead of its inner constraints:
-    the constraints dropped and the d unknowns `minimal_datum` chooses held at their values
-    in `params`. Its solutions are the free network's up to the similarity `to_inner_datum`
-    removes."""
+    the constraints dropped and the d unknowns `minimal_datum` chooses (at the
+    approximations: the same ones for any `params`, so one `bundle_structure` serves the
+    solve and the statistics) held at their values in `params`. Its solutions are the free
+    network's up to the similarity `to_inner_datum` removes."""
     group = inner_constraint_group(problem)
     free = flatten(problem.free).copy()
-    free[minimal_datum(problem, group.null_space(params, problem.free))] = False
+    free[minimal_datum(problem, group.null_space(problem.initial, problem.free))] = False
     return eqx.tree_at(
         lambda p: (p.initial, p.free, p.groups), problem,
         (params, jax.tree.map(jnp.asarray, unflatten(problem.free, free)), problem.groups[:-1]))
