@@ -82,8 +82,8 @@ def adjust(
     `timings` (a new `Timings` when None), which the result holds.
     """
     require_float64("jaxba.adjust")
-    check_problem(problem, labels)
     ids = ids_from_labels(problem.initial, labels) if labels is not None else None
+    check_problem(problem, labels)
     timings = Timings() if timings is None else timings
     backend = backend_for(problem, solver)
     if check:
