@@ -8,7 +8,7 @@ A backend is made for one problem and says how its normal equations are formed a
 | solve              | Levenberg-Marquardt on N      | Levenberg-Marquardt on S, back-substitute |
 | precision          | N⁻¹                           | S⁻¹ and every point's 3 x 3 block         |
 | redundancy numbers | diag(J N⁻¹ Jᵀ)                | per-observation leverages from the blocks |
-| free network       | minimal datum; constraint rows| minimal datum, then S-transformation      |
+| free network       | minimal datum, bordered N⁻¹   | minimal datum, then S-transformation      |
 
 The statistics above them (σ, correlations, ellipsoids, reliability, variance components, data
 snooping) ask `backend_for(problem, result.backend)` and never which one it is.

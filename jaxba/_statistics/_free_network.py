@@ -148,9 +148,9 @@ def inner_constraints(
         raise DatumError("the datum points do not fix the network's datum defect: choose "
                          "points with free coordinates spread over the network")
     # Any scaling of the rows gives the same constraints (their residuals vanish at the
-    # solution). In the solver's Jacobi-scaled unknowns the rows get norm STIFFNESS: weak
-    # rows leave the datum directions nearly flat and LM crawls along them (80 steps
-    # without convergence for 4 datum points at norm 1; 27 steps at 100).
+    # solution); in Jacobi-scaled unknowns the rows get norm STIFFNESS, comparable to the
+    # observations' columns in the bordered normal matrix. (As stiff observations in the
+    # solve they left Levenberg-Marquardt crawling: the solvers hold a minimal datum.)
     weight = np.linalg.norm(directions[:, index] / norms, axis=1) / STIFFNESS
     group = InnerConstraints(
         directions=jnp.asarray(directions / weight[:, None]),
