@@ -89,6 +89,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._adjust._snooping": ("Rejection", "data_snooping", "remove_observation", "restart_from"),
     "._statistics._covariance": ("Precision", "precision"),
     "._io._synthetic": ("SyntheticTruth", "write_synthetic_project"),
+    "._io._close_range": ("write_close_range_project",),
     "._adjust._variance_components": ("VarianceComponent", "estimate_variance_components"),
 })
 

@@ -3,12 +3,14 @@
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers import SYNTHETIC_BLOCK
 
 import jaxba
+from jaxba._problem._checks import ProblemError
 from jaxba._statistics._schur_datum import check_datum_schur
 
 # A result is "recovered" when it is within this many of its reported σ of the truth.
@@ -182,3 +184,41 @@ def test_schur_datum_check_with_nothing_free_but_points(lab):
     )
     jaxba.check_datum(fixed, labels=project.labels)
     check_datum_schur(fixed, labels=project.labels)
+
+
+def _grown(problem, block, free_row):
+    """`problem` with one more row in `block` ("images" or a camera model), a copy of its
+    first, with the free mask `free_row`: an image or camera no observation reaches."""
+    if block == "images":
+        where = lambda params: params.images  # noqa: E731
+    else:
+        where = lambda params: params.cameras[block]  # noqa: E731
+    initial, free = (eqx.tree_at(where, params, jnp.concatenate([where(params),
+                                                                where(params)[:1]]))
+                     for params in (problem.initial, problem.free))
+    free = eqx.tree_at(where, free, where(free).at[-1].set(free_row))
+    return eqx.tree_at(lambda p: (p.initial, p.free), problem, (initial, free))
+
+
+@pytest.mark.parametrize("case", ["observations", "unknowns", "image", "camera"])
+def test_empty_and_degenerate_problems_are_named_before_jax(lab, case):
+    """No observations, nothing free, an image with no points, a camera with no images:
+    a `ProblemError` naming what is missing (not jax's "Need at least one array")."""
+    _, project, _ = lab
+    problem = project.problem
+    model = next(iter(problem.initial.cameras))
+    if case == "observations":
+        problem, message = eqx.tree_at(lambda p: p.groups, problem, ()), "no observations"
+    elif case == "unknowns":
+        problem = eqx.tree_at(lambda p: p.free, problem,
+                              jax.tree.map(jnp.zeros_like, problem.free))
+        message = "no free unknowns"
+    elif case == "image":
+        problem, message = _grown(problem, "images", True), "image 18: no image points"
+    else:
+        problem, message = _grown(problem, model, True), "camera 1: no image was taken"
+    with pytest.raises(ProblemError, match=message):
+        jaxba.adjust(problem)
+    if case in ("image", "camera"):  # fixed, the extra row is no unknown: adjusted as before
+        fixed = _grown(project.problem, "images" if case == "image" else model, False)
+        assert jaxba.adjust(fixed).converged

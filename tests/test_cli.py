@@ -432,3 +432,20 @@ def test_an_adjustment_in_a_callers_process_freezes_nothing(run):
     it was: frozen objects are never collected."""
     assert run["code"] == 0
     assert gc.get_freeze_count() == 0
+
+
+def test_a_project_with_nothing_free_is_refused_with_exit_code_2(tmp_path):
+    """Cameras, images and points all fixed: a clear error, not one from jax's internals."""
+    project_file = _copy_lab(tmp_path / "lab")
+    folder = project_file.parent
+    cameras = folder / "cameras.toml"
+    cameras.write_text(re.sub(r"free = \[.*\]", "free = []", cameras.read_text()))
+    for name, fixed in (("orientation.txt", None), ("ground_points.txt", 3)):
+        lines = (folder / name).read_text().splitlines()
+        rows = [line.split() for line in lines if line.strip() and not line.startswith("#")]
+        rows = [row[:len(row) - fixed] + ["0"] * fixed if fixed else row + ["0"] * 6
+                for row in rows]
+        (folder / name).write_text("\n".join(["# fixed", *(" ".join(r) for r in rows)]) + "\n")
+    code, stdout, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "out"))
+    assert code == 2
+    assert "jaxba: error: the problem has no free unknowns" in stderr

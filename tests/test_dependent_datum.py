@@ -58,10 +58,13 @@ def test_dependent_datum_with_distances_fixes_six_eops(with_distances):
     np.testing.assert_array_equal(np.asarray(dependent.parameters.images)[2],
                                   np.asarray(project.problem.initial.images)[2])
     text = out_text(project, dependent)
-    assert "fixed: X0 Y0 Z0 omega phi kappa of image img03" in text
-    assert "scale: from the distances" in text
+    # One description of the datum (its bundle's fixed EOPs are not called control).
+    datum_lines = [line.split() for line in text.splitlines() if line.split()[:1] == ["datum"]]
+    assert datum_lines == [["datum", "dependent", "relative", "orientation:", *EOPS, "of",
+                            "image", "img03", "fixed,", "scale", "from", "the", "distances"]]
     data = json.loads(results_json(project, dependent))
     assert data["datum"]["image"] == "img03" and data["datum"]["scale"] == "distances"
+    assert data["datum"]["description"] == " ".join(datum_lines[0][1:])  # as in NAME.out
     assert all(data["images"]["img03"][name]["status"] == "fixed" for name in EOPS)
 
 
@@ -90,8 +93,10 @@ def test_dependent_datum_without_distances_fixes_the_longest_base(tmp_path):
     free = np.asarray(project.problem.free.images)
     fixed = [(project.image_ids[i], EOPS[j]) for i, j in zip(*np.nonzero(~free))]
     assert fixed == [("img01", name) for name in EOPS] + [(far, axis)]
-    assert f"fixed: {axis} of image {far} (the longest base: the scale)" in out_text(
-        project, dependent)
+    text = out_text(project, dependent)
+    assert (f"image img01 fixed, {axis} of image {far} fixed (the longest base: the scale)"
+            in text)
+    assert "control" not in text
     data = json.loads(results_json(project, dependent))
     assert data["images"][far][axis]["status"] == "fixed"
     assert data["datum"]["base_image"] == far

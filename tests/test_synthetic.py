@@ -203,3 +203,32 @@ def test_options(tmp_path):
         syn.write_synthetic_project(tmp_path / "bad", **kwargs, blunders=[("img01", "999", 0, 0.1)])
     with pytest.raises(ValueError, match="unknown IOPs"):
         syn.write_synthetic_project(tmp_path / "bad", **kwargs, camera={"c": 8.5, "K9": 1.0})
+
+
+def test_close_range_block_is_as_unkind_as_a_real_one(tmp_path):
+    """3-5 % of the points under 2° or on 2 rays, 20-40 px of radial distortion at the
+    corner, two images with few points, rolled images; the truth reprojects to the file."""
+    from jaxba._io import _close_range as cr
+
+    truth = cr.write_close_range_project(tmp_path, seed=1, n_images=12, n_points=400)
+    rows = read_table(tmp_path / "image_coordinates.txt")
+    image_ids = list(truth.images)
+    views: dict[str, list[int]] = {}
+    for image_id, point_id, *_ in rows:
+        views.setdefault(point_id, []).append(image_ids.index(image_id))
+    stations = np.array([truth.images[i][:3] for i in image_ids])
+    points = np.array([truth.points[p] for p in views])
+    angles = cr.intersection_angles(points, stations, [np.array(v) for v in views.values()])
+    rays = np.array([len(v) for v in views.values()])
+    weak = np.mean((angles < 2.0) | (rays == 2))
+    assert 0.03 <= weak <= 0.05
+    assert 20 <= abs(cr.corner_distortion_px(cr.CAMERA)) <= 40
+    per_image = np.bincount([image_ids.index(r[0]) for r in rows], minlength=len(image_ids))
+    assert np.sort(per_image)[:2].max() <= 15 and np.sort(per_image)[2] > 100
+    kappas = np.array([truth.images[i][5] for i in image_ids])
+    assert np.ptp(np.round(kappas / 90.0) % 4) > 0  # rolled by multiples of 90°
+    image_id, point_id, x, y = rows[0]
+    k = image_ids.index(image_id)
+    m = syn.rotation_matrix(*np.radians(truth.images[image_id][3:]))
+    _, xy = syn.observe(np.array([truth.points[point_id]]), stations[k], m, cr.CAMERA)
+    assert np.abs(xy[0] - [float(x), float(y)]).max() < 5 * cr.NOISE_PX * syn.PIXEL_SIZE[0]

@@ -8,6 +8,7 @@ import optimistix as optx
 
 from .._float64 import require_float64
 from .._problem._bundle import BundleProblem, free_indices, observed_minus_computed
+from .._problem._checks import check_problem
 from .._problem._parameters import parameter_labels
 from .._solvers._progress import Iteration, StepRecorder
 from .._statistics._adjustment import Adjustment
@@ -72,7 +73,9 @@ def adjust(
     `NotConvergedError`; otherwise `converged` and `message` say what happened. Where the
     normal matrix at the solution is singular (a degenerate solution, e.g. from far-off
     approximations) the statistics are unavailable (σ and covariance NaN) and the result
-    is marked not converged. Needs float64 (`ValueError` otherwise).
+    is marked not converged. Needs float64 (`ValueError` otherwise). A bundle with no
+    observations or free unknowns, or a free image, camera or point no observation reaches,
+    is refused first (`jaxba._problem._checks.ProblemError`, a `ValueError`, naming it).
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated; the `Precision` holds the covariance in blocks and the redundancy
@@ -81,6 +84,7 @@ def adjust(
     """
     require_float64("jaxba.adjust")
     ids = ids_from_labels(problem.initial, labels) if labels is not None else None
+    check_problem(problem, labels)
     timings = Timings() if timings is None else timings
     backend = backend_for(problem, solver)
     if check:

@@ -229,6 +229,7 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
     _setup_jax()
     import jaxba
     from jaxba import _report
+    from jaxba._problem._checks import ProblemError
     from jaxba._timing import Phase, Timings
 
     jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
@@ -252,7 +253,7 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
             project, on_iteration=lambda it: _say(_report.iteration_line(it)),
             solver=args.solver, timings=timings,
         )
-    except (jaxba.ProjectError, jaxba.DatumError) as error:
+    except (jaxba.ProjectError, jaxba.DatumError, ProblemError) as error:
         raise _UsageError(str(error)) from None
     except jaxba.NotConvergedError as error:
         _error(f"the adjustment failed: {error}")

@@ -35,6 +35,7 @@ from .._statistics._observation_statistics import (
     row_parts,
     with_coordinate,
 )
+from .._statistics._summary import datum_description
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 TIED = "tied to"  # a camera parameter tied to another's ("tied to C1.K1"): its unknown
@@ -233,6 +234,19 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
         np.asarray(result.precision.std.points, dtype=float),
         status,
     )
+
+
+def datum_text(project: Project, result: Adjustment) -> str:
+    """The one description of the datum that NAME.out and results.json give: a dependent
+    relative orientation by the image and coordinates it fixes (its bundle holds only fixed
+    EOPs, which `datum_description` would call control), any other by `datum_description`."""
+    datum = project.datum
+    if datum["kind"] != "dependent":
+        return datum_description(result.problem)
+    scale = (f"{datum['base_coordinate']} of image {datum['base_image']} fixed (the longest "
+             "base: the scale)" if datum["scale"] == "base" else "scale from the distances")
+    return (f"dependent relative orientation: {' '.join(datum['fixed'])} of image "
+            f"{datum['image']} fixed, {scale}")
 
 
 def project_ids(project: Project) -> Ids:

@@ -7,12 +7,13 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
-from .._statistics._summary import datum_description, outlier_summary, variance_test
+from .._statistics._summary import outlier_summary, variance_test
 from ._collect import (
     ParameterTable,
     camera_correlations,
     camera_tables,
     camera_units,
+    datum_text,
     group_statistics,
     group_summaries,
     image_residual_summaries,
@@ -237,7 +238,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "steps": int(result.steps),
         "solver": result.backend,
         # `datum_summary`: kind and what it fixes; the description as in NAME.out
-        "datum": {**project.datum, "description": datum_description(result.problem)},
+        "datum": {**project.datum, "description": datum_text(project, result)},
         "timings": _timings(result),
         "sigma0": _number(math.sqrt(precision.sigma0_squared)),
         "sigma0_squared": _number(precision.sigma0_squared),

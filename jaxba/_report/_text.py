@@ -21,6 +21,7 @@ from ._collect import (
     camera_correlations,
     camera_tables,
     camera_units,
+    datum_text,
     describe,
     group_statistics,
     group_summaries,
@@ -135,25 +136,16 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("unknowns", str(precision.n_unknowns)),
         ("redundancy", str(precision.redundancy)),
         ("solver backend", result.backend),
-        *statistical_items(result, project_ids(project), group_statistics(project, result)),
+        *((name, datum_text(project, result) if name == "datum" else text) for name, text in
+          statistical_items(result, project_ids(project), group_statistics(project, result))),
     ]
     return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
 
 
 def _datum_section(project: Project) -> list[str]:
-    """How a datum other than control is defined (`Project.datum`): which image and
-    coordinate a dependent relative orientation fixes, the points of a free network's inner
-    constraints (control: none; the header's datum line says what it fixes)."""
+    """The points of a free network's inner constraints; none for other datums (the
+    header's datum line describes them)."""
     datum = project.datum
-    if datum["kind"] == "dependent":
-        lines = ["datum: dependent relative orientation",
-                 f"  fixed: {' '.join(datum['fixed'])} of image {datum['image']}"]
-        if datum["scale"] == "base":
-            lines.append(f"  fixed: {datum['base_coordinate']} of image {datum['base_image']} "
-                         "(the longest base: the scale)")
-        else:
-            lines.append("  scale: from the distances")
-        return lines
     if datum["kind"] == "free":
         points = datum["points"]
         which = "all points" if points == "all" else f"points {' '.join(points)}"

@@ -8,7 +8,7 @@ A backend is made for one problem and says how its normal equations are formed a
 | solve              | Levenberg-Marquardt on N      | Levenberg-Marquardt on S, back-substitute |
 | precision          | N⁻¹                           | S⁻¹ and every point's 3 x 3 block         |
 | redundancy numbers | diag(J N⁻¹ Jᵀ)                | per-observation leverages from the blocks |
-| free network       | inner constraints as rows     | minimal datum, then S-transformation      |
+| free network       | minimal datum, bordered N⁻¹   | minimal datum, then S-transformation      |
 
 The statistics above them (σ, correlations, ellipsoids, reliability, variance components, data
 snooping) ask `backend_for(problem, result.backend)` and never which one it is.
@@ -90,7 +90,16 @@ class DenseBackend(Backend):
         check_datum(self.problem, labels=labels)
 
     def solve(self, *, max_steps, rtol, atol, on_step=None):
-        return solve(self.problem, max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step)
+        """A free network in the minimal datum of `minimal_constraints`, then moved to its
+        inner constraints (as the Schur backend: adjusted as stiff observations, the
+        constraints left Levenberg-Marquardt crawling on weak blocks)."""
+        if inner_constraint_group(self.problem) is None:
+            return solve(self.problem, max_steps=max_steps, rtol=rtol, atol=atol,
+                         on_step=on_step)
+        minimal = minimal_constraints(self.problem, self.problem.initial)
+        solution = solve(minimal, max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step)
+        inner = to_inner_datum(self.problem, solution.parameters)
+        return eqx.tree_at(lambda s: s.parameters, solution, inner)
 
     def precision(self, params, *, sigma0=1.0):
         return precision(self.problem, params, sigma0=sigma0)

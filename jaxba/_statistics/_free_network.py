@@ -8,13 +8,15 @@ are unobservable is found without a Jacobian matrix: each of the seven motions i
 through the residuals (a Jacobian-vector product) and compared with how far it moves the
 unknowns in the observations' own scale (the whitened Jacobian's column norms).
 
-The dense backend adjusts the constraints as an observation group (`InnerConstraints`)
-whose residuals vanish at the solution: Levenberg-Marquardt sees a full-rank problem, the
-redundancy counts them as constraints, r = n - u + d, and `jaxba.precision` returns the
-inner-constraint cofactor, the top-left block of [[N, B], [Bᵀ, 0]]⁻¹.
+The constraints are an observation group (`InnerConstraints`) whose residuals vanish at
+the solution: the redundancy counts them as constraints, r = n - u + d, and on the dense
+backend `jaxba.precision` returns the inner-constraint cofactor, the top-left block of
+[[N, B], [Bᵀ, 0]]⁻¹. Both backends solve in a minimal datum (below) rather than with the
+constraints as stiff rows, on which Levenberg-Marquardt crawls on weak blocks.
 
 The Schur backend cannot hold a row that couples every point. It solves the network with
-a minimal datum instead (`minimal_constraints`: d coordinates of the datum points held),
+a minimal datum instead (`minimal_constraints`: d unknowns held, chosen from the geometry
+as a dependent relative orientation: one well-observed image's EOPs and a base),
 moves the solution by the similarity that satisfies the inner constraints
 (`to_inner_datum`: the residuals are invariant, so this is the inner-constraint solution)
 and carries the covariance over by Baarda's S-transformation (`free_network_precision`):
@@ -47,6 +49,9 @@ STIFFNESS = 100.0
 # motion of a real network (scale from one scale bar in 180k image observations) ~1e-2.
 UNOBSERVABLE_RTOL = 1e-7
 NEWTON_STEPS = 8
+# A candidate of the minimal datum fixes a further motion when its pivot is above this
+# fraction of the first (the motions' columns in object units and radians).
+RANK_RTOL = 1e-6
 
 
 class InnerConstraints(AbstractObservationGroup):
@@ -144,9 +149,9 @@ def inner_constraints(
         raise DatumError("the datum points do not fix the network's datum defect: choose "
                          "points with free coordinates spread over the network")
     # Any scaling of the rows gives the same constraints (their residuals vanish at the
-    # solution). In the solver's Jacobi-scaled unknowns the rows get norm STIFFNESS: weak
-    # rows leave the datum directions nearly flat and LM crawls along them (80 steps
-    # without convergence for 4 datum points at norm 1; 27 steps at 100).
+    # solution); in Jacobi-scaled unknowns the rows get norm STIFFNESS, comparable to the
+    # observations' columns in the bordered normal matrix. (As stiff observations in the
+    # solve they left Levenberg-Marquardt crawling: the solvers hold a minimal datum.)
     weight = np.linalg.norm(directions[:, index] / norms, axis=1) / STIFFNESS
     group = InnerConstraints(
         directions=jnp.asarray(directions / weight[:, None]),
@@ -172,20 +177,52 @@ def inner_constraint_group(problem: BundleProblem) -> InnerConstraints | None:
 
 def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundleProblem:
     """The free network `problem` with a minimal datum instead of its inner constraints:
-    the constraints dropped and d coordinates of the datum points held at their values in
-    `params` (the best-conditioned ones: pivoted QR of the constraints' columns). Its
-    solutions are the free network's up to the similarity `to_inner_datum` removes."""
-    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
-
+    the constraints dropped and the d unknowns `minimal_datum` chooses (at the
+    approximations: the same ones for any `params`, so one `bundle_structure` serves the
+    solve and the statistics) held at their values in `params`. Its solutions are the free
+    network's up to the similarity `to_inner_datum` removes."""
     group = inner_constraint_group(problem)
     free = flatten(problem.free).copy()
-    directions = np.asarray(group.directions)
-    candidates = np.flatnonzero(np.any(directions != 0, axis=0) & free)
-    _, pivots = scipy.linalg.qr(directions[:, candidates], mode="r", pivoting=True)
-    free[candidates[pivots[: directions.shape[0]]]] = False
+    free[minimal_datum(problem, group.null_space(problem.initial, problem.free))] = False
     return eqx.tree_at(
         lambda p: (p.initial, p.free, p.groups), problem,
         (params, jax.tree.map(jnp.asarray, unflatten(problem.free, free)), problem.groups[:-1]))
+
+
+def minimal_datum(problem: BundleProblem, null: Float[np.ndarray, "d n_all"]) -> np.ndarray:
+    """d flat positions (`flatten` order) of free unknowns that fix the unobservable motions
+    `null` (rows), chosen from the geometry as a dependent relative orientation: the EOPs
+    of the image with the most observations, then the EOPs of the other images the
+    remaining motions move the most (pivoted QR: the longest base), then, were any motion
+    left, point coordinates. Not the points' coordinates first: those a similarity moves
+    the most are the far, weakly intersected points, and a datum there leaves the rest of
+    the network poorly determined (Levenberg-Marquardt crawls)."""
+    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
+
+    positions = unflatten(problem.initial, np.arange(null.shape[1]))
+    images = np.asarray(positions.images)
+    counts = np.zeros(images.shape[0])
+    for group in problem.groups:
+        for _, block, rows in group.row_references():
+            if block == "images":
+                np.add.at(counts, np.asarray(rows), 1)
+    best = int(np.argmax(counts))
+    stages = (images[best], np.delete(images, best, axis=0).ravel(),
+              np.asarray(positions.points).ravel())
+    chosen: list[int] = []
+    for candidates in stages:
+        remaining = scipy.linalg.null_space(null[:, chosen].T)  # motions still free (d, k)
+        candidates = candidates[np.any(null[:, candidates] != 0, axis=0)]
+        if remaining.shape[1] == 0 or candidates.size == 0:
+            continue
+        moves = remaining.T @ null[:, candidates]
+        _, r, pivots = scipy.linalg.qr(moves, mode="economic", pivoting=True)
+        diagonal = np.abs(np.diag(r))
+        rank = int(np.sum(diagonal > RANK_RTOL * diagonal[0])) if diagonal.size else 0
+        chosen += candidates[pivots[:rank]].tolist()
+    if len(chosen) != null.shape[0]:
+        raise DatumError("no free unknowns fix the free network's datum defect")
+    return np.asarray(chosen)
 
 
 @eqx.filter_jit
