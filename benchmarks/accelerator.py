@@ -1,6 +1,7 @@
 """BAL problems and the synthetic 60-image close-range block on whatever device jax uses.
 
-    python benchmarks/accelerator.py [--bal FILE ...] [--block] [--repeat 2] [--json OUT]
+    python benchmarks/accelerator.py [--bal FILE ...] [--block] [--zhang N [--chunk K]]
+        [--repeat 2] [--json OUT]
 
 Run it once with a GPU visible and once with `JAX_PLATFORMS=cpu` on the same machine to
 compare; the project never needs a GPU (`pip install jax[cuda13]` or a jax with a CUDA
@@ -12,7 +13,10 @@ plugin is what makes one visible). In one process per device, float64, each case
 - `--block`: the close-range block of `blocks.py` (60 images, ~26,000 points, ~181,000
   image coordinates, c xp yp K1 K2 free, dependent datum) adjusted by `adjust_project` with
   its phases (datum check, solve, statistics: covariance of every unknown's σ, reliability)
-  timed apart, compile seconds apart.
+  timed apart, compile seconds apart;
+- `--zhang N`: N replicates of Zhang's calibration (`batch_vs_opencv.py`'s) solved by the
+  vmapped Levenberg-Marquardt in one call, `--chunk` replicates at a time (default all N);
+  "solve s" is the whole batch's.
 
 Prints one Markdown table and, with `--json`, writes the rows.
 """
@@ -30,6 +34,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
 
 import jaxba  # noqa: E402
 
@@ -68,10 +74,24 @@ def block_row(repeat: int) -> dict:
             "statistics_s": seconds.get("datum check", 0.0) + seconds.get("statistics", 0.0)}
 
 
+def zhang_row(n: int, chunk: int | None, repeat: int) -> dict:
+    from batch_vs_opencv import replicates, run_jaxba
+
+    _, problem, _, measured, _ = replicates(n, 0.5, 0)
+    runs = [run_jaxba(problem, measured, chunk or n) for _ in range(max(repeat - 1, 1))]
+    _, converged, steps, seconds, compile_seconds = min(runs, key=lambda run: run[3])
+    return {"case": f"{n} Zhang calibrations, vmapped ({int(converged.sum())} converged)",
+            "compile_s": compile_seconds, "solve_s": seconds,
+            "iterations": f"{int(np.median(steps))} (median)", "final_cost": float("nan"),
+            "statistics_s": None}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bal", nargs="*", default=[])
     parser.add_argument("--block", action="store_true")
+    parser.add_argument("--zhang", type=int, default=0)
+    parser.add_argument("--chunk", type=int)
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--json", type=pathlib.Path)
     args = parser.parse_args()
@@ -81,14 +101,17 @@ def main():
     rows = [bal_rows(path, args.repeat) for path in args.bal]
     if args.block:
         rows.append(block_row(args.repeat))
+    if args.zhang:
+        rows.append(zhang_row(args.zhang, args.chunk, args.repeat))
     print(f"device: {name}; jax {jax.__version__}")
     print("| case | device | compile s | solve s | datum + statistics s | iterations |"
           " final cost |")
     print("|---|---|---|---|---|---|---|")
     for row in rows:
         statistics = "-" if row["statistics_s"] is None else f"{row['statistics_s']:.3f}"
+        cost = "-" if np.isnan(row["final_cost"]) else f"{row['final_cost']:.6f}"
         print(f"| {row['case']} | {name} | {row['compile_s']:.2f} | {row['solve_s']:.3f} |"
-              f" {statistics} | {row['iterations']} | {row['final_cost']:.6f} |")
+              f" {statistics} | {row['iterations']} | {cost} |")
     if args.json:
         args.json.write_text(json.dumps([dict(row, device=name) for row in rows], indent=1))
 
