@@ -1,4 +1,4 @@
-"""`run_batch` of N Zhang-size projects in this process against a Dask LocalCluster (issue 17).
+"""`run_batch` of N Zhang-size projects in this process against a Dask LocalCluster.
 
 Writes N copies of Zhang's calibration (configs/zhang: 5 images x 256 corners, one "opencv"
 camera, 1280 image points) with N(0, `--noise` px) added to the image coordinates, each its

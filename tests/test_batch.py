@@ -19,7 +19,7 @@ from jaxba._io._project._batch_run import run_batch
 from jaxba._models._cameras import CAMERA_MODELS
 from jaxba._statistics._summary import variance_test
 
-BATCH_RTOL = 1e-8  # issue 6: each batch result equals the single adjustment to 1e-8 relative
+BATCH_RTOL = 1e-8  # each batch result equals the single adjustment to 1e-8 relative
 SIZES = ((6, 20), (8, 26), (7, 30))  # (images, targets): three shapes padded to one
 MC_STD_RTOL = 0.45  # empirical σ from 40 replicates: ±11 % (1σ) sampling error, 4σ
 

@@ -1,4 +1,4 @@
-"""A block started from nothing (issue #13): a synthetic 60-image self-calibration block with no
+"""A block started from nothing: a synthetic 60-image self-calibration block with no
 control and no approximations (every EOP `-`, an empty points table), `datum = "dependent"`,
 completed by `jaxba.complete_project` and adjusted, reaches the optimum of the same block
 adjusted from the truth: the same σ̂0, redundancy and IOPs, and the same object points up to

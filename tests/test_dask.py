@@ -1,4 +1,4 @@
-"""Batches and replicates on Dask (issue 17), on one LocalCluster of 2 worker processes: the
+"""Batches and replicates on Dask, on one LocalCluster of 2 worker processes: the
 results equal the in-process batch's, a worker killed mid-run loses no project, `--resume`
 skips finished projects; without Dask, `--scheduler` is refused before any work."""
 
@@ -23,7 +23,7 @@ from jaxba._io._project._batch_run import run_batch
 
 N_PROJECTS = 20
 SIZES = ((6, 20), (7, 24), (8, 28), (6, 26))  # (images, targets), cycled over the projects
-EQUAL_RTOL = 1e-12  # issue 17: Dask results equal the in-process batch's to 1e-12
+EQUAL_RTOL = 1e-12  # Dask results equal the in-process batch's to 1e-12
 CHUNK = 4  # projects per vmapped solve, here and on Dask: 5 tasks, several per worker
 
 

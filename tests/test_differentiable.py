@@ -21,7 +21,7 @@ from jaxba._statistics._differentiable import (
     sensitivity,
 )
 
-GRAD_RTOL = 1e-5  # issue 6: d IOP / d observation against central differences, relative
+GRAD_RTOL = 1e-5  # d IOP / d observation against central differences, relative
 OBS_STEP = 1e-3  # mm (≈ σ): truncation ~1e-7; smaller steps drown in the re-solves' tolerance
 STATION_STEP = 1e-4  # m, central-difference step of a station coordinate
 FD_SOLVE_TOL = 1e-15  # re-solves for the differences: to rounding, or they drown the step

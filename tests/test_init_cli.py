@@ -1,4 +1,4 @@
-"""Missing approximations (issue #13 item 3): `jaxba adjust` computes them first, `jaxba init`
+"""Missing approximations: `jaxba adjust` computes them first, `jaxba init`
 writes the completed project. Run in-process on copies of configs/lab whose EOPs are all `-`
 and whose tie points (the rows with three free coordinates) are left out of the points table.
 """

@@ -1,4 +1,4 @@
-"""Tests of block initialisation (`jaxba.initialise_block`, issue #13) and of the rays of
+"""Tests of block initialisation (`jaxba.initialise_block`) and of the rays of
 measured points for any camera model (`jaxba.ideal_coordinates`), on synthetic blocks made with
 jaxba itself: the BASC lab replica (`jaxba.write_synthetic_project`), a convergent block of an
 OpenCV pixel camera, and a vertical aerial block over flat terrain.

@@ -1,4 +1,4 @@
-"""Initial approximations by closed forms and small least-squares problems (issue #13): DLT,
+"""Initial approximations by closed forms and small least-squares problems: DLT,
 space resection, forward intersection, relative and absolute orientation, stereo parallax.
 
 Each tool is a plain function of NumPy arrays, usable on its own, in jaxba's conventions

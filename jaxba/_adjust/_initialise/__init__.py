@@ -1,4 +1,4 @@
-"""Block initialisation (issue #13): approximations of every EOP and object point from image
+"""Block initialisation: approximations of every EOP and object point from image
 points, approximate cameras and whatever control, distances or EOPs exist, robust against
 blunders (`initialise_block`), and the rays of measured points for any camera model
 (`ideal_coordinates`). Orchestration over `jaxba._approximations`; it reads no project files.

@@ -1,4 +1,4 @@
-"""Block initialisation (issue #13): approximations of every EOP and object point of a block
+"""Block initialisation: approximations of every EOP and object point of a block
 from its image points, approximate cameras and whatever control, distances or EOPs exist.
 
 1. Rays. Every measured point becomes its normalised ideal coordinates (a, b), the ray

@@ -1,4 +1,4 @@
-"""Compute a project's missing approximations (issue #13): `complete_project`.
+"""Compute a project's missing approximations: `complete_project`.
 
 A project may leave approximations out (`_spec.py`): `-` in an image's six EOP columns, or a
 tie point measured but absent from the points table. `complete_project` turns the spec into
