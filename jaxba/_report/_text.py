@@ -36,9 +36,9 @@ from ._collect import (
     rejections,
     reliability_summary,
     residual_summaries,
-    row_tuples,
 )
 from ._no_sigma import no_sigma_lines
+from ._numbers import fixed_cells
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
 _PX_DECIMALS = 3  # residuals in pixels
@@ -428,7 +428,8 @@ def number_table(
 ) -> list[str]:
     """Aligned lines as `table`, fast for many rows: the text columns `labels` (one list of n
     strings each, left aligned), then `numbers` (n, m) right aligned with `decimals[kind[i]][j]`
-    decimals in row i, column j (`kind` (n,) int) and `-` where not finite."""
+    decimals in row i, column j (`kind` (n,) int) and `-` where not finite; the numbers
+    printed all at once (`fixed_cells`)."""
     n_text = len(labels)
     numbers = np.where(np.isfinite(numbers), numbers, np.nan)
     rows = [numbers[kind == k] for k in range(len(decimals))]
@@ -437,18 +438,15 @@ def number_table(
         max([len(name)] + [_fixed_width(r[:, j], places[j]) for r, places in zip(rows, decimals)])
         for j, name in enumerate(header[n_text:])
     ]
-    # A column of NaN only prints the first letter of "nan" ("%.1s"), made "-" below.
-    formats = np.array([
-        "  ".join(
-            f"%{w}.{d}f" if np.isfinite(r[:, j]).any() else f"%{w}.1s"
-            for j, (w, d) in enumerate(zip(widths[n_text:], places))
-        )
-        for r, places in zip(rows, decimals)
-    ], dtype=object)
-    body = "\n".join(map(operator.mod, formats[kind].tolist(), row_tuples(numbers)))
-    body = body.replace("nan", "  -").replace("n", "-")  # only numbers and NaN in `body`
+    places = np.asarray(decimals, dtype=int)[kind]  # (n, m) decimals of every entry
+    columns = [fixed_cells(numbers[:, j], places[:, j], width)
+               for j, width in enumerate(widths[n_text:])]
+    gap = np.full((2, len(kind)), ord(" "), dtype=np.uint8)
+    end = np.full((1, len(kind)), ord("\n"), dtype=np.uint8)
+    text = np.concatenate([part for column in columns for part in (gap, column)][1:] + [end])
+    body = text.T.tobytes().decode("ascii")  # column k of `text` is line k
     label_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
-    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body.split("\n"))
+    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body.splitlines())
     cells = [c.ljust(w) for c, w in zip(header[:n_text], widths)]
     cells += [c.rjust(w) for c, w in zip(header[n_text:], widths[n_text:])]
     return [prefix + "  ".join(cells).rstrip(), *labelled]
