@@ -53,7 +53,8 @@ def _image_point_lines(project: Project, result: Adjustment) -> list[str]:
     empty = [""] * n
     texts = [
         ["image_points"] * n,
-        [_field(part) for part in residuals.part],
+        list(map({part: _field(part) for part in set(residuals.part.tolist())}.__getitem__,
+                 residuals.part.tolist())),
         image_ids[residuals.image].tolist(),
         point_ids[residuals.point].tolist(),
         empty,

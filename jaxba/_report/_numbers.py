@@ -1,37 +1,36 @@
-"""Floats printed in bulk, byte for byte as printf-style `%.Nf` and `%.10g` print them.
+"""Floats printed in bulk, byte for byte as printf-style `%.Nf` prints them.
 
-Each value becomes one right-aligned cell of ASCII codes, a column of a (width, n) uint8
-array; the table writers stack these (line k of the text is column k) and decode once.
-Digits come from integer arithmetic on round(|x| · 10^k); a value whose scaled magnitude lies
-too near a rounding tie to decide in float64 (or beyond its exact integers), and any `%.10g`
-that prints in exponent notation, is printed by Python instead, so every cell is what `%`
-gives.
+Each value becomes one right-aligned cell of ASCII codes, a row of an (n, width) uint8 array;
+the table writers put these side by side and decode the rows once. Digits come from integer
+arithmetic on round(|x| · 10^k), four at a time from a table; a value whose scaled magnitude
+lies too near a rounding tie to decide in float64 (or beyond its exact integers) is printed
+by Python instead, so every cell is what `%` gives.
 """
 
 import numpy as np
 
 _POWERS = 10 ** np.arange(19, dtype=np.int64)  # exact integers 10^0 .. 10^18
 _FLOAT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
+_QUADS = np.array([b"%04d" % k for k in range(10_000)]).view(np.uint32)  # "0000" .. "9999"
 _EXACT = 2.0**50  # scaled magnitudes below: ulp at most 1/4, so round() decidable
-_SIGNIFICANT = 10  # digits of `%.10g`
-_PLACES = _SIGNIFICANT + 3  # its most decimals: 0.0001234567891
-GENERAL_WIDTH = 1 + _SIGNIFICANT + 1 + _PLACES  # cells of `general_cells`, NUL padded
+_MOST_DIGITS = 16  # of an integer below _EXACT
 
 
 def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
                 pad: bytes = b" ") -> np.ndarray:
-    """`"%{width}.{d}f" % x` of every value as a (width, n) uint8 array, `decimals` (n,) or
-    one int; non-finite values print as `missing`, right aligned; `pad` fills on the left.
-    A value printed wider than `width` is an error (the caller sizes the columns)."""
+    """`"%{width}.{d}f" % x` of every value (n of them, any shape, in C order) as an
+    (n, width) uint8 array, `decimals` shaped like `values` or one int; non-finite values
+    print as `missing`, right aligned; `pad` fills on the left. A value printed wider than
+    `width` is an error (the caller sizes the columns)."""
     x = np.asarray(values, dtype=float).ravel()
-    d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), x.shape)
     if np.ndim(decimals) == 0:
         cells = _fixed(x, int(decimals), width, pad[0])
     else:
-        cells = np.empty((width, x.size), dtype=np.uint8)
+        d = np.asarray(decimals, dtype=np.int64).ravel()
+        cells = np.empty((x.size, width), dtype=np.uint8)
         for places in np.unique(d).tolist():
             rows = d == places
-            cells[:, rows] = _fixed(x[rows], places, width, pad[0])
+            cells[rows] = _fixed(x[rows], places, width, pad[0])
     _put(cells, ~np.isfinite(x), lambda k: missing, pad)
     return cells
 
@@ -45,43 +44,9 @@ def _fixed(x: np.ndarray, places: int, width: int, pad: int) -> np.ndarray:
     whole, fraction = np.divmod(m, _POWERS[places])
     parts = [_integer_cells(whole, np.signbit(x), width - places - (places > 0), pad)]
     if places:
-        parts += [np.full((1, x.size), ord("."), dtype=np.uint8), _digits(fraction, places)]
-    cells = np.concatenate(parts)
+        parts += [np.full((x.size, 1), ord("."), dtype=np.uint8), _digits(fraction, places)]
+    cells = np.concatenate(parts, axis=1)
     _put(cells, finite & ~decided, lambda k: b"%.*f" % (places, float(x[k])), bytes([pad]))
-    return cells
-
-
-def general_cells(values) -> np.ndarray:
-    """`"%.10g" % x` of every value, right aligned in a (GENERAL_WIDTH, n) uint8 array with
-    NUL (0) wherever nothing is printed (remove the NULs after decoding); non-finite values:
-    all NUL (an empty field)."""
-    x = np.asarray(values, dtype=float).ravel()
-    finite = np.isfinite(x)
-    magnitude = np.where(finite, np.abs(x), 0.0)
-    positive = magnitude > 0
-    exponent = np.floor(np.log10(magnitude, where=positive, out=np.zeros_like(x)))
-    exponent = np.clip(exponent, -5, 10).astype(np.int64)
-    # log10 may miss by one near a power of ten: the rounded mantissa must have 10 digits.
-    first = magnitude * _FLOAT_POWERS[np.clip(_SIGNIFICANT - 1 - exponent, 0, 22)]
-    m = np.rint(first)
-    exponent += (m >= 1e10).astype(np.int64) - ((m < 1e9) & positive)
-    places = np.where(positive, _SIGNIFICANT - 1 - exponent, 0)
-    scaled = magnitude * _FLOAT_POWERS[np.clip(places, 0, 22)]
-    m = np.rint(scaled)
-    plain = ~positive | ((places >= 0) & (places <= _PLACES) & (m >= 1e9) & (m < 1e10))
-    decided = finite & plain & _decidable(scaled) & _decidable(first)
-    m = np.where(decided, m, 0.0).astype(np.int64)
-    places = np.where(decided, places, 0)
-    whole, fraction = np.divmod(m, _POWERS[places])
-    digits = _digits(fraction * _POWERS[_PLACES - places], _PLACES)
-    # Trailing zeros of the decimals are not printed, nor a point without decimals.
-    trailing = np.logical_and.accumulate(digits[::-1] == ord("0"), axis=0)[::-1]
-    digits = np.where(trailing, np.uint8(0), digits)
-    point = np.where(trailing[:1], np.uint8(0), np.uint8(ord(".")))
-    cells = np.concatenate(
-        [_integer_cells(whole, np.signbit(x), _SIGNIFICANT + 1, 0), point, digits])
-    _put(cells, ~finite, lambda k: b"", b"\0")
-    _put(cells, finite & ~decided, lambda k: b"%.10g" % float(x[k]), b"\0")
     return cells
 
 
@@ -93,34 +58,37 @@ def _decidable(scaled: np.ndarray) -> np.ndarray:
 
 
 def _digits(m: np.ndarray, count: int) -> np.ndarray:
-    """The last `count` decimal digits of the integers `m` (n,) >= 0 as ASCII, (count, n)."""
-    digits = np.empty((count, m.size), dtype=np.uint8)
-    rest = m.copy()
-    for k in range(count - 1, -1, -1):
-        quotient = rest // 10
-        digits[k] = rest - 10 * quotient
-        rest = quotient
-    digits += ord("0")
-    return digits
+    """The last `count` (at most 16) decimal digits of the integers `m` (n,) >= 0 as ASCII,
+    (n, count)."""
+    quads, rest = [], m
+    for _ in range(-(-count // 4)):
+        rest, last = np.divmod(rest, 10_000)
+        quads.append(_QUADS[last])
+    digits = np.stack(quads[::-1], axis=1).view(np.uint8)
+    return digits[:, digits.shape[1] - count:]
 
 
 def _integer_cells(m: np.ndarray, negative: np.ndarray, width: int, pad: int) -> np.ndarray:
-    """The integers `m` (n,) >= 0 right aligned in `width` characters, "-" before where
-    `negative`, `pad` before that."""
+    """The integers `m` (n,) >= 0 (below 10^16) right aligned in `width` characters, "-"
+    before where `negative`, `pad` before that."""
     start = width - np.maximum(np.searchsorted(_POWERS, m, side="right"), 1)
     if np.any(start - negative < 0):
         raise ValueError(f"a number is wider than its column ({width} characters)")
-    position = np.arange(width)[:, None]
-    sign = np.where(negative, ord("-"), pad).astype(np.uint8)
-    cells = np.where(position < start, np.uint8(pad), _digits(m, width))
-    return np.where(position == start - 1, sign, cells)
+    count = min(width, _MOST_DIGITS)
+    digits = _digits(m, count)
+    if width > count:
+        digits = np.concatenate([np.full((m.size, width - count), pad, np.uint8), digits], 1)
+    position = np.arange(width)
+    sign = np.where(negative, ord("-"), pad).astype(np.uint8)[:, None]
+    cells = np.where(position < start[:, None], np.uint8(pad), digits)
+    return np.where(position == start[:, None] - 1, sign, cells)
 
 
 def _put(cells: np.ndarray, where: np.ndarray, text, pad: bytes) -> None:
     """Overwrite the cells `where` (n,) with `text(k)` (bytes) right aligned, `pad` before."""
-    width = cells.shape[0]
+    width = cells.shape[1]
     for k in np.flatnonzero(where).tolist():
         printed = text(k)
         if len(printed) > width:
             raise ValueError(f"{printed!r} is wider than its column ({width} characters)")
-        cells[:, k] = np.frombuffer(printed.rjust(width, pad), dtype=np.uint8)
+        cells[k] = np.frombuffer(printed.rjust(width, pad), dtype=np.uint8)

@@ -439,12 +439,13 @@ def number_table(
         for j, name in enumerate(header[n_text:])
     ]
     places = np.asarray(decimals, dtype=int)[kind]  # (n, m) decimals of every entry
-    columns = [fixed_cells(numbers[:, j], places[:, j], width)
-               for j, width in enumerate(widths[n_text:])]
-    gap = np.full((2, len(kind)), ord(" "), dtype=np.uint8)
-    end = np.full((1, len(kind)), ord("\n"), dtype=np.uint8)
-    text = np.concatenate([part for column in columns for part in (gap, column)][1:] + [end])
-    body = text.T.tobytes().decode("ascii")  # column k of `text` is line k
+    most = max(widths[n_text:], default=0)
+    cells = fixed_cells(numbers, places, most).reshape(*numbers.shape, most)
+    gap = np.full((len(kind), 2), ord(" "), dtype=np.uint8)
+    end = np.full((len(kind), 1), ord("\n"), dtype=np.uint8)
+    columns = [cells[:, j, most - width:] for j, width in enumerate(widths[n_text:])]
+    text = np.concatenate([part for column in columns for part in (gap, column)][1:] + [end], 1)
+    body = text.tobytes().decode("ascii")
     label_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
     labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body.splitlines())
     cells = [c.ljust(w) for c, w in zip(header[:n_text], widths)]
