@@ -236,6 +236,7 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
     )
 
 
+@_shared
 def datum_text(project: Project, result: Adjustment) -> str:
     """The one description of the datum that NAME.out and results.json give: a dependent
     relative orientation by the image and coordinates it fixes (its bundle holds only fixed
@@ -519,8 +520,9 @@ def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     summaries = {}
     camera_ids = project_ids(project).cameras
     for group, residual in zip(result.problem.groups, result.residuals):
-        mask = np.asarray(group.mask())
-        sigma = np.where(mask, np.asarray(group.sigma(), dtype=float), 1.0)
+        sigma = np.asarray(group.sigma(), dtype=float)
+        mask = np.isfinite(sigma)  # `group.mask()`, without a jax call
+        sigma = np.where(mask, sigma, 1.0)
         normalised = np.where(mask, np.asarray(residual, dtype=float) / sigma, 0.0)
         for name, rows in named_parts(group, camera_ids):
             summaries[name] = {

@@ -136,8 +136,8 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("unknowns", str(precision.n_unknowns)),
         ("redundancy", str(precision.redundancy)),
         ("solver backend", result.backend),
-        *((name, datum_text(project, result) if name == "datum" else text) for name, text in
-          statistical_items(result, project_ids(project), group_statistics(project, result))),
+        *statistical_items(result, project_ids(project), group_statistics(project, result),
+                           datum_text(project, result)),
     ]
     return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
 
@@ -406,7 +406,9 @@ def res_text(project: Project, result: Adjustment) -> str:
         *_residual_table(residuals, with_px=not in_pixels),
         "#",
     ]
-    summaries = residual_summaries(residuals)
+    converted = residuals is not image_residuals(project, result)
+    summaries = (residual_summaries(residuals) if converted
+                 else image_residual_summaries(project, result))
     lines += [_rms_comment(f"image {iid}", summary) for iid, summary in summaries["images"].items()]
     lines.append(_rms_comment("all", summaries["all"]))
     return "\n".join(lines) + "\n"
