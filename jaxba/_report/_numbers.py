@@ -14,6 +14,7 @@ _FLOAT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
 _QUADS = np.array([b"%04d" % k for k in range(10_000)]).view(np.uint32)  # "0000" .. "9999"
 _EXACT = 2.0**50  # scaled magnitudes below: ulp at most 1/4, so round() decidable
 _MOST_DIGITS = 16  # of an integer below _EXACT
+_CHUNK = 1 << 14  # values printed together: their temporaries stay in the cache
 
 
 def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
@@ -23,13 +24,12 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
     print as `missing`, right aligned; `pad` fills on the left. A value printed wider than
     `width` is an error (the caller sizes the columns)."""
     x = np.asarray(values, dtype=float).ravel()
-    if np.ndim(decimals) == 0:
-        cells = _fixed(x, int(decimals), width, pad[0])
-    else:
-        d = np.asarray(decimals, dtype=np.int64).ravel()
-        cells = np.empty((x.size, width), dtype=np.uint8)
-        for places in np.unique(d).tolist():
-            rows = d == places
+    d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), np.shape(values)).ravel()
+    cells = np.empty((x.size, width), dtype=np.uint8)
+    for start in range(0, x.size, _CHUNK):
+        chunk = slice(start, start + _CHUNK)
+        for places in np.unique(d[chunk]).tolist():
+            rows = np.flatnonzero(d[chunk] == places) + start
             cells[rows] = _fixed(x[rows], places, width, pad[0])
     _put(cells, ~np.isfinite(x), lambda k: missing, pad)
     return cells
@@ -41,11 +41,23 @@ def _fixed(x: np.ndarray, places: int, width: int, pad: int) -> np.ndarray:
     scaled = np.where(finite, np.abs(x), 0.0) * _FLOAT_POWERS[places]
     decided = finite & _decidable(scaled)
     m = np.where(decided, np.rint(scaled), 0.0).astype(np.int64)
-    whole, fraction = np.divmod(m, _POWERS[places])
-    parts = [_integer_cells(whole, np.signbit(x), width - places - (places > 0), pad)]
+    digits = _digits(m)
+    whole = width - places - (places > 0)  # characters before the point
+    # The digits of m, the point `places` from the right, blanks left of the 16 digits.
+    cells = np.full((x.size, width), pad, dtype=np.uint8)
+    shown = min(whole, _MOST_DIGITS - places)
+    cells[:, whole - shown:whole] = digits[:, _MOST_DIGITS - places - shown:_MOST_DIGITS - places]
     if places:
-        parts += [np.full((x.size, 1), ord("."), dtype=np.uint8), _digits(fraction, places)]
-    cells = np.concatenate(parts, axis=1)
+        cells[:, whole] = ord(".")
+        cells[:, whole + 1:] = digits[:, _MOST_DIGITS - places:]
+    # Leading zeros of the whole part are blank (one digit stays), a "-" before the first.
+    start = whole - np.maximum(np.searchsorted(_POWERS, m // _POWERS[places], side="right"), 1)
+    negative = np.signbit(x)
+    if np.any(start - negative < 0):
+        raise ValueError(f"a number is wider than its column ({width} characters)")
+    np.putmask(cells[:, :whole], np.arange(whole) < start[:, None], pad)
+    rows = np.flatnonzero(negative)
+    cells[rows, start[rows] - 1] = ord("-")
     _put(cells, finite & ~decided, lambda k: b"%.*f" % (places, float(x[k])), bytes([pad]))
     return cells
 
@@ -57,31 +69,13 @@ def _decidable(scaled: np.ndarray) -> np.ndarray:
     return (scaled < _EXACT) & (distance > 4 * np.spacing(scaled))
 
 
-def _digits(m: np.ndarray, count: int) -> np.ndarray:
-    """The last `count` (at most 16) decimal digits of the integers `m` (n,) >= 0 as ASCII,
-    (n, count)."""
+def _digits(m: np.ndarray) -> np.ndarray:
+    """The 16 decimal digits of the integers `m` (n,), 0 <= m < 10^16, as ASCII, (n, 16)."""
     quads, rest = [], m
-    for _ in range(-(-count // 4)):
+    for _ in range(_MOST_DIGITS // 4):
         rest, last = np.divmod(rest, 10_000)
         quads.append(_QUADS[last])
-    digits = np.stack(quads[::-1], axis=1).view(np.uint8)
-    return digits[:, digits.shape[1] - count:]
-
-
-def _integer_cells(m: np.ndarray, negative: np.ndarray, width: int, pad: int) -> np.ndarray:
-    """The integers `m` (n,) >= 0 (below 10^16) right aligned in `width` characters, "-"
-    before where `negative`, `pad` before that."""
-    start = width - np.maximum(np.searchsorted(_POWERS, m, side="right"), 1)
-    if np.any(start - negative < 0):
-        raise ValueError(f"a number is wider than its column ({width} characters)")
-    count = min(width, _MOST_DIGITS)
-    digits = _digits(m, count)
-    if width > count:
-        digits = np.concatenate([np.full((m.size, width - count), pad, np.uint8), digits], 1)
-    position = np.arange(width)
-    sign = np.where(negative, ord("-"), pad).astype(np.uint8)[:, None]
-    cells = np.where(position < start[:, None], np.uint8(pad), digits)
-    return np.where(position == start[:, None] - 1, sign, cells)
+    return np.stack(quads[::-1], axis=1).view(np.uint8)
 
 
 def _put(cells: np.ndarray, where: np.ndarray, text, pad: bytes) -> None:
