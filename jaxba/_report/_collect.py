@@ -35,7 +35,13 @@ from .._statistics._observation_statistics import (
     row_parts,
     with_coordinate,
 )
-from .._statistics._summary import datum_description
+from .._statistics._summary import (
+    OutlierSummary,
+    VarianceTest,
+    datum_description,
+    outlier_summary,
+    variance_test,
+)
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 TIED = "tied to"  # a camera parameter tied to another's ("tied to C1.K1"): its unknown
@@ -248,6 +254,20 @@ def datum_text(project: Project, result: Adjustment) -> str:
              "base: the scale)" if datum["scale"] == "base" else "scale from the distances")
     return (f"dependent relative orientation: {' '.join(datum['fixed'])} of image "
             f"{datum['image']} fixed, {scale}")
+
+
+@_shared
+def variance_check(project: Project, result: Adjustment) -> VarianceTest | None:
+    """The χ² test of the variance factor (`variance_test`), shared by NAME.out and
+    results.json."""
+    del project
+    return variance_test(result)
+
+
+@_shared
+def outlier_check(project: Project, result: Adjustment) -> OutlierSummary | None:
+    """|w| above the critical value: `outlier_summary` named by the project's IDs."""
+    return outlier_summary(result, project_ids(project), group_statistics(project, result))
 
 
 def project_ids(project: Project) -> Ids:

@@ -29,6 +29,7 @@ from ._collect import (
     image_residuals,
     image_table,
     in_pixel_frame,
+    outlier_check,
     point_ellipsoids,
     point_table,
     project_ids,
@@ -36,6 +37,7 @@ from ._collect import (
     rejections,
     reliability_summary,
     residual_summaries,
+    variance_check,
 )
 from ._no_sigma import no_sigma_lines
 from ._numbers import fixed_cells
@@ -153,7 +155,8 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("redundancy", str(precision.redundancy)),
         ("solver backend", result.backend),
         *statistical_items(result, project_ids(project), group_statistics(project, result),
-                           datum_text(project, result)),
+                           datum_text(project, result), variance_check(project, result),
+                           outlier_check(project, result)),
     ]
     return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
 
