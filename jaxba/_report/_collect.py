@@ -522,12 +522,6 @@ def image_residual_summaries(project: Project, result: Adjustment) -> dict:
     return residual_summaries(image_residuals(project, result))
 
 
-def row_tuples(table: np.ndarray):
-    """The rows of `table` (n, m) as tuples of Python numbers, one at a time (the columns are
-    converted at once: no list per row for the garbage collector to walk)."""
-    return zip(*(column.tolist() for column in np.asarray(table).T))
-
-
 @_shared
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     """Per observation group (per part: `AbstractObservationGroup.parts`, the image points of
