@@ -35,7 +35,13 @@ from .._statistics._observation_statistics import (
     row_parts,
     with_coordinate,
 )
-from .._statistics._summary import datum_description
+from .._statistics._summary import (
+    OutlierSummary,
+    VarianceTest,
+    datum_description,
+    outlier_summary,
+    variance_test,
+)
 
 FREE, FIXED, WEIGHTED = "free", "fixed", "weighted"
 TIED = "tied to"  # a camera parameter tied to another's ("tied to C1.K1"): its unknown
@@ -236,6 +242,7 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
     )
 
 
+@_shared
 def datum_text(project: Project, result: Adjustment) -> str:
     """The one description of the datum that NAME.out and results.json give: a dependent
     relative orientation by the image and coordinates it fixes (its bundle holds only fixed
@@ -247,6 +254,20 @@ def datum_text(project: Project, result: Adjustment) -> str:
              "base: the scale)" if datum["scale"] == "base" else "scale from the distances")
     return (f"dependent relative orientation: {' '.join(datum['fixed'])} of image "
             f"{datum['image']} fixed, {scale}")
+
+
+@_shared
+def variance_check(project: Project, result: Adjustment) -> VarianceTest | None:
+    """The χ² test of the variance factor (`variance_test`), shared by NAME.out and
+    results.json."""
+    del project
+    return variance_test(result)
+
+
+@_shared
+def outlier_check(project: Project, result: Adjustment) -> OutlierSummary | None:
+    """|w| above the critical value: `outlier_summary` named by the project's IDs."""
+    return outlier_summary(result, project_ids(project), group_statistics(project, result))
 
 
 def project_ids(project: Project) -> Ids:
@@ -501,12 +522,6 @@ def image_residual_summaries(project: Project, result: Adjustment) -> dict:
     return residual_summaries(image_residuals(project, result))
 
 
-def row_tuples(table: np.ndarray):
-    """The rows of `table` (n, m) as tuples of Python numbers, one at a time (the columns are
-    converted at once: no list per row for the garbage collector to walk)."""
-    return zip(*(column.tolist() for column in np.asarray(table).T))
-
-
 @_shared
 def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     """Per observation group (per part: `AbstractObservationGroup.parts`, the image points of
@@ -519,8 +534,9 @@ def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     summaries = {}
     camera_ids = project_ids(project).cameras
     for group, residual in zip(result.problem.groups, result.residuals):
-        mask = np.asarray(group.mask())
-        sigma = np.where(mask, np.asarray(group.sigma(), dtype=float), 1.0)
+        sigma = np.asarray(group.sigma(), dtype=float)
+        mask = np.isfinite(sigma)  # `group.mask()`, without a jax call
+        sigma = np.where(mask, sigma, 1.0)
         normalised = np.where(mask, np.asarray(residual, dtype=float) / sigma, 0.0)
         for name, rows in named_parts(group, camera_ids):
             summaries[name] = {

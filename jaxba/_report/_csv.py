@@ -9,13 +9,14 @@ an observation removed by data snooping).
 
 import csv
 import io
+import itertools
 import pathlib
 
 import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
-from ._collect import ScalarObservation, image_residuals, other_observations, row_tuples
+from ._collect import ScalarObservation, image_residuals, other_observations
 
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
 NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
@@ -28,21 +29,25 @@ def _field(text: str) -> str:
     return text if not any(c in text for c in ',"\n\r') else '"' + text.replace('"', '""') + '"'
 
 
-def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> list[str]:
-    """CSV lines of rows: the text fields `texts` (one list per column, already CSV fields),
-    then the number and flag columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g`
-    (flags 0/1), empty where not finite, the others empty."""
+def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> str:
+    """CSV lines of rows, each ending in a newline: the text fields `texts` (one list per
+    column, already CSV fields), then the number and flag columns, `filled` ones from
+    `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where not finite, the others
+    empty. Each of the two parts is one `%` over all rows."""
+    numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
     fmt = ",".join(
         "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
         for name in NUMBER_COLUMNS + FLAG_COLUMNS
     )
-    formatted = "\n".join(map(fmt.__mod__, row_tuples(numbers)))
+    formatted = (fmt + "\n") * len(numbers) % tuple(numbers.ravel().tolist())
     # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
     formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
-    return list(map("{},{}".format, map(",".join, zip(*texts)), formatted.split("\n")))
+    row = "%s," * len(texts) + "%s\n"
+    fields = zip(*texts, formatted.split("\n")[:-1])
+    return row * len(numbers) % tuple(itertools.chain.from_iterable(fields))
 
 
-def _image_point_lines(project: Project, result: Adjustment) -> list[str]:
+def _image_point_lines(project: Project, result: Adjustment) -> str:
     """Rows of the image points, each named by its group's part ("image_points:<camera>")."""
     residuals = image_residuals(project, result)
     n = len(residuals.image)
@@ -53,7 +58,8 @@ def _image_point_lines(project: Project, result: Adjustment) -> list[str]:
     empty = [""] * n
     texts = [
         ["image_points"] * n,
-        [_field(part) for part in residuals.part],
+        list(map({part: _field(part) for part in set(residuals.part.tolist())}.__getitem__,
+                 residuals.part.tolist())),
         image_ids[residuals.image].tolist(),
         point_ids[residuals.point].tolist(),
         empty,
@@ -67,7 +73,7 @@ def _image_point_lines(project: Project, result: Adjustment) -> list[str]:
     return _lines(texts, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
 
 
-def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
+def _scalar_lines(rows: list[ScalarObservation]) -> str:
     """Rows of the observations other than image points: their IDs, v, r, w and flags."""
     texts = [
         [_field(value) for value in column]
@@ -87,10 +93,8 @@ def _scalar_lines(rows: list[ScalarObservation]) -> list[str]:
 
 def observations_csv(project: Project, result: Adjustment) -> str:
     """observations.csv as text: header `COLUMNS`, image points, then the other observations."""
-    lines = [",".join(COLUMNS)]
-    lines += _image_point_lines(project, result)
-    lines += _scalar_lines(other_observations(project, result))
-    return "\n".join(lines) + "\n"
+    return (",".join(COLUMNS) + "\n" + _image_point_lines(project, result)
+            + _scalar_lines(other_observations(project, result)))
 
 
 def read_observations(path) -> dict[str, np.ndarray]:

@@ -7,24 +7,23 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
-from .._statistics._summary import outlier_summary, variance_test
 from ._collect import (
     ParameterTable,
     camera_correlations,
     camera_tables,
     camera_units,
     datum_text,
-    group_statistics,
     group_summaries,
     image_residual_summaries,
     image_table,
+    outlier_check,
     point_ellipsoids,
     point_table,
-    project_ids,
     project_units,
     rejections,
     reliability_summary,
     shared_tables,
+    variance_check,
 )
 from ._no_sigma import no_sigma_entries
 from ._paths import OBSERVATIONS_FILE
@@ -163,9 +162,9 @@ def _reliability(project: Project, result: Adjustment) -> dict | None:
     })
 
 
-def _variance_test(result: Adjustment) -> dict | None:
+def _variance_test(project: Project, result: Adjustment) -> dict | None:
     """The χ² test of the variance factor (`variance_test`), null without redundancy."""
-    test = variance_test(result)
+    test = variance_check(project, result)
     if test is None:
         return None
     return _nulls({
@@ -177,7 +176,7 @@ def _variance_test(result: Adjustment) -> dict | None:
 
 def _outliers(project: Project, result: Adjustment) -> dict | None:
     """|w| above the critical value: count and the worst few; null without a reliability."""
-    found = outlier_summary(result, project_ids(project), group_statistics(project, result))
+    found = outlier_check(project, result)
     if found is None:
         return None
     return _nulls({
@@ -243,7 +242,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "sigma0": _number(math.sqrt(precision.sigma0_squared)),
         "sigma0_squared": _number(precision.sigma0_squared),
         "sigma0_prior": _number(project.spec.settings.sigma0),
-        "variance_test": _variance_test(result),
+        "variance_test": _variance_test(project, result),
         "redundancy": int(precision.redundancy),
         "n_observations": int(precision.n_observations),
         "n_unknowns": int(precision.n_unknowns),

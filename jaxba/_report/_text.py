@@ -29,6 +29,7 @@ from ._collect import (
     image_residuals,
     image_table,
     in_pixel_frame,
+    outlier_check,
     point_ellipsoids,
     point_table,
     project_ids,
@@ -36,9 +37,10 @@ from ._collect import (
     rejections,
     reliability_summary,
     residual_summaries,
-    row_tuples,
+    variance_check,
 )
 from ._no_sigma import no_sigma_lines
+from ._numbers import fixed_cells
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
 _PX_DECIMALS = 3  # residuals in pixels
@@ -64,7 +66,7 @@ def column_table(
 ) -> list[str]:
     """`table` of many rows, the same lines: left-aligned text columns `texts` (lists of n
     str), then `numbers` (n, m) right aligned with `decimals[j]` decimals ("nan" where not
-    finite, as `fixed`), then left-aligned text columns `tail`. One `%` per row."""
+    finite, as `fixed`), then left-aligned text columns `tail`."""
     numbers = np.asarray(numbers, dtype=float).reshape(-1, len(decimals))
     numbers = np.where(np.isfinite(numbers), numbers, np.nan)
     n_text = len(texts)
@@ -74,16 +76,32 @@ def column_table(
         for j, (name, d) in enumerate(zip(header[n_text:], decimals))
     ]
     widths += [max(map(len, [name, *column])) for name, column in zip(header[-len(tail):], tail)]
-    cells = [f"%-{w}s" for w in widths[:n_text]]
-    cells += [f"%{w}.{d}f" for w, d in zip(widths[n_text:], decimals)]
-    cells += [f"%-{w}s" for w in widths[n_text + len(decimals):]]
-    row_format = "  " + "  ".join(cells)
-    columns = [*texts, *(column.tolist() for column in numbers.T), *tail]
-    rows = map(str.rstrip, map(row_format.__mod__, zip(*columns)))
+    n = len(numbers)
+    places = np.broadcast_to(np.asarray(decimals, dtype=int), numbers.shape)
+    body = _number_lines(numbers, places, widths[n_text:n_text + len(decimals)], b"nan")
+    head_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
+    tail_format = "".join(f"  %-{w}s" for w in widths[n_text + len(decimals):])
+    rows = map(str.rstrip, map(
+        "".join, zip(map(head_format.__mod__, zip(*texts)) if texts else [head_format] * n,
+                     body, map(tail_format.__mod__, zip(*tail)) if tail else [""] * n)))
     sides = ["l"] * n_text + ["r"] * len(decimals) + ["l"] * len(tail)
     head = "  ".join(c.ljust(w) if side == "l" else c.rjust(w)
                      for c, w, side in zip(header, widths, sides))
     return [prefix + head.rstrip(), *rows]
+
+
+def _number_lines(numbers: np.ndarray, places: np.ndarray, widths: list[int],
+                  missing: bytes) -> list[str]:
+    """One line per row of `numbers` (n, m): column j right aligned in `widths[j]` with
+    `places` (n, m) decimals, `missing` where not finite, columns two spaces apart; all
+    printed at once (`fixed_cells`)."""
+    n, most = len(numbers), max(widths, default=0)
+    cells = fixed_cells(numbers, places, most, missing=missing).reshape(*numbers.shape, most)
+    gap = np.full((n, 2), ord(" "), dtype=np.uint8)
+    columns = [cells[:, j, most - width:] for j, width in enumerate(widths)]
+    parts = [part for column in columns for part in (gap, column)][1:]
+    text = np.concatenate([*parts, np.full((n, 1), ord("\n"), dtype=np.uint8)], axis=1)
+    return text.tobytes().decode("ascii").splitlines()
 
 
 def _printed_width(values: np.ndarray, decimals: int) -> int:
@@ -136,8 +154,9 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("unknowns", str(precision.n_unknowns)),
         ("redundancy", str(precision.redundancy)),
         ("solver backend", result.backend),
-        *((name, datum_text(project, result) if name == "datum" else text) for name, text in
-          statistical_items(result, project_ids(project), group_statistics(project, result))),
+        *statistical_items(result, project_ids(project), group_statistics(project, result),
+                           datum_text(project, result), variance_check(project, result),
+                           outlier_check(project, result)),
     ]
     return [f"jaxba bundle adjustment: {project.spec.name}", "", *aligned(items, "  ")]
 
@@ -264,8 +283,9 @@ def _parameter_table(header: list[str], texts: list[list[str]], table_: Paramete
                      decimals: list[int]) -> list[str]:
     """Lines of a parameter table: the text columns, values, σ, status codes."""
     status = np.asarray(table_.status, dtype=object).reshape(len(table_.ids), len(table_.names))
-    codes = np.vectorize(STATUS_CODE.__getitem__, otypes=[object])(status)
-    status = ["".join(row) for row in codes.tolist()]
+    codes = np.array(list(map(STATUS_CODE.__getitem__, status.ravel().tolist())), dtype="U1")
+    # The k codes of a row read as one string of k characters.
+    status = codes.reshape(status.shape).view(f"U{status.shape[1]}").ravel().tolist()
     numbers = np.column_stack([table_.values, table_.stds]) if len(table_.ids) else np.zeros(0)
     return column_table(header, [list(table_.ids), *texts], numbers, decimals * 2, [status])
 
@@ -406,7 +426,9 @@ def res_text(project: Project, result: Adjustment) -> str:
         *_residual_table(residuals, with_px=not in_pixels),
         "#",
     ]
-    summaries = residual_summaries(residuals)
+    converted = residuals is not image_residuals(project, result)
+    summaries = (residual_summaries(residuals) if converted
+                 else image_residual_summaries(project, result))
     lines += [_rms_comment(f"image {iid}", summary) for iid, summary in summaries["images"].items()]
     lines.append(_rms_comment("all", summaries["all"]))
     return "\n".join(lines) + "\n"
@@ -428,7 +450,8 @@ def number_table(
 ) -> list[str]:
     """Aligned lines as `table`, fast for many rows: the text columns `labels` (one list of n
     strings each, left aligned), then `numbers` (n, m) right aligned with `decimals[kind[i]][j]`
-    decimals in row i, column j (`kind` (n,) int) and `-` where not finite."""
+    decimals in row i, column j (`kind` (n,) int) and `-` where not finite; the numbers
+    printed all at once (`fixed_cells`)."""
     n_text = len(labels)
     numbers = np.where(np.isfinite(numbers), numbers, np.nan)
     rows = [numbers[kind == k] for k in range(len(decimals))]
@@ -437,18 +460,10 @@ def number_table(
         max([len(name)] + [_fixed_width(r[:, j], places[j]) for r, places in zip(rows, decimals)])
         for j, name in enumerate(header[n_text:])
     ]
-    # A column of NaN only prints the first letter of "nan" ("%.1s"), made "-" below.
-    formats = np.array([
-        "  ".join(
-            f"%{w}.{d}f" if np.isfinite(r[:, j]).any() else f"%{w}.1s"
-            for j, (w, d) in enumerate(zip(widths[n_text:], places))
-        )
-        for r, places in zip(rows, decimals)
-    ], dtype=object)
-    body = "\n".join(map(operator.mod, formats[kind].tolist(), row_tuples(numbers)))
-    body = body.replace("nan", "  -").replace("n", "-")  # only numbers and NaN in `body`
+    places = np.asarray(decimals, dtype=int)[kind]  # (n, m) decimals of every entry
+    body = _number_lines(numbers, places, widths[n_text:], b"-")
     label_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
-    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body.split("\n"))
+    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body)
     cells = [c.ljust(w) for c, w in zip(header[:n_text], widths)]
     cells += [c.rjust(w) for c, w in zip(header[n_text:], widths[n_text:])]
     return [prefix + "  ".join(cells).rstrip(), *labelled]

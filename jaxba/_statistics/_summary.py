@@ -150,14 +150,18 @@ def outlier_summary(result, ids: Ids, statistics=None,
                           len(result.rejections))
 
 
-def statistical_items(result, ids: Ids, statistics=None) -> list[tuple[str, str]]:
+def statistical_items(result, ids: Ids, statistics=None, datum: str | None = None,
+                      test: VarianceTest | None = None,
+                      found: OutlierSummary | None = None) -> list[tuple[str, str]]:
     """(name, text) of the variance test, the datum, the outliers and the timings: the lines
-    `brief_report` and NAME.out share (`statistics`: as `outlier_summary`)."""
-    test = variance_test(result)
-    found = outlier_summary(result, ids, statistics)
+    `brief_report` and NAME.out share (`statistics`: as `outlier_summary`). `datum`, `test`
+    and `found`: the datum's description, `variance_test` and `outlier_summary` where the
+    caller has them (computed when None)."""
+    test = variance_test(result) if test is None else test
+    found = outlier_summary(result, ids, statistics) if found is None else found
     return [
         ("variance test", test.text() if test is not None else "not available"),
-        ("datum", datum_description(result.problem)),
+        ("datum", datum_description(result.problem) if datum is None else datum),
         ("outliers", found.text() if found is not None else "no reliability computed"),
         ("timings", result.timings.text() if result.timings.phases else "not timed"),
     ]
