@@ -211,6 +211,19 @@ def test_variance_components_recover_a_threefold_noisier_camera(tmp_path):
     assert r_image < result.precision.redundancy + 1e-6
 
 
+def test_variance_components_after_a_rejection_are_named_by_camera(tmp_path):
+    """Data snooping re-adjusts without IDs; the second variance-component pass, after its
+    rejection, still names the components by the project's cameras, not by row number."""
+    truth = jaxba.write_synthetic_project(
+        tmp_path, seed=2, n_images=9, n_targets=50, n_cameras=2,
+        camera_noise_px=[0.3, 0.9], blunders=[("img03", "12", 0, 0.02)])
+    project = _with_settings(truth, variance_components=True, data_snooping=True)
+    result = jaxba.adjust_project(project)
+    assert result.rejections
+    assert set(result.variance_components) == {"image_points:C1", "image_points:C2",
+                                               "distances"}
+
+
 def test_data_snooping_flags_a_planted_blunder(tmp_path, caplog):
     """Also: the re-adjustments after each rejection reuse the first adjustment's compiled
     solve and Jacobian (a switched-off observation keeps the shapes), none recompiled."""

@@ -74,8 +74,10 @@ def adjust_project(
 
     def with_components(current):
         nonlocal components, variance_iterations, iterations
+        # Re-adjustments (robust loss, data snooping) carry no IDs: the components are
+        # named by the project's cameras all the same.
         current, components, rounds = estimate_variance_components(
-            current, reference=project.problem, **options
+            dataclasses.replace(current, ids=ids), reference=project.problem, **options
         )
         variance_iterations += rounds
         iterations = _continue_numbering(iterations, current.iterations)
