@@ -1,12 +1,13 @@
 """Turn a validated ProjectSpec into a BundleProblem, keeping the IDs for the reports.
 
-The problem's arrays are NumPy: whatever solves it puts them on the device (a jitted call,
-or `pad_problems` once per padded batch), and the bookkeeping around it needs no jax op.
+The arrays are built in NumPy and put on the device together, in one transfer per project.
 """
 
 import dataclasses
 import math
 
+import equinox as eqx
+import jax
 import numpy as np
 
 from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
@@ -299,6 +300,12 @@ def missing_approximations(spec: ProjectSpec) -> str:
     return " and ".join(parts) + " have no approximations"
 
 
+def _on_device(problem: BundleProblem) -> BundleProblem:
+    """`problem` with its NumPy arrays put on the device in one transfer."""
+    arrays, rest = eqx.partition(problem, lambda leaf: isinstance(leaf, np.ndarray))
+    return eqx.combine(jax.device_put(arrays), rest)
+
+
 def build_project(spec: ProjectSpec) -> Project:
     """The BundleProblem of a project, in mm (image) and object units; angles in radians.
 
@@ -350,7 +357,7 @@ def build_project(spec: ProjectSpec) -> Project:
         None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
     )
     initial = Parameters(iop, eop, xyz)
-    problem = BundleProblem(
+    problem = _on_device(BundleProblem(
         initial=initial,
         free=Parameters(iop_free, eop_free, xyz_free),
         groups=tuple(groups),
@@ -358,7 +365,7 @@ def build_project(spec: ProjectSpec) -> Project:
         robust=robust,
         ties=_ties(spec, camera_rows, iop),
         gauge=_gauge_positions(initial, gauge),
-    )
+    ))
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
