@@ -582,7 +582,8 @@ def _unpad_residuals(layout: list[tuple], problem: BundleProblem, flat) -> list:
 
 def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familywise):
     params = _unpad_parameters(solution.parameters, problem.initial)
-    n_obs = problem.n_observations()
+    mask = observation_mask(problem)
+    n_obs = int(mask.sum())
     redundancy = n_obs - n_free
     whitened = _unpad_residuals(layout, problem, stats.whitened)
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
@@ -613,7 +614,6 @@ def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familyw
     leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
                                                                       stats.leverage)])
     flat_e = np.concatenate([np.ravel(e) for e in whitened])
-    mask = observation_mask(problem)
     r, e = 1.0 - leverage[mask], flat_e[mask]
     return dataclasses.replace(result, reliability=reliability_from_redundancy(
         problem, r, e, alpha=alpha, familywise=familywise

@@ -546,6 +546,13 @@ def _batch(args: argparse.Namespace) -> int:
         from jaxba._cli._progress_bar import project_progress
         from jaxba._io._project._batch_run import run_batch
 
+        if args.own_process:
+            from jaxba import _report
+            from jaxba._gc import freeze_long_lived
+
+            _report.write_reports  # imported now, frozen with the rest
+            freeze_long_lived()  # the modules and the projects read live until the end
+
         with project_progress(len(args.projects), _say, bar=args.progress) as progress:
             try:
                 rows = run_batch(args.projects, args.out, progress=progress.say,

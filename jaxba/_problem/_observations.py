@@ -109,8 +109,11 @@ class AbstractObservationGroup(eqx.Module):
         return (self.name,), np.zeros(np.shape(self.stddev)[0], dtype=int)
 
     def mask(self) -> Bool[Array, "n k"]:
-        """True where the residual entry is an observation."""
-        return jnp.isfinite(self.stddev)
+        """True where the residual entry is an observation: traced inside a program, a NumPy
+        array outside one (host bookkeeping, no jax op per call)."""
+        if isinstance(self.stddev, jax.core.Tracer):
+            return jnp.isfinite(self.stddev)
+        return np.isfinite(np.asarray(self.stddev))
 
     def sigma(self) -> Float[Array, "n k"]:
         """A priori σ of every residual entry."""

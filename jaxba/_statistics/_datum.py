@@ -228,7 +228,6 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
     """Refuse a camera whose model's inseparable pair (`INSEPARABLE_PARAMETERS`, e.g. SMAC's
     K0 and c) is free with no prior on either: the observations cannot tell them apart (a
     solve from there collapses, e.g. to c = 0, K0 = 1)."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
     # A tied parameter is as free as its source (`BundleProblem.ties`).
     estimated = unflatten(problem.free, flatten(problem.free)[tie_source(problem)])
     for model, free in estimated.cameras.items():
@@ -245,6 +244,7 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
             ia, ib = names.index(a), names.index(b)
             both = free[:, ia] & free[:, ib] & ~prior[:, ia] & ~prior[:, ib]
             for row in np.flatnonzero(both):
+                positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
                 camera = labels[int(np.asarray(positions.cameras[model])[row, ia])]
                 camera = camera.removesuffix(f" {a}")
                 raise DatumError(

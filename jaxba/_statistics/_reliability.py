@@ -34,9 +34,10 @@ class Reliability:
     critical_value: float
 
 
-def _split(problem: BundleProblem, flat_real: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Scatter values of the real observations back into group-shaped arrays (NaN elsewhere)."""
-    mask = observation_mask(problem)
+def _split(problem: BundleProblem, mask: np.ndarray, flat_real: np.ndarray
+           ) -> tuple[np.ndarray, ...]:
+    """Scatter values of the real observations (`mask`: `observation_mask(problem)`) back
+    into group-shaped arrays (NaN elsewhere)."""
     full = np.full(mask.shape, np.nan)
     full[mask] = flat_real
     parts, start = [], 0
@@ -78,18 +79,19 @@ def reliability_from_redundancy(
 ) -> Reliability:
     """`reliability` from the redundancy numbers r_i and whitened residuals e_i of the real
     observations (flat, `observation_mask` order), e.g. from a batched computation."""
-    alpha = per_test_alpha(alpha, problem.n_observations(), familywise=familywise)
+    mask = observation_mask(problem)
+    alpha = per_test_alpha(alpha, int(mask.sum()), familywise=familywise)
     safe_r = np.where(r > 1e-12, r, np.nan)
     import scipy.special  # here: scipy.stats, for norm.ppf alone, took 0.8 s to import
 
     critical = float(scipy.special.ndtri(1 - alpha / 2))  # the standard normal's ppf
     delta0 = critical + float(scipy.special.ndtri(power))
     sigma = np.concatenate([np.ravel(np.asarray(g.stddev)) for g in problem.groups])
-    sigma = sigma[observation_mask(problem)]
+    sigma = sigma[mask]
     return Reliability(
-        redundancy_numbers=_split(problem, r),
-        normalised_residuals=_split(problem, whitened / np.sqrt(safe_r)),
-        mdb=_split(problem, delta0 * sigma / np.sqrt(safe_r)),
+        redundancy_numbers=_split(problem, mask, r),
+        normalised_residuals=_split(problem, mask, whitened / np.sqrt(safe_r)),
+        mdb=_split(problem, mask, delta0 * sigma / np.sqrt(safe_r)),
         alpha=alpha,
         critical_value=critical,
     )

@@ -1,10 +1,13 @@
-"""Turn a validated ProjectSpec into a BundleProblem, keeping the IDs for the reports."""
+"""Turn a validated ProjectSpec into a BundleProblem, keeping the IDs for the reports.
+
+The arrays are built in NumPy and put on the device together, in one transfer per project.
+"""
 
 import dataclasses
 import math
 
+import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
@@ -65,15 +68,15 @@ def _cameras(spec: ProjectSpec):
         ParameterObservations(
             name="camera_priors" if len(values) == 1 else f"camera_priors:{model}",
             block=f"cameras/{model}",
-            rows=jnp.arange(len(values[model])),
-            observed=jnp.asarray(values[model], dtype=float),
-            stddev=jnp.asarray(prior_sigma[model], dtype=float),
+            rows=np.arange(len(values[model])),
+            observed=np.asarray(values[model], dtype=float),
+            stddev=np.asarray(prior_sigma[model], dtype=float),
         )
         for model in values
         if np.isfinite(prior_sigma[model]).any()
     ]
-    as_arrays = {m: jnp.asarray(v, dtype=float) for m, v in values.items()}
-    return rows, as_arrays, {m: jnp.asarray(f) for m, f in free.items()}, priors
+    as_arrays = {m: np.asarray(v, dtype=float) for m, v in values.items()}
+    return rows, as_arrays, {m: np.asarray(f) for m, f in free.items()}, priors
 
 
 def _ties(spec: ProjectSpec, camera_rows: dict, iop: dict) -> tuple[tuple[int, int], ...]:
@@ -110,7 +113,7 @@ def _images(spec: ProjectSpec):
         sigma.append(observed_sigma)
     eop, sigma = np.asarray(eop), np.asarray(sigma)
     groups = _weighted_rows("gnss_ins", "images", eop, sigma)
-    return jax.device_put(eop), jax.device_put(np.asarray(free)), groups
+    return eop, np.asarray(free), groups
 
 
 def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray) -> list:
@@ -120,8 +123,8 @@ def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray)
     if rows.size == 0:
         return []
     return [ParameterObservations(
-        name=name, block=block, rows=jax.device_put(rows),
-        observed=jax.device_put(values[rows]), stddev=jax.device_put(sigma[rows]))]
+        name=name, block=block, rows=rows, observed=values[rows],
+        stddev=sigma[rows])]
 
 
 def used_points(spec: ProjectSpec) -> list[str]:
@@ -141,7 +144,7 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
     free = ~(given == 0)
     sigma = np.where(given > 0, given, np.inf)
     groups = _weighted_rows("control", "points", xyz, sigma)
-    return jax.device_put(xyz), jax.device_put(free), groups
+    return xyz, free, groups
 
 
 def pixel_grid(camera) -> PixelGrid | None:
@@ -204,11 +207,11 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
         groups.append(ImagePoints(
             name=name,
             model=model,
-            camera=jax.device_put(row[rows]),
-            image=jax.device_put(image[rows]),
-            point=jax.device_put(point[rows]),
-            measured=jax.device_put(xy[rows]),
-            stddev=jax.device_put(sigma[rows]),
+            camera=row[rows],
+            image=image[rows],
+            point=point[rows],
+            measured=xy[rows],
+            stddev=sigma[rows],
             constants=constants,
             per_camera=True,
         ))
@@ -297,6 +300,12 @@ def missing_approximations(spec: ProjectSpec) -> str:
     return " and ".join(parts) + " have no approximations"
 
 
+def _on_device(problem: BundleProblem) -> BundleProblem:
+    """`problem` with its NumPy arrays put on the device in one transfer."""
+    arrays, rest = eqx.partition(problem, lambda leaf: isinstance(leaf, np.ndarray))
+    return eqx.combine(jax.device_put(arrays), rest)
+
+
 def build_project(spec: ProjectSpec) -> Project:
     """The BundleProblem of a project, in mm (image) and object units; angles in radians.
 
@@ -316,7 +325,7 @@ def build_project(spec: ProjectSpec) -> Project:
     if spec.settings.datum == "dependent":
         held, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
         gauge = np.asarray(eop_free) & ~held
-        eop_free = jnp.asarray(held)
+        eop_free = np.asarray(held)
     xyz, xyz_free, control = _points(spec, point_ids)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     image_index = {iid: k for k, iid in enumerate(image_ids)}
@@ -326,10 +335,10 @@ def build_project(spec: ProjectSpec) -> Project:
     if spec.distances:
         groups.append(Distances(
             name="distances",
-            a=jnp.asarray([point_index[d.a] for d in spec.distances]),
-            b=jnp.asarray([point_index[d.b] for d in spec.distances]),
-            observed=jnp.asarray([[d.distance] for d in spec.distances], dtype=float),
-            stddev=jnp.asarray([[d.sigma] for d in spec.distances], dtype=float),
+            a=np.asarray([point_index[d.a] for d in spec.distances]),
+            b=np.asarray([point_index[d.b] for d in spec.distances]),
+            observed=np.asarray([[d.distance] for d in spec.distances], dtype=float),
+            stddev=np.asarray([[d.sigma] for d in spec.distances], dtype=float),
         ))
     settings = spec.settings
     for camera_id, (model, _) in camera_rows.items():
@@ -348,7 +357,7 @@ def build_project(spec: ProjectSpec) -> Project:
         None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
     )
     initial = Parameters(iop, eop, xyz)
-    problem = BundleProblem(
+    problem = _on_device(BundleProblem(
         initial=initial,
         free=Parameters(iop_free, eop_free, xyz_free),
         groups=tuple(groups),
@@ -356,7 +365,7 @@ def build_project(spec: ProjectSpec) -> Project:
         robust=robust,
         ties=_ties(spec, camera_rows, iop),
         gauge=_gauge_positions(initial, gauge),
-    )
+    ))
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)

@@ -13,6 +13,7 @@ a spec that still misses some.
 import dataclasses
 import math
 import pathlib
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -132,7 +133,8 @@ class ImagePointTable(Sequence):
 
     `image`, `point`: the IDs (n,) as lists of str; `xy` (n, 2) in the project's image units;
     `sigma` (n, 2), NaN where the file gave none (the project's `image_sigma`); `line` (n,)
-    the line numbers.
+    the line numbers. The IDs are interned: each is one string object however many times it
+    was measured (a batch holds thousands of tables).
     """
 
     image: list[str]
@@ -140,6 +142,10 @@ class ImagePointTable(Sequence):
     xy: np.ndarray
     sigma: np.ndarray
     line: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "image", list(map(sys.intern, self.image)))
+        object.__setattr__(self, "point", list(map(sys.intern, self.point)))
 
     @classmethod
     def from_records(cls, records: Sequence[ImagePointSpec]) -> "ImagePointTable":
