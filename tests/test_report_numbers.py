@@ -51,3 +51,10 @@ def test_fixed_cells_refuse_a_number_wider_than_its_column():
     with pytest.raises(ValueError, match="wider than its column"):
         fixed_cells(np.array([-123.25]), 2, 6)
     assert fixed_cells(np.array([-123.25]), 2, 7).tobytes() == b"-123.25"
+
+
+def test_fixed_cells_of_missing_values_need_only_the_missing_text_s_width():
+    """A column of σ that are all unavailable (NaN) is as wide as "nan", whatever decimals
+    its numbers would have had."""
+    cells = fixed_cells(np.array([np.nan, np.inf, np.nan]), 8, 3, missing=b"nan")
+    assert [row.tobytes() for row in cells] == [b"nan"] * 3

@@ -26,12 +26,13 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
     x = np.asarray(values, dtype=float).ravel()
     d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), np.shape(values)).ravel()
     cells = np.empty((x.size, width), dtype=np.uint8)
+    finite = np.isfinite(x)  # only these are sized by their digits (a column of NaN: "nan")
     for start in range(0, x.size, _CHUNK):
         chunk = slice(start, start + _CHUNK)
-        for places in np.unique(d[chunk]).tolist():
-            rows = np.flatnonzero(d[chunk] == places) + start
+        for places in np.unique(d[chunk][finite[chunk]]).tolist():
+            rows = np.flatnonzero((d[chunk] == places) & finite[chunk]) + start
             cells[rows] = _fixed(x[rows], places, width, pad[0])
-    _put(cells, ~np.isfinite(x), lambda k: missing, pad)
+    _put(cells, ~finite, lambda k: missing, pad)
     return cells
 
 
