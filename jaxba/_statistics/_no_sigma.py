@@ -2,7 +2,7 @@
 
 Where N is singular at the solution, the unknowns along its null space have no σ. The Schur
 backend finds the object points whose own 3 x 3 block is singular (rays that nearly
-coincide: `jaxba._statistics._schur_precision.singular_points`) and gives every other unknown
+coincide: `jaxba._solvers._schur._normal.singular_points`) and gives every other unknown
 its σ; any other free unknown without a finite σ lies along a singular direction of N that
 the observations and the datum leave undetermined.
 """
