@@ -60,6 +60,10 @@ def add_export(subparsers, common: argparse.ArgumentParser) -> None:
         "--coefficients", type=int, choices=(4, 5, 8), default=5,
         help="OpenCV's distortion terms of a fitted camera: 4 (k1 k2 p1 p2: COLMAP's OPENCV),"
              " 5 (+ k3, OpenCV's default) or 8 (+ k4 k5 k6, the rational model)")
+    parser.add_argument(
+        "--exact", action="store_true",
+        help="refuse a camera without an exact equivalent in the target (naming the parameter"
+             " that has none) instead of fitting it")
     parser.set_defaults(run=run_export)
 
 
@@ -223,7 +227,7 @@ def run_export(args: argparse.Namespace) -> int:
         exported = {}
         for cid in selected:
             exported[cid] = export_camera(cameras[cid], args.format,
-                                          coefficients=args.coefficients)
+                                          coefficients=args.coefficients, exact=args.exact)
             _say(_describe(exported[cid], args.format))
         if args.format == "opencv":
             texts, rigs = _opencv_files(results, exported)

@@ -19,6 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models._cameras import CAMERA_MODELS, PixelGrid
+from .._models._cameras._names import (
+    RAY_REFRACTION_PARAMETER_NAMES,
+    REFRACTION_SEPARATOR,
+    lens_model,
+)
 from ._camera_export import fit_opencv
 from ._colmap import (
     PIXEL_ORIGIN_SHIFT,
@@ -134,14 +139,26 @@ def no_exact_equivalent(model: str, values: Mapping[str, float], target: str) ->
 
 
 def export_camera(camera: ResultsCamera, target: str, *, coefficients: int = 5,
-                  samples: int = 41) -> ExportedCamera:
+                  samples: int = 41, exact: bool = False) -> ExportedCamera:
     """`camera` in `target`'s conventions: its own values where it has an exact equivalent
-    (`no_exact_equivalent`), else OpenCV's model with `coefficients` distortion terms fitted
-    over the sensor from `samples` grid points along its longer side (`fit_opencv`).
+    (`no_exact_equivalent`), else (unless `exact`) OpenCV's model with `coefficients`
+    distortion terms fitted over the sensor from `samples` grid points along its longer side
+    (`fit_opencv`).
 
     Raises `ValueError` naming the camera where it has no sensor size, a mm camera no pixel
-    size, or `fit_opencv` refuses it (not central, a bal camera, a distortion that folds)."""
+    size, `exact` and no exact equivalent (naming the parameter or model), or no fit is
+    possible: a camera behind a flat port (not central), a bal camera (centred image frame,
+    no principal point), a distortion that folds the image over."""
     where = f"camera {camera.id!r}"
+    lens = lens_model(camera.model)
+    if lens != camera.model:
+        refraction = camera.model.removeprefix(lens + REFRACTION_SEPARATOR)
+        names = ", ".join(RAY_REFRACTION_PARAMETER_NAMES[refraction])
+        raise ValueError(f"{where}: its {refraction} refraction ({names}) has no "
+                         f"{TARGETS[target]} equivalent: the camera behind it is not central")
+    if camera.model == "bal":
+        raise ValueError(f"{where}: the bal model has no {TARGETS[target]} equivalent: its"
+                         " image frame is centred with y up and its principal point unknown")
     if camera.sensor is None:
         raise ValueError(f"{where}: its cameras.toml gives no sensor (columns, rows); "
                          f"{TARGETS[target]} needs the image size")
@@ -149,6 +166,8 @@ def export_camera(camera: ResultsCamera, target: str, *, coefficients: int = 5,
     if obstacle is None:
         return ExportedCamera(camera.id, camera.model, camera.model, dict(camera.values),
                               camera.sensor, None)
+    if exact:
+        raise ValueError(f"{where}: {obstacle}; only an exact equivalent was asked for")
     try:
         model = CAMERA_MODELS[camera.model]
     except ValueError as error:
