@@ -23,7 +23,6 @@ import jaxba
 from jaxba._cli._main import main
 from jaxba._io import read_colmap_model
 from jaxba._io._colmap import colmap_pose_to_eop, quaternion_to_matrix
-from jaxba._models._rotation_numpy import opk_to_matrix
 from jaxba._report._csv import COLUMNS
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
