@@ -23,6 +23,7 @@ import jaxba
 from jaxba._cli._main import main
 from jaxba._io import read_colmap_model
 from jaxba._io._colmap import colmap_pose_to_eop, quaternion_to_matrix
+from jaxba._models._rotation_numpy import opk_to_matrix
 from jaxba._report._csv import COLUMNS
 
 LAB = pathlib.Path(__file__).resolve().parents[1] / "configs" / "lab"
@@ -273,3 +274,136 @@ def test_a_mm_project_exports_to_colmap_and_reads_back(lab, tmp_path):
         error = np.linalg.norm(projected.reshape(-1, 2) - xy, axis=1)
         worst = max(worst, np.max(error - (1 + MISFIT_RTOL) * v_px))
     assert worst <= misfit * (1 + MISFIT_RTOL)
+
+
+def _stereo_results(folder: pathlib.Path, rig: dict | None = None) -> pathlib.Path:
+    right = {**OPENCV, "fx": 805.0, "fy": 803.5, "cx": 322.25, "k1": -0.19, "p2": 2e-4}
+    rigs = {"stereo": {"reference": "left", "right": _entries(RIG)}} if rig is None else rig
+    return _write_results(folder, {"left": ("opencv", OPENCV, [640, 480]),
+                                   "right": ("opencv", right, [640, 480])}, rigs=rigs)
+
+
+def test_a_rig_is_written_as_opencv_stereo_yaml(tmp_path):
+    """A two-camera rig: K1 D1 K2 D2 as the cameras' YAML, and R, T that carry OpenCV's
+    projection of camera 1 to jaxba's camera 2; cv2.stereoCalibrate on noise-free corners of
+    a board seen by the rig finds the same R, T, E and F."""
+    out = _stereo_results(tmp_path / "out")
+    code, stdout, stderr = _run("export", str(out), "--format", "opencv")
+    assert code == 0 and stderr == "", stderr
+    folder = out / "export" / "opencv"
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "export.json", "left.yml", "right.yml", "stereo_left_right.yml"]
+    stereo = folder / "stereo_left_right.yml"
+    k1, d1, k2, d2, r, t, e, f, baseline = _read_yaml(
+        stereo, "K1", "D1", "K2", "D2", "R", "T", "E", "F", "baseline")
+    for k, d, name in ((k1, d1, "left"), (k2, d2, "right")):
+        k_alone, d_alone = _read_yaml(folder / f"{name}.yml", "camera_matrix",
+                                      "distortion_coefficients")
+        np.testing.assert_array_equal(k, k_alone)
+        np.testing.assert_array_equal(d, d_alone)
+    assert t.shape == (3, 1)
+    assert baseline == pytest.approx(np.linalg.norm([RIG["X0"], RIG["Y0"], RIG["Z0"]]),
+                                     rel=1e-15)
+
+    station = np.array([RIG["X0"], RIG["Y0"], RIG["Z0"]])
+    m = opk_to_matrix(np.radians([RIG["omega"], RIG["phi"], RIG["kappa"]]))
+    right_values = {n: e["value"] for n, e in
+                    json.loads((out / "results.json").read_text())["cameras"]["right"].items()}
+    left, right = _camera("opencv", OPENCV), _camera("opencv", right_values)
+    p_rig = _points_in_front(40, seed=5)
+    cv_pixels, _ = cv2.projectPoints(p_rig @ G, cv2.Rodrigues(r)[0], t, k2, d2)
+    np.testing.assert_allclose(cv_pixels.reshape(-1, 2),
+                               _jaxba_pixels(right, (p_rig - station) @ m.T), atol=PIXEL_ATOL)
+
+    # A 9 x 6 board (3 cm) seen from 0.8 units in eight frames, each pixel by jaxba's models.
+    rng = np.random.default_rng(11)
+    cols, rows = np.meshgrid(np.arange(9) * 0.03 - 0.12, np.arange(6) * 0.03 - 0.075)
+    board = np.column_stack([cols.ravel(), rows.ravel(), np.zeros(cols.size)])
+    objects, pixels_1, pixels_2 = [], [], []
+    for _ in range(8):
+        m_frame = opk_to_matrix(np.radians(rng.uniform(-20.0, 20.0, 3)))
+        frame_rig = (board - [rng.uniform(-0.05, 0.1), rng.uniform(-0.05, 0.05), 0.8]) @ m_frame.T
+        objects.append(board.astype(np.float32))
+        pixels_1.append(_jaxba_pixels(left, frame_rig).astype(np.float32)[:, None])
+        pixels_2.append(_jaxba_pixels(right, (frame_rig - station) @ m.T)
+                        .astype(np.float32)[:, None])
+    *_, r_cv, t_cv, e_cv, f_cv = cv2.stereoCalibrate(
+        objects, pixels_1, pixels_2, k1, d1, k2, d2, (640, 480), flags=cv2.CALIB_FIX_INTRINSIC)
+    np.testing.assert_allclose(r, r_cv, atol=STEREO_ATOL)
+    np.testing.assert_allclose(t, t_cv, atol=STEREO_ATOL)
+    np.testing.assert_allclose(e, e_cv, atol=STEREO_ATOL)
+    np.testing.assert_allclose(f, f_cv, rtol=STEREO_ATOL * 10, atol=STEREO_ATOL * np.abs(f).max())
+
+
+def test_a_rig_without_its_reference_is_refused_and_one_camera_has_no_pair(tmp_path):
+    out = _stereo_results(tmp_path / "out", rig={"stereo": {"right": _entries(RIG)}})
+    code, _, stderr = _run("export", str(out), "--format", "opencv")
+    assert code == 2 and "rig 'stereo': names no reference camera" in stderr
+    out = _stereo_results(tmp_path / "one")
+    code, _, stderr = _run("export", str(out), "--format", "opencv", "--camera", "left")
+    assert code == 0, stderr
+    assert sorted(p.name for p in (out / "export" / "opencv").iterdir()) == [
+        "export.json", "left.yml"]
+
+
+def test_a_pixel_camera_exports_exactly_to_colmap(tmp_path):
+    """An opencv camera without skew is COLMAP's FULL_OPENCV as it is (pixels + 0.5); image
+    points as observations.csv has them, + 0.5, those removed by data snooping left out."""
+    observations = [("i1", "P1", "A", 100.25, 200.5, False), ("i1", "P2", "A", 300.0, 50.0, True),
+                    ("i2", "P1", "A", 110.0, 190.0, False), ("i2", "P2", "A", 320.5, 60.0, False)]
+    images = {"i1": ("A", (0.1, 0.2, 5.0, 1.0, -2.0, 30.0)),
+              "i2": ("A", (1.1, -0.2, 5.5, -3.0, 2.0, 28.0))}
+    out = _write_results(tmp_path / "out", {"A": ("opencv", OPENCV, [640, 480])},
+                         images=images, observations=observations)
+    code, stdout, stderr = _run("export", str(out), "--format", "colmap")
+    assert code == 0 and stderr == "", stderr
+    assert "A: opencv -> COLMAP FULL_OPENCV: exact" in stdout
+    model = read_colmap_model(out / "export" / "colmap")
+    (camera,) = model.cameras.values()
+    assert camera.params == tuple(OPENCV[n] + (0.5 if n in ("cx", "cy") else 0.0) for n in (
+        "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6") if n in OPENCV
+    ) + (0.0, 0.0, 0.0)
+    first, second = model.images.values()
+    assert [(x, y) for x, y, _ in first.points2d] == [(100.75, 201.0)]
+    assert [(x, y) for x, y, _ in second.points2d] == [(110.5, 190.5), (321.0, 60.5)]
+    for image, (_, eop) in zip((first, second), images.values()):
+        np.testing.assert_allclose(colmap_pose_to_eop(image.qvec, image.tvec),
+                                   np.r_[eop[:3], np.radians(eop[3:])], atol=POSE_ATOL)
+    assert sorted(len(p.track) for p in model.points.values()) == [1, 2]
+
+
+def test_bad_input_is_refused_with_a_clear_error(lab, tmp_path):
+    code, _, stderr = _run("export", str(tmp_path / "nothing"), "--format", "opencv")
+    assert code == 2 and "nothing: no such folder" in stderr
+    (tmp_path / "empty").mkdir()
+    code, _, stderr = _run("export", str(tmp_path / "empty"), "--format", "colmap")
+    assert code == 2 and f"{tmp_path / 'empty' / 'results.json'}: no such file" in stderr
+    code, _, stderr = _run("export", str(lab), "--format", "opencv", "--camera", "C9",
+                           "--to", str(tmp_path / "c9"))
+    assert code == 2 and "--camera C9: " in stderr and "its cameras: C1" in stderr
+    port = {"xp": 0.0, "yp": 0.0, "c": 8.5, "distance": 10.0}
+    out = _write_results(tmp_path / "port", {"U": ("smac+flat_port", port, [6000, 4000])})
+    code, _, stderr = _run("export", str(out), "--format", "colmap")
+    assert code == 2 and "camera 'U': its flat_port refraction (distance, thickness," in stderr
+    older = json.loads((out / "results.json").read_text())
+    del older["camera_models"]
+    (out / "results.json").write_text(json.dumps(older))
+    code, _, stderr = _run("export", str(out), "--format", "opencv")
+    assert code == 2 and 'no "camera_models"' in stderr and "adjust the project again" in stderr
+    assert not (tmp_path / "c9").exists() and not (out / "export").exists()
+
+
+def test_never_over_an_input_and_again_into_an_earlier_export(lab, tmp_path):
+    """A folder with other files (OUT_DIR itself, with results.json) is refused; an earlier
+    export's folder is written again, its files replaced."""
+    before = (lab / "results.json").read_bytes()
+    code, _, stderr = _run("export", str(lab), "--format", "opencv", "--to", str(lab))
+    assert code == 2 and "holds files that jaxba export did not write" in stderr
+    assert (lab / "results.json").read_bytes() == before and not (lab / "C1.yml").exists()
+    for coefficients in ("4", "5"):
+        code, _, stderr = _run("export", str(lab), "--format", "opencv", "--to",
+                               str(tmp_path), "--coefficients", coefficients)
+        assert code == 0, stderr
+    distortion, = _read_yaml(tmp_path / "C1.yml", "distortion_coefficients")
+    assert distortion.ravel()[4] != 0  # k3: the second export's
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["C1.yml", "export.json"]
