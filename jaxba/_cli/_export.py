@@ -22,8 +22,6 @@ import math
 import pathlib
 import sys
 
-from jaxba._report._paths import OutputError
-
 _RESULTS, _OBSERVATIONS, _MANIFEST = "results.json", "observations.csv", "export.json"
 _COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt")
 _DESCRIPTION = (
@@ -38,9 +36,9 @@ _DESCRIPTION = (
 )
 
 
-class ExportError(OutputError):
-    """Bad input to `jaxba export`: reported as `jaxba: error: ...`, exit code 2 (an
-    `OutputError`, which `main` maps to bad input)."""
+class ExportError(Exception):
+    """Bad input to `jaxba export`: `run_export` raises it as an `OutputError`, which `main`
+    reports as `jaxba: error: ...` with exit code 2."""
 
 
 def add_export(subparsers, common: argparse.ArgumentParser) -> None:
@@ -210,14 +208,22 @@ def _manifest(args, exported: dict, files: list[str], rigs: dict) -> str:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    """Export (module docstring); 0 when written. Bad input raises `ExportError`."""
+    """Export (module docstring); 0 when written. Bad input raises `OutputError`."""
+    from jaxba._report import OutputError
+
+    try:
+        return _export(args)
+    except ExportError as error:
+        raise OutputError(str(error)) from None
+
+
+def _export(args: argparse.Namespace) -> int:
+    from jaxba._jax_setup import setup_jax
     from jaxba._report import check_targets, output_lock, replace_files
 
-    results = _read_results(args.out_dir)
+    results = _read_results(args.out_dir)  # before jax: bad input is reported at once
     where = args.out_dir / _RESULTS
     to = _destination(args)
-    from jaxba._jax_setup import setup_jax
-
     setup_jax()
     from jaxba._io._export import WARN_MISFIT_PX, export_camera, results_cameras
 
@@ -233,8 +239,6 @@ def run_export(args: argparse.Namespace) -> int:
             texts, rigs = _opencv_files(results, exported)
         else:
             texts, rigs = _colmap_files(args, results, cameras, exported), {}
-    except ExportError:
-        raise
     except (KeyError, TypeError, AttributeError) as error:
         raise ExportError(f"{where}: not a results.json of jaxba: {error!r} is missing or"
                           " malformed") from None
