@@ -407,3 +407,14 @@ def test_never_over_an_input_and_again_into_an_earlier_export(lab, tmp_path):
     distortion, = _read_yaml(tmp_path / "C1.yml", "distortion_coefficients")
     assert distortion.ravel()[4] != 0  # k3: the second export's
     assert sorted(p.name for p in tmp_path.iterdir()) == ["C1.yml", "export.json"]
+
+
+def test_bad_input_is_reported_before_jax_is_loaded(tmp_path):
+    """No results.json: the error comes at once, from a process that never imported jax."""
+    script = ("import sys; from jaxba._cli._main import main; code = main(sys.argv[1:]);"
+              " print(code, 'jax' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", script, "export", str(tmp_path), "--format",
+                           "opencv"], capture_output=True, text=True, timeout=60)
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert done.stderr.startswith("jaxba: error: ") and "results.json: no such file" in done.stderr
+    assert not (tmp_path / "export").exists()
