@@ -23,6 +23,8 @@ import time
 import traceback
 from collections.abc import Iterator, Sequence
 
+from jaxba._cli._export import add_export
+
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
 EXIT_CODES = (
@@ -597,6 +599,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_import(subparsers)
     _add_bal(subparsers)
     _add_batch(subparsers)
+    add_export(subparsers, _common_options())
     return parser
 
 

@@ -266,16 +266,14 @@ def read_colmap_model(directory: str | os.PathLike) -> ColmapModel:
     return ColmapModel(cameras, images, points)
 
 
-def write_colmap_model(model: ColmapModel, directory: str | os.PathLike) -> None:
-    """Write `model` as COLMAP text (cameras.txt, images.txt, points3D.txt) into `directory`."""
-    directory = pathlib.Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+def colmap_model_texts(model: ColmapModel) -> dict[str, str]:
+    """`model` as COLMAP text: file name (cameras.txt, images.txt, points3D.txt) -> text."""
     lines = ["# Camera list with one line of data per camera:",
              "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
              f"# Number of cameras: {len(model.cameras)}"]
     lines += [" ".join([str(c.id), c.model, str(c.width), str(c.height),
                         *(repr(float(v)) for v in c.params)]) for c in model.cameras.values()]
-    (directory / "cameras.txt").write_text("\n".join(lines) + "\n")
+    texts = {"cameras.txt": "\n".join(lines) + "\n"}
 
     n_obs = sum(len(i.points2d) for i in model.images.values())
     lines = ["# Image list with two lines of data per image:",
@@ -288,7 +286,7 @@ def write_colmap_model(model: ColmapModel, directory: str | os.PathLike) -> None
                                *(repr(float(v)) for v in image.tvec), str(image.camera_id),
                                image.name]))
         lines.append(" ".join(f"{float(x)!r} {float(y)!r} {pid}" for x, y, pid in image.points2d))
-    (directory / "images.txt").write_text("\n".join(lines) + "\n")
+    texts["images.txt"] = "\n".join(lines) + "\n"
 
     lines = ["# 3D point list with one line of data per point:",
              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
@@ -296,7 +294,16 @@ def write_colmap_model(model: ColmapModel, directory: str | os.PathLike) -> None
     lines += [" ".join([str(p.id), *(repr(float(v)) for v in p.xyz), *(str(v) for v in p.rgb),
                         repr(float(p.error)), *(f"{i} {j}" for i, j in p.track)])
               for p in model.points.values()]
-    (directory / "points3D.txt").write_text("\n".join(lines) + "\n")
+    texts["points3D.txt"] = "\n".join(lines) + "\n"
+    return texts
+
+
+def write_colmap_model(model: ColmapModel, directory: str | os.PathLike) -> None:
+    """Write `model` as COLMAP text (cameras.txt, images.txt, points3D.txt) into `directory`."""
+    directory = pathlib.Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    for name, text in colmap_model_texts(model).items():
+        (directory / name).write_text(text)
 
 
 # --- COLMAP -> jaxba project -------------------------------------------------------------------
@@ -486,7 +493,7 @@ def camera_to_colmap(model: str, values: Mapping[str, float]) -> tuple[str, tupl
     return colmap, tuple(v.get(name, 0.0) for name in names)
 
 
-def _numeric_ids(ids: Sequence[str]) -> dict[str, int]:
+def numeric_ids(ids: Sequence[str]) -> dict[str, int]:
     """jaxba id -> COLMAP id: the id itself where it is a positive integer, else the next free."""
     numeric = {i: int(i) for i in ids if i.isdigit() and int(i) > 0}
     if len(set(numeric.values())) != len(numeric):
@@ -513,7 +520,7 @@ def project_to_colmap(project, parameters=None) -> ColmapModel:
         raise ValueError(f"{project.spec.name}: only image_units = \"pixel\" projects export "
                          "to COLMAP")
     parameters = project.problem.initial if parameters is None else parameters
-    camera_ids = _numeric_ids(list(project.camera_rows))
+    camera_ids = numeric_ids(list(project.camera_rows))
     cameras = {}
     for camera_id, (model, row) in project.camera_rows.items():
         names = _JAXBA_PARAMETERS.get(model, ())
@@ -523,7 +530,7 @@ def project_to_colmap(project, parameters=None) -> ColmapModel:
         cid = camera_ids[camera_id]
         cameras[cid] = ColmapCamera(cid, colmap_model, width, height, params)
 
-    point_ids = _numeric_ids(project.point_ids)
+    point_ids = numeric_ids(project.point_ids)
     image_numbers = {image_id: k for k, image_id in enumerate(project.image_ids, start=1)}
     points2d: dict[str, list] = {image_id: [] for image_id in project.image_ids}
     tracks: dict[str, list] = {pid: [] for pid in project.point_ids}

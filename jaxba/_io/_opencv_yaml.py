@@ -27,9 +27,10 @@ ignores it). Numbers are written with Python's shortest round-trip repr, so they
 exactly. Plain Python; nothing here calls jax.
 """
 
+import json
 import os
 import pathlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -58,6 +59,40 @@ def opencv_camera_matrix(model: str, values: Mapping[str, float]) -> tuple[np.nd
     return k, np.array([value(n) for n in names]).reshape(shape)
 
 
+def opencv_yaml_text(model: str, values: Mapping[str, float], image_size: tuple[int, int],
+                     extra: Mapping[str, float] | None = None) -> str:
+    """One camera as OpenCV YAML text (module docstring); arguments as `write_opencv_yaml`,
+    then the numbers `extra` by name (keys a reader of the file may ignore)."""
+    k, distortion = opencv_camera_matrix(model, values)
+    lines = ["%YAML:1.0", "---", f'camera_model: "{model}"',
+             f"image_width: {int(image_size[0])}", f"image_height: {int(image_size[1])}",
+             *_matrix("camera_matrix", k.ravel(), (3, 3)),
+             *_matrix("distortion_coefficients", distortion.ravel(), distortion.shape),
+             *(f"{name}: {float(value)!r}" for name, value in (extra or {}).items())]
+    return "\n".join(lines) + "\n"
+
+
+def stereo_yaml_text(cameras: Sequence[tuple[str, str, Mapping[str, float], tuple[int, int]]],
+                     matrices: Mapping[str, np.ndarray], extra: Mapping[str, float]) -> str:
+    """A camera pair as OpenCV's stereo YAML: per camera i = 1, 2 of `cameras` (name, model,
+    values, image size) `camera_i` (its name), `camera_model_i`, `image_width_i`,
+    `image_height_i`, `Ki` (3 x 3) and `Di` (its distortion coefficients); then `matrices`
+    by name (R, T, E, F as `cv2.stereoCalibrate` returns them) and the numbers `extra`."""
+    lines = ["%YAML:1.0", "---"]
+    for i, (name, model, values, image_size) in enumerate(cameras, start=1):
+        k, distortion = opencv_camera_matrix(model, values)
+        lines += [f"camera_{i}: {json.dumps(name)}", f'camera_model_{i}: "{model}"',
+                  f"image_width_{i}: {int(image_size[0])}",
+                  f"image_height_{i}: {int(image_size[1])}",
+                  *_matrix(f"K{i}", k.ravel(), (3, 3)),
+                  *_matrix(f"D{i}", distortion.ravel(), distortion.shape)]
+    for name, matrix in matrices.items():
+        matrix = np.atleast_2d(matrix)
+        lines += _matrix(name, matrix.ravel(), matrix.shape)
+    lines += [f"{name}: {float(value)!r}" for name, value in extra.items()]
+    return "\n".join(lines) + "\n"
+
+
 def write_opencv_yaml(
     path: str | os.PathLike,
     model: str,
@@ -73,13 +108,8 @@ def write_opencv_yaml(
     - `values`: the model's parameters by name (pixels; missing ones 0).
     - `image_size`: (width, height) in pixels.
     """
-    k, distortion = opencv_camera_matrix(model, values)
-    lines = ["%YAML:1.0", "---", f'camera_model: "{model}"',
-             f"image_width: {int(image_size[0])}", f"image_height: {int(image_size[1])}",
-             *_matrix("camera_matrix", k.ravel(), (3, 3)),
-             *_matrix("distortion_coefficients", distortion.ravel(), distortion.shape)]
     path = pathlib.Path(path)
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text(opencv_yaml_text(model, values, image_size))
     return path
 
 

@@ -127,6 +127,21 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     return "{\n" + inner + f",\n{inner}".join(items) + f"\n{indent}}}"
 
 
+def _camera_model(model: str, camera) -> dict:
+    return {"model": model,
+            "sensor": None if camera.sensor is None else [int(n) for n in camera.sensor],
+            "pixel_size": (None if camera.pixel_size is None
+                           else [float(size) for size in camera.pixel_size])}
+
+
+def _camera_models(project: Project) -> dict[str, dict]:
+    """Per camera what its values need to be used elsewhere (`jaxba export`): the model
+    (with a ray refraction "<model>+<refraction>"), its sensor (columns, rows) and pixel
+    size (mm, x and y), null where cameras.toml gives none."""
+    return {cid: _camera_model(model, project.spec.cameras[cid])
+            for cid, (model, _) in project.camera_rows.items()}
+
+
 def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:
     return {
         cid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
@@ -208,7 +223,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
 
     Keys of docs/outputs.md (converged, sigma0, redundancy, iterations, cameras, images, points;
     angles and their σ in decimal degrees) plus: project, message, steps, n_observations,
-    n_unknowns, sigma0_squared, sigma0_prior, units (image: "mm", "pixel" for pixel-unit
+    n_unknowns, sigma0_squared, sigma0_prior, camera_models (per camera: model, sensor,
+    pixel_size), units (image: "mm", "pixel" for pixel-unit
     camera models, or "mixed"; image_cameras: per camera), image_cameras, image_residuals (RMS
     in mm and px: overall, per camera, per image; data-snooping rejections left out),
     observation_groups (n, vᵀPv), correlations (per camera: the estimated IOPs and their
@@ -261,6 +277,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
             for it in result.iterations
         ],
         "cameras": {cid: _entries(table, 0) for cid, table in cameras.items()},
+        "camera_models": _camera_models(project),
         "images": {iid: _entries(images, k) for k, iid in enumerate(images.ids)},
         "image_cameras": {iid: project.spec.images[iid].camera for iid in images.ids},
         "points": points,
