@@ -597,6 +597,9 @@ def _parser() -> argparse.ArgumentParser:
     _add_import(subparsers)
     _add_bal(subparsers)
     _add_batch(subparsers)
+    from jaxba._cli._detect import add_detect
+
+    add_detect(subparsers, [_common_options()])
     return parser
 
 
