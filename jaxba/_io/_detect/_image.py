@@ -24,7 +24,7 @@ class ImageDetection:
 
     `size`: (columns, rows) in pixels, None when the file gave no image; `ids` (n,) indices
     into `Board.points()` and `pixels` (n, 2) of the points seen (empty when none);
-    `reason`: "" when the board was found, else why not; `thumbnail`: (h, THUMBNAIL_WIDTH, 3)
+    `reason`: "" when they are used, else why not (no board, or `left_out`); `thumbnail`: (h, THUMBNAIL_WIDTH, 3)
     uint8 BGR with the points drawn, None when the file gave no image.
     """
 
@@ -40,9 +40,8 @@ class ImageDetection:
         return not self.reason
 
     def left_out(self, reason: str) -> "ImageDetection":
-        """This detection with the board's points dropped for `reason`."""
-        return dataclasses.replace(self, ids=self.ids[:0], pixels=self.pixels[:0],
-                                   reason=reason)
+        """This detection not used, for `reason` (the points found kept, for the record)."""
+        return dataclasses.replace(self, reason=reason)
 
 
 def _thumbnail(grey: np.ndarray, pixels: np.ndarray, failed: bool) -> np.ndarray:
