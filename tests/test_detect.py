@@ -265,6 +265,20 @@ def test_rig_files(tmp_path):
     assert all(len(images) == 2 for images in by_frame.values())
 
 
+def test_rig_without_its_reference_camera(tmp_path, capsys):
+    """No image of the reference camera with the board: exit 2, every image still listed."""
+    cv2.imwrite(str(tmp_path / "grey01.png"), np.full((48, 64), 128, np.uint8))
+    out = tmp_path / "rig"
+    assert _run("detect", "--board", "chessboard:9x6:1", "--camera", f"a={tmp_path}/grey01.png",
+                "--camera", f"b={DATA}/right0[12].jpg", "--rig", "r", "--out", str(out)) == 2
+    assert "reference camera a" in capsys.readouterr().err
+    with (out / "detections.csv").open() as stream:
+        rows = list(csv.DictReader(stream))
+    assert [(row["image_id"], row["used"]) for row in rows] == [
+        ("grey01", "no"), ("right01", "yes"), ("right02", "yes")]
+    assert not (out / "calibration.toml").exists()
+
+
 # --- rendered boards ------------------------------------------------------------------------
 
 K_TRUE = {"fx": 560.0, "fy": 556.0, "cx": 322.0, "cy": 236.0}

@@ -165,9 +165,7 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
     try:
         project = detected_project(board, detections, rig=args.rig)
     except DetectError as detect_error:  # still list the detections
-        error = str(detect_error)
-        project = detected_project(board, detections)
-        project = type(project)(board, project.images, {}, {})
+        error, project = str(detect_error), detect_error.project
     written = write_detected(project, args.out, args.name)
     for camera, files in cameras.items():
         used = project.used(camera)

@@ -24,8 +24,8 @@ class ImageDetection:
 
     `size`: (columns, rows) in pixels, None when the file gave no image; `ids` (n,) indices
     into `Board.points()` and `pixels` (n, 2) of the points seen (empty when none);
-    `reason`: "" when they are used, else why not (no board, or `left_out`); `thumbnail`: (h, THUMBNAIL_WIDTH, 3)
-    uint8 BGR with the points drawn, None when the file gave no image.
+    `reason`: "" when they are used, else why not (no board, or `left_out`); `thumbnail`:
+    (h, THUMBNAIL_WIDTH, 3) uint8 BGR with the points drawn, None when the file gave no image.
     """
 
     path: pathlib.Path

@@ -14,7 +14,12 @@ from ._start import CameraStart, camera_start, spread_enough
 
 
 class DetectError(ValueError):
-    """The detections do not make a project (no image of the rig's reference camera, ...)."""
+    """The detections do not make a project (no image of the rig's reference camera, ...);
+    `project` has every image with its reason, and no camera."""
+
+    def __init__(self, message: str, project: "DetectedProject"):
+        super().__init__(message)
+        self.project = project
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,9 +97,10 @@ def _frames(images: list[DetectedImage], rig: str) -> dict[str, str]:
 
 def _relative_poses(project: DetectedProject, cameras: list[str]) -> dict[str, np.ndarray]:
     reference = cameras[0]
+    failed = dataclasses.replace(project, sizes={}, starts={})
     if reference not in project.starts:
         raise DetectError(f"rig {project.rig}: its reference camera {reference} (the first"
-                          " --camera) has no image with the board")
+                          " --camera) has no image with the board", failed)
     eops = {camera: {project.frames[image.id]: eop for image, eop in
                      zip(project.used(camera), project.starts[camera].eops)}
             for camera in project.starts}
@@ -106,7 +112,7 @@ def _relative_poses(project: DetectedProject, cameras: list[str]) -> dict[str, n
         if not shared:
             raise DetectError(f"rig {project.rig}: camera {camera} and the reference camera"
                               f" {reference} saw the board in no common frame (images whose"
-                              " file names end in the same number)")
+                              " file names end in the same number)", failed)
         relative[camera] = relative_pose([eops[reference][f] for f in shared],
                                          [eops[camera][f] for f in shared])
     return relative

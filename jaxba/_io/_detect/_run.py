@@ -33,7 +33,8 @@ def detect_images(
         return results
     results: list[ImageDetection | None] = [None] * len(paths)
     context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(min(jobs, len(paths)), mp_context=context) as pool:
+    pool = concurrent.futures.ProcessPoolExecutor(min(jobs, len(paths)), mp_context=context)
+    try:
         futures = {pool.submit(detect_image, path, board): k for k, path in enumerate(paths)}
         for future in concurrent.futures.as_completed(futures):
             k = futures[future]
@@ -44,4 +45,8 @@ def detect_images(
                                             np.zeros((0, 2)),
                                             f"detection failed: {type(error).__name__}: {error}")
             advance()
+    except BaseException:  # Ctrl-C: the images not started yet are not detected
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     return results
