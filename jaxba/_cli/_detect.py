@@ -56,7 +56,8 @@ def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
     parser.add_argument("--name", default="calibration",
                         help="the project's name: NAME.toml (default: calibration)")
     parser.add_argument("--jobs", type=int, default=None, metavar="N",
-                        help="processes detecting images (default: one per CPU)")
+                        help="processes detecting images (default: one per CPU where the"
+                             " images take long enough to pay for starting them, else 1)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                         help="a bar over the images (default: only on a terminal)")
     parser.set_defaults(run=run_detect)
@@ -155,11 +156,10 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
     from jaxba._io._detect import DetectError, detect_images, detected_project, write_detected
 
     paths = [path for files in cameras.values() for path in files]
-    jobs = args.jobs or os.cpu_count() or 1
     _say(f"detecting {board.text()} in {len(paths)} images of {len(cameras)} camera"
-         f"{'s' if len(cameras) > 1 else ''} ({min(jobs, len(paths))} processes)")
+         f"{'s' if len(cameras) > 1 else ''}")
     with project_progress(len(paths), _say, bar=args.progress, noun="images") as progress:
-        found = iter(detect_images(paths, board, jobs=jobs, advance=progress.advance))
+        found = iter(detect_images(paths, board, jobs=args.jobs, advance=progress.advance))
     detections = {camera: [next(found) for _ in files] for camera, files in cameras.items()}
     error = None
     try:
