@@ -380,6 +380,9 @@ def test_rendered_charuco(tmp_path):
     rms, values, stds = _rendered_calibration(
         tmp_path, board, picture, lambda xy: xy * board_px - 0.5, centre,
         distance=K_TRUE["fx"] * 180 / 500)
+    with (tmp_path / "project" / "detections.csv").open() as stream:
+        counts = [int(row["points"]) for row in csv.DictReader(stream)]
+    assert min(counts) < board.n_points == max(counts)  # a partial view among them
     assert rms < RENDER_PX
     _assert_truth(values, stds)
 
