@@ -18,6 +18,15 @@ import sys
 EXIT_OK, EXIT_BAD_INPUT = 0, 2
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _LISTED_LEFT_OUT = 10  # images left out named on the console (all are in detections.csv)
+# The grammar of `jaxba._io._detect._board`, here so that building the parser (every
+# command's start) does not import the detection code.
+BOARD_HELP = (
+    "the target: chessboard:COLSxROWS:SPACING (inner corners), circles:COLSxROWS:SPACING,"
+    " acircles:COLSxROWS:SPACING (OpenCV's asymmetric grid) or"
+    " charuco:COLSxROWS:SQUARE:MARKER:DICT[:first=N][:legacy] (squares, an ArUco dictionary"
+    " such as 5X5_100, marker ids from N); SPACING, SQUARE and MARKER a number with an"
+    " optional unit (mm, cm, m, in), e.g. chessboard:9x6:25mm"
+)
 
 
 class _DetectUsageError(ValueError):
@@ -26,8 +35,6 @@ class _DetectUsageError(ValueError):
 
 def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
     """Register `jaxba detect` (`parents`: the options every command takes)."""
-    from jaxba._io._detect import GRAMMAR
-
     parser = subparsers.add_parser(
         "detect",
         help="find a calibration target in images and write a project",
@@ -44,7 +51,7 @@ def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
         ),
         parents=parents,
     )
-    parser.add_argument("--board", required=True, metavar="SPEC", help=f"the target: {GRAMMAR}")
+    parser.add_argument("--board", required=True, metavar="SPEC", help=BOARD_HELP)
     parser.add_argument(
         "--camera", required=True, action="append", metavar="NAME=GLOB",
         help="a camera and its images (a file pattern; quote it so that the shell leaves it);"

@@ -26,12 +26,6 @@ KINDS = ("chessboard", "circles", "acircles", "charuco")
 UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 _LENGTH = re.compile(r"^(?P<value>[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(?P<unit>[a-z]*)$")
 _SIZE = re.compile(r"^(?P<cols>[0-9]+)[xX](?P<rows>[0-9]+)$")
-GRAMMAR = (
-    "chessboard:COLSxROWS:SPACING (inner corners), circles:COLSxROWS:SPACING,"
-    " acircles:COLSxROWS:SPACING (OpenCV's asymmetric grid) or"
-    " charuco:COLSxROWS:SQUARE:MARKER:DICT[:first=N][:legacy] (squares); SPACING, SQUARE and"
-    " MARKER a number with an optional unit (mm, cm, m, in), e.g. chessboard:9x6:25mm"
-)
 
 
 class BoardError(ValueError):
@@ -108,10 +102,13 @@ def parse_board(spec: str) -> Board:
     parts = spec.split(":")
     kind = parts[0].strip().lower()
     if kind not in KINDS:
-        raise BoardError(f"--board {spec}: unknown board {parts[0]!r}; expected {GRAMMAR}")
+        raise BoardError(f"--board {spec}: unknown board {parts[0]!r}; expected one of"
+                         f" {', '.join(KINDS)}")
     wanted = 5 if kind == "charuco" else 3
     if len(parts) < wanted or (kind != "charuco" and len(parts) > wanted):
-        raise BoardError(f"--board {spec}: expected {GRAMMAR}")
+        form = ("charuco:COLSxROWS:SQUARE:MARKER:DICT[:first=N][:legacy]" if kind == "charuco"
+                else f"{kind}:COLSxROWS:SPACING")
+        raise BoardError(f"--board {spec}: expected {form}")
     size = _SIZE.match(parts[1].strip())
     if size is None:
         raise BoardError(f"--board {spec}: size {parts[1]!r}: expected COLSxROWS, e.g. 9x6")
