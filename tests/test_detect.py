@@ -125,20 +125,25 @@ def _grouped(out: pathlib.Path):
             [np.array(q, np.float32) for _, q in images.values()])
 
 
+def _detected(folder: pathlib.Path, camera: str) -> pathlib.Path:
+    """One camera of OpenCV's stereo sample detected (two processes) into `folder`."""
+    code = _run("detect", "--board", "chessboard:9x6:1", "--camera",
+                f"{camera}={DATA}/{camera}*.jpg", "--out", str(folder), "--name", camera,
+                "--jobs", "2", "--no-progress")
+    assert code == 0
+    return folder
+
+
 @pytest.fixture(scope="module")
 def left(tmp_path_factory):
-    """The left camera of OpenCV's stereo sample: detected (two processes) and adjusted."""
-    out = tmp_path_factory.mktemp("left") / "project"
-    code = _run("detect", "--board", "chessboard:9x6:1", "--camera",
-                f"left={DATA}/left*.jpg", "--out", str(out), "--name", "left", "--jobs", "2",
-                "--no-progress")
-    assert code == 0
+    """The left camera of OpenCV's stereo sample: detected and adjusted."""
+    out = _detected(tmp_path_factory.mktemp("left") / "project", "left")
     return out, *_calibration(out / "left.toml")
 
 
-def test_opencv_sample_equals_calibrate_camera(left):
-    """The adjusted camera equals cv2.calibrateCamera from the same corners to 1e-4 σ."""
-    out, values, stds, _, result = left
+def _assert_calibrate_camera(out: pathlib.Path, values, stds, result) -> float:
+    """The adjusted camera equals cv2.calibrateCamera from the project's corners; returns
+    OpenCV's RMS."""
     plane, pixels = _grouped(out)
     assert len(plane) == 13 and all(len(p) == 54 for p in plane)
     rms, k, dist, _, _ = cv2.calibrateCamera(plane, pixels, (640, 480), None, None)
@@ -150,6 +155,38 @@ def test_opencv_sample_equals_calibrate_camera(left):
     # OpenCV's RMS is over corners (2-vectors): sqrt(Σ‖e‖² / 702) against σ̂0 over 1317
     residual_sum = result.sigma0**2 * result.precision.redundancy
     assert np.isclose(np.sqrt(residual_sum / 702), rms, rtol=1e-6)
+    return rms
+
+
+def test_opencv_sample_equals_calibrate_camera(left):
+    """The adjusted left camera equals cv2.calibrateCamera from the same corners to 1e-4 σ."""
+    _assert_calibrate_camera(left[0], left[1], left[2], left[4])
+
+
+def test_opencv_sample_right_camera_equals_calibrate_camera(tmp_path):
+    out = _detected(tmp_path / "project", "right")
+    values, stds, _, result = _calibration(out / "right.toml")
+    _assert_calibrate_camera(out, values, stds, result)
+
+
+def test_corner_window_fits_the_squares(left):
+    """OpenCV's sample refines every corner in an 11 x 11 window (23 px across); in left02,
+    whose squares are about 20 px, that pulls corners up to 5.8 px onto their neighbours.
+    With those corners calibrateCamera gives SOURCES.md's result (RMS 0.4080, fx 536.065);
+    with jaxba's window (half the corner spacing) the RMS falls to 0.245."""
+    plane, ours = _grouped(left[0])
+    theirs = []
+    for n in (1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14):
+        grey = cv2.imread(str(DATA / f"left{n:02d}.jpg"), cv2.IMREAD_GRAYSCALE)
+        found, corners = cv2.findChessboardCorners(grey, (9, 6))
+        assert found
+        theirs.append(cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1), (3, 30, 0.01)))
+    moved = [min(np.abs(a - b.reshape(-1, 2)).max(), np.abs(a[::-1] - b.reshape(-1, 2)).max())
+             for a, b in zip(ours, theirs)]
+    assert 5.5 < moved[1] < 6.0 and max(moved[:1] + moved[2:]) < 1e-3
+    rms, k = cv2.calibrateCamera(plane, theirs, (640, 480), None, None)[:2]
+    assert round(rms, 4) == 0.4080 and round(k[0, 0], 3) == 536.065
+    assert cv2.calibrateCamera(plane, ours, (640, 480), None, None)[0] < 0.25
 
 
 def test_opencv_sample_corners(left):
