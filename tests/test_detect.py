@@ -14,6 +14,7 @@ import csv
 import os
 import pathlib
 import shutil
+import struct
 import subprocess
 import sys
 import tomllib
@@ -268,6 +269,35 @@ def test_broken_files_are_listed_and_the_rest_calibrated(left, tmp_path):
     values, stds = _calibration(out / "left.toml")[:2]
     for name in FREE:
         assert abs(values[name] - left[1][name]) < 1e-6 * stds[name], name
+
+
+def _with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """`jpeg` with an APP1 EXIF segment holding only the Orientation tag (0x0112)."""
+    tiff = (b"MM\x00\x2a\x00\x00\x00\x08" + struct.pack(">H", 1)
+            + struct.pack(">HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack(">I", 0))
+    app1 = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+
+
+def test_exif_orientation_is_ignored(tmp_path):
+    """A JPEG marked "turned 90°" (EXIF orientation 6) is read as the sensor's pixels: the
+    same size and corners as without the mark."""
+    data = (DATA / "left01.jpg").read_bytes()
+    (tmp_path / "plain01.jpg").write_bytes(data)
+    (tmp_path / "turned02.jpg").write_bytes(_with_exif_orientation(data, 6))
+    turned = cv2.imdecode(np.frombuffer((tmp_path / "turned02.jpg").read_bytes(), np.uint8),
+                          cv2.IMREAD_GRAYSCALE)
+    assert turned.shape == (640, 480)  # OpenCV turns it by default
+    out = tmp_path / "project"
+    assert _run("detect", "--board", "chessboard:9x6:1", "--camera", f"c={tmp_path}/*.jpg",
+                "--out", str(out), "--jobs", "1") == 0
+    with (out / "detections.csv").open() as stream:
+        rows = list(csv.DictReader(stream))
+    assert [(r["width"], r["height"], r["used"]) for r in rows] == [("640", "480", "yes")] * 2
+    pixels = {}
+    for image, _, u, v in _read_rows(out / "image_coordinates.txt"):
+        pixels.setdefault(image, []).append((float(u), float(v)))
+    assert pixels["plain01"] == pixels["turned02"]
 
 
 # --- a rig ----------------------------------------------------------------------------------

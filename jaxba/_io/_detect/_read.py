@@ -3,7 +3,8 @@
 OpenCV's decoders accept a truncated JPEG (the missing rows grey, a warning on stderr), so
 the end of JPEG and PNG files is checked first: a file cut short is "truncated", not
 detected on a partly grey image. The end marker is looked for in the last `_TAIL` bytes:
-some cameras append data after a JPEG's end.
+some cameras append data after a JPEG's end. An EXIF orientation is ignored: a calibration
+is of the sensor's pixels, however the camera was held.
 """
 
 import pathlib
@@ -49,7 +50,8 @@ def read_grey(path: pathlib.Path) -> np.ndarray:
     truncated = _truncated(data)
     if truncated:
         raise ImageError(f"truncated {truncated} (its end marker is missing)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8),
+                         cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None or image.size == 0:
         raise ImageError("not an image")
     return image
