@@ -111,6 +111,37 @@ def test_board_points_are_opencvs():
     assert points[8].tolist() == [0.0, 4.0, 0.0]
 
 
+# --- approximations -------------------------------------------------------------------------
+
+
+def test_approximations_from_few_views():
+    """Zhang's closed form from three views or more; from two, one focal length with the
+    principal point at the centre (`focal_from_homographies`): exact on noise-free views."""
+    from jaxba._io._detect._start import camera_start, focal_from_homographies
+
+    k = np.array([[700.0, 0, 319.5], [0, 700.0, 239.5], [0, 0, 1]])
+    plane = parse_board("chessboard:9x6:1").points()[:, :2]
+    pixels, homographies = [], []
+    for rvec, tvec in [((0.3, 0.1, 0.2), (-4, -2, 15)), ((-0.2, 0.35, -0.1), (-3, -3, 14)),
+                       ((0.1, -0.3, 0.5), (-5, -1, 16))]:
+        rotation = cv2.Rodrigues(np.array(rvec))[0]
+        h = k @ np.c_[rotation[:, :2], tvec]
+        homographies.append(h)
+        uv = np.c_[plane, np.ones(len(plane))] @ h.T
+        pixels.append(uv[:, :2] / uv[:, 2:])
+    assert np.isclose(focal_from_homographies(homographies, np.array([319.5, 239.5])), 700.0,
+                      rtol=1e-9)
+    three = camera_start([plane] * 3, pixels, (640, 480))
+    two = camera_start([plane] * 2, pixels[:2], (640, 480))
+    assert three.method == "Zhang's closed form" and two.method.startswith("one focal length")
+    for start in (three, two):
+        np.testing.assert_allclose([start.fx, start.fy, start.cx, start.cy],
+                                   [700, 700, 319.5, 239.5], rtol=1e-7)
+    # the first view's pose: X0 = -Rᵀ t in the board frame
+    rotation = cv2.Rodrigues(np.array((0.3, 0.1, 0.2)))[0]
+    np.testing.assert_allclose(two.eops[0][:3], -rotation.T @ [-4, -2, 15], rtol=1e-7)
+
+
 # --- OpenCV's stereo sample -----------------------------------------------------------------
 
 
