@@ -18,6 +18,7 @@ import sys
 EXIT_OK, EXIT_BAD_INPUT = 0, 2
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _LISTED_LEFT_OUT = 10  # images left out named on the console (all are in detections.csv)
+FEW_VIEWS = 3  # fewer views of a plane leave a camera's intrinsics undetermined (Zhang)
 # The grammar of `jaxba._io._detect._board`, here so that building the parser (every
 # command's start) does not import the detection code.
 BOARD_HELP = (
@@ -173,18 +174,28 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
         project = detected_project(board, detections, rig=args.rig)
     except DetectError as detect_error:  # still list the detections
         error, project = str(detect_error), detect_error.project
-    written = write_detected(project, args.out, args.name)
+    try:
+        written = write_detected(project, args.out, args.name)
+    except OSError as write_error:
+        print(f"jaxba: error: {args.out}: {write_error}", file=sys.stderr, flush=True)
+        return EXIT_BAD_INPUT
+    few = []
     for camera, files in cameras.items():
         used = project.used(camera)
         start = project.starts.get(camera)
         how = f"; approximations: {start.method}" if start else ""
         _say(f"  {camera}: the board in {len(used)} of {len(files)} images{how}")
+        few += [f"{camera} ({len(used)})"] if start and len(used) < FEW_VIEWS else []
     left_out = [image for image in project.images if not image.detection.found]
     for image in left_out[:_LISTED_LEFT_OUT]:
         _say(f"  left out {image.detection.path}: {image.detection.reason}")
     if len(left_out) > _LISTED_LEFT_OUT:
         _say(f"  ... and {len(left_out) - _LISTED_LEFT_OUT} more (detections.csv)")
     _say(f"wrote {args.out}: {', '.join(path.name for path in written)}")
+    if few:
+        print(f"jaxba: warning: the board in fewer than {FEW_VIEWS} images of {', '.join(few)}:"
+              " a camera's focal lengths and principal point need three views of the board or"
+              " more, at different angles", file=sys.stderr, flush=True)
     if error is None and not project.starts:
         error = "the board was found in no image (detections.csv, detections.png)"
     if error is not None:
