@@ -8,9 +8,10 @@ import io
 import json
 import pathlib
 
+from ..._models._cameras._names import CAMERA_PARAMETER_NAMES
 from ..._report._atomic import replace_files
 from .._project._write import _toml
-from .._zhang import PARAMETER_NAMES
+from .._zhang import table_text
 from ._project import DetectedProject
 from ._sheet import contact_sheet
 
@@ -21,10 +22,6 @@ FILES = {"cameras": "cameras.toml", "images": "orientation.txt",
          "image_points": "image_coordinates.txt", "points": "board_points.txt"}
 RIG_FILES = {"rigs": "rigs.toml", "frames": "frames.txt"}
 IMAGE_SIGMA = 1.0  # pixel: σ̂0 is then about the RMS residual per coordinate
-
-
-def _table(header: str, rows: list[list[str]]) -> str:
-    return "\n".join([f"# {header}", *(" ".join(row) for row in rows)]) + "\n"
 
 
 def _unit(project: DetectedProject) -> str:
@@ -40,7 +37,7 @@ def _cameras_toml(project: DetectedProject) -> str:
             f"[{camera}]  # {n_used} images; approximations: {start.method}",
             'model = "opencv"  # pixels, distortion applied forward (computer-vision convention)',
             f"sensor = {_toml(list(project.sizes[camera]))}",
-            *(f"{p} = {float(values.get(p, 0.0))!r}" for p in PARAMETER_NAMES),
+            *(f"{p} = {float(values.get(p, 0.0))!r}" for p in CAMERA_PARAMETER_NAMES["opencv"]),
             f"free = {json.dumps(list(FREE))}",
             "",
         ]
@@ -93,21 +90,21 @@ def project_texts(project: DetectedProject, name: str) -> dict[str, str]:
     texts = {
         f"{name}.toml": _project_toml(project, name, files),
         FILES["cameras"]: _cameras_toml(project),
-        FILES["images"]: _table(
+        FILES["images"]: table_text(
             "image_id camera_id X0 Y0 Z0 (board frame) omega phi kappa (deg): Zhang's closed form",
             [[image.id, image.camera, *(repr(float(v)) for v in eops[image.id])]
              for image in used]),
-        FILES["image_points"]: _table(
+        FILES["image_points"]: table_text(
             "image_id point_id col row (pixel; the centre of the top-left pixel at 0, 0)",
             [[image.id, str(i), repr(float(u)), repr(float(v))] for image in used
              for i, (u, v) in zip(image.detection.ids, image.detection.pixels)]),
-        FILES["points"]: _table(
+        FILES["points"]: table_text(
             f"point_id X Y Z ({_unit(project)}; the board's plane Z = 0) sX sY sZ (0 = fixed)",
             [[str(i), *(repr(float(v)) for v in points[i]), "0", "0", "0"] for i in seen]),
     }
     if project.rig is not None:
         texts[RIG_FILES["rigs"]] = _rigs_toml(project)
-        texts[RIG_FILES["frames"]] = _table(
+        texts[RIG_FILES["frames"]] = table_text(
             "image_id frame_id (the number the image's file name ends in)",
             [[image.id, project.frames[image.id]] for image in used])
     return texts
