@@ -1,8 +1,8 @@
 """`jaxba detect`: the board grammar, detection in real and rendered images, the project it
 writes and that project's calibration.
 
-- ../shared/data/opencv_stereo (OpenCV's stereo sample, its SOURCES.md): the left camera
-  detected and adjusted equals OpenCV's `calibrateCamera` run here on the same corners.
+- OpenCV's stereo sample (its SOURCES.md): each camera detected and adjusted equals OpenCV's
+  `calibrateCamera` run here on the same corners.
 - ChArUco boards and circle grids rendered here through a known camera with distortion, blur
   and noise: the points found lie on the true projections, and the calibration recovers the
   camera.
@@ -27,9 +27,13 @@ import jaxba
 from jaxba._cli._main import main
 from jaxba._io._detect import Board, BoardError, charuco_board, parse_board
 
-DATA = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "opencv_stereo"
-if not DATA.is_dir():  # a worktree beside the main checkout
-    DATA = pathlib.Path(__file__).resolve().parents[3] / "shared" / "data" / "opencv_stereo"
+# OpenCV's stereo sample: a copy in tests/data where there is one, else the shared data folder
+# beside the project (or beside the folder of a worktree that lies one level deeper).
+HERE = pathlib.Path(__file__).resolve().parent
+DATA = next((folder for folder in (HERE / "data" / "opencv_stereo",
+                                   HERE.parents[1] / "shared" / "data" / "opencv_stereo",
+                                   HERE.parents[2] / "shared" / "data" / "opencv_stereo")
+             if folder.is_dir()), HERE / "data" / "opencv_stereo")
 NAMES = jaxba.CAMERA_MODELS["opencv"].parameter_names
 FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 # jaxba against calibrateCamera on the same corners, in σ of each parameter: both minimise the
