@@ -1,6 +1,6 @@
 """Images per second: `jaxba detect`'s detection against a plain OpenCV loop.
 
-OpenCV's stereo sample (26 grey 640 x 480 JPEGs of a 9 x 6 chessboard; ../shared/data), and
+OpenCV's stereo sample (26 grey 640 x 480 JPEGs of a 9 x 6 chessboard; tests/data), and
 the same images scaled to `--scale` times their size (INTER_CUBIC, written as JPEG into a
 temporary folder). The peer is the loop of OpenCV's calibration sample: `cv2.imread` grey,
 `findChessboardCorners`, `cornerSubPix` (11 x 11); jaxba is `detect_images` (read and check
@@ -23,9 +23,11 @@ import cv2
 
 from jaxba._io._detect import detect_images, parse_board
 
-DATA = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "opencv_stereo"
-if not DATA.is_dir():  # a worktree beside the main checkout
-    DATA = pathlib.Path(__file__).resolve().parents[3] / "shared" / "data" / "opencv_stereo"
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DATA = next((folder for folder in (ROOT / "tests" / "data" / "opencv_stereo",
+                                   ROOT.parent / "shared" / "data" / "opencv_stereo",
+                                   ROOT.parents[1] / "shared" / "data" / "opencv_stereo")
+             if folder.is_dir()), ROOT / "tests" / "data" / "opencv_stereo")
 BOARD = parse_board("chessboard:9x6:1")
 
 
