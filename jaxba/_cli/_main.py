@@ -600,6 +600,9 @@ def _parser() -> argparse.ArgumentParser:
     _add_bal(subparsers)
     _add_batch(subparsers)
     add_export(subparsers, _common_options())
+    from jaxba._cli._detect import add_detect
+
+    add_detect(subparsers, [_common_options()])
     return parser
 
 

@@ -1,6 +1,7 @@
-"""A progress bar over the projects of `jaxba batch` (rich), for the command line.
+"""A progress bar over the projects of `jaxba batch` or the images of `jaxba detect` (rich),
+for the command line.
 
-On a terminal the batch's lines are printed above a bar that advances as each project is
+On a terminal the command's lines are printed above a bar that advances as each item is
 finished; elsewhere (a pipe, a log file) only the lines, exactly as without a bar, unless the
 bar is asked for. rich is imported only when a bar is shown.
 """
@@ -22,11 +23,12 @@ class ProjectProgress:
 
 @contextlib.contextmanager
 def project_progress(
-    total: int, say: Callable[[str], None], *, bar: bool | None = None
+    total: int, say: Callable[[str], None], *, bar: bool | None = None, noun: str = "projects"
 ) -> Iterator[ProjectProgress]:
-    """Report a batch of `total` projects: lines through `say` alone (`bar` False, or None
-    when stdout is not a terminal), or printed above a rich bar on stdout (`bar` True, or
-    None on a terminal) that counts finished projects and estimates the time left."""
+    """Report a batch of `total` projects (or other items, `noun`): lines through `say` alone
+    (`bar` False, or None when stdout is not a terminal), or printed above a rich bar on
+    stdout (`bar` True, or None on a terminal) that counts finished ones and estimates the
+    time left."""
     if bar is None:
         bar = sys.stdout.isatty()
     if not bar:
@@ -42,10 +44,10 @@ def project_progress(
         TimeRemainingColumn,
     )
 
-    columns = (TextColumn("projects"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+    columns = (TextColumn(noun), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TextColumn("left"), TimeRemainingColumn())
     with Progress(*columns, console=Console(file=sys.stdout, force_terminal=True)) as progress:
-        task = progress.add_task("projects", total=total)
+        task = progress.add_task(noun, total=total)
 
         def print_line(line: str) -> None:
             progress.console.print(line, markup=False, highlight=False, soft_wrap=True)

@@ -119,8 +119,13 @@ def eop_from_pose(rotation: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.n
     return -rotation.T @ t, matrix_to_opk(_CV_TO_PHOTOGRAMMETRIC @ rotation)
 
 
+def table_text(header: str, rows: list[list[str]]) -> str:
+    """A text table: `# header`, then one line of whitespace-separated tokens per row."""
+    return "\n".join([f"# {header}", *(" ".join(row) for row in rows)]) + "\n"
+
+
 def _write_table(path: pathlib.Path, header: str, rows: list[list[str]]) -> None:
-    path.write_text("\n".join([f"# {header}", *(" ".join(row) for row in rows)]) + "\n")
+    path.write_text(table_text(header, rows))
 
 
 def write_zhang_project(
