@@ -232,7 +232,7 @@ def _fail_with(exception):
 
 
 def test_internal_error_is_one_line_exit_3(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr("jaxba._cli._main._adjust", _fail_with(TypeError("bad thing\nmore detail")))
+    monkeypatch.setattr("jaxba._cli._adjust.run", _fail_with(TypeError("bad thing\nmore detail")))
     code, _, err = _run("adjust", tmp_path / "p.toml", capsys=capsys)
     assert code == EXIT_INTERNAL == 3
     assert err.startswith("jaxba: internal error: TypeError: bad thing. This is a bug")
@@ -242,7 +242,7 @@ def test_internal_error_is_one_line_exit_3(monkeypatch, capsys, tmp_path):
 
 
 def test_interrupt_is_exit_130_without_traceback(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr("jaxba._cli._main._batch", _fail_with(KeyboardInterrupt()))
+    monkeypatch.setattr("jaxba._cli._batch.run", _fail_with(KeyboardInterrupt()))
     code, _, err = _run("batch", tmp_path / "p.toml", "--out", tmp_path, capsys=capsys)
     assert code == EXIT_INTERRUPTED == 130
     assert err == "jaxba: interrupted\n"
@@ -252,18 +252,18 @@ def test_interrupt_dropped_in_a_finaliser_is_silent_and_still_stops_the_run(caps
     """A Ctrl-C whose KeyboardInterrupt is raised inside a finaliser or garbage-collector
     callback (jax runs one at every collection) is dropped by Python: the command still
     stops with it at the end, and Python's "Exception ignored" traceback is not printed."""
-    from jaxba._cli._main import _remember_interrupt, _remembered_interrupts
+    from jaxba._cli._common import remember_interrupt, remembered_interrupts
 
     class InterruptedWhileCollected:
         def __del__(self):
-            _remember_interrupt(signal.SIGINT, None)
+            remember_interrupt(signal.SIGINT, None)
 
     hook_before = sys.unraisablehook
     # As from an interactive shell: a background job (CI) inherits SIGINT ignored, and the
     # CLI then leaves interrupts alone.
     handler_before = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        with pytest.raises(KeyboardInterrupt), _remembered_interrupts():
+        with pytest.raises(KeyboardInterrupt), remembered_interrupts():
             InterruptedWhileCollected()  # dropped at once: __del__ runs, its exception is lost
             assert True  # the run goes on past the lost interrupt
     finally:

@@ -13,9 +13,9 @@ import glob
 import os
 import pathlib
 import re
-import sys
 
-EXIT_OK, EXIT_BAD_INPUT = 0, 2
+from ._common import EXIT_BAD_INPUT, EXIT_OK, common_options, print_error, say
+
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _LISTED_LEFT_OUT = 10  # images left out named on the console (all are in detections.csv)
 FEW_VIEWS = 3  # fewer views of a plane leave a camera's intrinsics undetermined (Zhang)
@@ -34,8 +34,8 @@ class _DetectUsageError(ValueError):
     """Bad input: printed as `jaxba: error: ...`, exit code 2."""
 
 
-def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
-    """Register `jaxba detect` (`parents`: the options every command takes)."""
+def add_detect(subparsers) -> None:
+    """Register `jaxba detect` with the options of every command."""
     parser = subparsers.add_parser(
         "detect",
         help="find a calibration target in images and write a project",
@@ -50,7 +50,7 @@ def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
             " Exit codes: 0 written, 2 bad input or no image with the board, 3 internal error,"
             " 130 interrupted."
         ),
-        parents=parents,
+        parents=[common_options()],
     )
     parser.add_argument("--board", required=True, metavar="SPEC", help=BOARD_HELP)
     parser.add_argument(
@@ -70,9 +70,6 @@ def add_detect(subparsers, parents: list[argparse.ArgumentParser]) -> None:
                         help="a bar over the images (default: only on a terminal)")
     parser.set_defaults(run=run_detect)
 
-
-def _say(message: str = "") -> None:
-    print(message, flush=True)
 
 
 def _natural(path: pathlib.Path) -> list:
@@ -153,7 +150,7 @@ def run_detect(args: argparse.Namespace) -> int:
         board, cameras = _checked(args)
         import_cv2()
     except (_DetectUsageError, OpenCVMissingError) as error:
-        print(f"jaxba: error: {error}", file=sys.stderr, flush=True)
+        print_error(str(error))
         return EXIT_BAD_INPUT
     with output_lock(args.out):
         return _detect_locked(args, board, cameras)
@@ -164,9 +161,9 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
     from jaxba._io._detect import DetectError, detect_images, detected_project, write_detected
 
     paths = [path for files in cameras.values() for path in files]
-    _say(f"detecting {board.text()} in {len(paths)} images of {len(cameras)} camera"
-         f"{'s' if len(cameras) > 1 else ''}")
-    with project_progress(len(paths), _say, bar=args.progress, noun="images") as progress:
+    say(f"detecting {board.text()} in {len(paths)} images of {len(cameras)} camera"
+        f"{'s' if len(cameras) > 1 else ''}")
+    with project_progress(len(paths), say, bar=args.progress, noun="images") as progress:
         found = iter(detect_images(paths, board, jobs=args.jobs, advance=progress.advance))
     detections = {camera: [next(found) for _ in files] for camera, files in cameras.items()}
     error = None
@@ -177,29 +174,29 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
     try:
         written = write_detected(project, args.out, args.name)
     except OSError as write_error:
-        print(f"jaxba: error: {args.out}: {write_error}", file=sys.stderr, flush=True)
+        print_error(f"{args.out}: {write_error}")
         return EXIT_BAD_INPUT
     few = []
     for camera, files in cameras.items():
         used = project.used(camera)
         start = project.starts.get(camera)
         how = f"; approximations: {start.method}" if start else ""
-        _say(f"  {camera}: the board in {len(used)} of {len(files)} images{how}")
+        say(f"  {camera}: the board in {len(used)} of {len(files)} images{how}")
         few += [f"{camera} ({len(used)})"] if start and len(used) < FEW_VIEWS else []
     left_out = [image for image in project.images if not image.detection.found]
     for image in left_out[:_LISTED_LEFT_OUT]:
-        _say(f"  left out {image.detection.path}: {image.detection.reason}")
+        say(f"  left out {image.detection.path}: {image.detection.reason}")
     if len(left_out) > _LISTED_LEFT_OUT:
-        _say(f"  ... and {len(left_out) - _LISTED_LEFT_OUT} more (detections.csv)")
-    _say(f"wrote {args.out}: {', '.join(path.name for path in written)}")
+        say(f"  ... and {len(left_out) - _LISTED_LEFT_OUT} more (detections.csv)")
+    say(f"wrote {args.out}: {', '.join(path.name for path in written)}")
     if few:
-        print(f"jaxba: warning: the board in fewer than {FEW_VIEWS} images of {', '.join(few)}:"
-              " a camera's focal lengths and principal point need three views of the board or"
-              " more, at different angles", file=sys.stderr, flush=True)
+        print_error(f"the board in fewer than {FEW_VIEWS} images of {', '.join(few)}: a camera's"
+                    " focal lengths and principal point need three views of the board or more,"
+                    " at different angles", "warning")
     if error is None and not project.starts:
         error = "the board was found in no image (detections.csv, detections.png)"
     if error is not None:
-        print(f"jaxba: error: {error}", file=sys.stderr, flush=True)
+        print_error(str(error))
         return EXIT_BAD_INPUT
-    _say(f"adjust it with: jaxba adjust {written[0]}")
+    say(f"adjust it with: jaxba adjust {written[0]}")
     return EXIT_OK

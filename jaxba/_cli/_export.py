@@ -20,7 +20,8 @@ import argparse
 import json
 import math
 import pathlib
-import sys
+
+from ._common import common_options, print_error, say
 
 _RESULTS, _OBSERVATIONS, _MANIFEST = "results.json", "observations.csv", "export.json"
 _COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt")
@@ -41,11 +42,11 @@ class ExportError(Exception):
     reports as `jaxba: error: ...` with exit code 2."""
 
 
-def add_export(subparsers, common: argparse.ArgumentParser) -> None:
-    """Register `jaxba export` with the options of every command (`common`)."""
+def add_export(subparsers) -> None:
+    """Register `jaxba export` with the options of every command."""
     parser = subparsers.add_parser(
         "export", help="write calibrated cameras (and rigs) for OpenCV or COLMAP",
-        description=_DESCRIPTION, parents=[common])
+        description=_DESCRIPTION, parents=[common_options()])
     parser.add_argument("out_dir", type=pathlib.Path, metavar="OUT_DIR",
                         help="the output folder of jaxba adjust (with results.json)")
     parser.add_argument("--format", choices=("opencv", "colmap"), required=True,
@@ -65,12 +66,6 @@ def add_export(subparsers, common: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run_export)
 
 
-def _say(message: str) -> None:
-    print(message, flush=True)
-
-
-def _warn(message: str) -> None:
-    print(f"jaxba: warning: {message}", file=sys.stderr, flush=True)
 
 
 def _read_results(out_dir: pathlib.Path) -> dict:
@@ -234,7 +229,7 @@ def _export(args: argparse.Namespace) -> int:
         for cid in selected:
             exported[cid] = export_camera(cameras[cid], args.format,
                                           coefficients=args.coefficients, exact=args.exact)
-            _say(_describe(exported[cid], args.format))
+            say(_describe(exported[cid], args.format))
         if args.format == "opencv":
             texts, rigs = _opencv_files(results, exported)
         else:
@@ -252,8 +247,8 @@ def _export(args: argparse.Namespace) -> int:
         replace_files(paths)
     for camera in exported.values():
         if camera.fitted is not None and camera.max_misfit_px > WARN_MISFIT_PX:
-            _warn(_misfit_warning(camera, args.format, args.coefficients))
-    _say("wrote")
+            print_error(_misfit_warning(camera, args.format, args.coefficients), "warning")
+    say("wrote")
     for path in sorted(paths):
-        _say(f"  {path}")
+        say(f"  {path}")
     return 0

@@ -12,6 +12,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._atomic": ("replace_files",),
     "._console": ("iteration_line", "start_line", "summary_lines", "warning_lines"),
     "._csv": ("observations_csv", "read_observations"),
+    "._figure_files": ("write_figures",),
     "._html": ("html_report", "png_bytes"),
     "._json": ("results_dict", "results_json"),
     "._lock": ("output_lock",),

@@ -1,0 +1,80 @@
+"""`jaxba batch PROJECT... --out DIR`: many projects adjusted in padded, vmapped solves, here or
+on a Dask cluster, with a summary."""
+
+import argparse
+import pathlib
+
+from ._common import EXIT_NOT_CONVERGED, EXIT_OK, UsageError, common_options, say, setup_jax
+
+
+def add_batch(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "batch",
+        help="adjust many projects in padded, vmapped solves, here or on a Dask cluster",
+        description=(
+            "Adjust every PROJECT.toml (projects of one kind share one compiled, vmapped solve),"
+            " write each project's reports into DIR/<project name>/ and summary.csv and"
+            " summary.json into DIR. A failing project is reported in the summary and does"
+            " not stop the others. With --scheduler the solves run as tasks on the workers of"
+            " a Dask cluster (pip install 'jaxba[dask]'). Exit codes: 0 all converged, 1 some"
+            " project failed or did not converge, 2 bad usage (or a report would overwrite"
+            " an input, or the scheduler cannot be used), 3 internal error, 130 interrupted."
+        ),
+        parents=[common_options()],
+    )
+    parser.add_argument("projects", type=pathlib.Path, nargs="+", metavar="PROJECT.toml")
+    parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                        help="folder for the per-project reports and the summary")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="a bar over the projects (default: only on a terminal)")
+    parser.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS|local[:N]",
+        help="solve on Dask: a scheduler's address (tcp://host:8786), or local:N for N worker"
+             " processes on this machine (local: one per CPU); default: in this process")
+    parser.add_argument(
+        "--chunk", type=int, default=None, metavar="N",
+        help="projects per vmapped solve, one Dask task (default 10); the results do not"
+             " depend on where the solves run, only (to rounding) on N")
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="skip projects whose reports are all in DIR already (an earlier, interrupted"
+             " run); their summary rows are read from their results.json")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from jaxba._dask import SchedulerError, check_scheduler
+    from jaxba._io._project._batch_read import read_batch
+    from jaxba._report import output_lock
+
+    if args.chunk is not None and args.chunk < 1:
+        raise UsageError(f"--chunk {args.chunk}: must be at least 1")
+    try:
+        if args.scheduler is not None:  # before anything is read: Dask installed?
+            check_scheduler(args.scheduler)
+    except SchedulerError as error:
+        raise UsageError(str(error)) from None
+    entries = read_batch(args.projects, args.out)  # checks every report against every input
+    with output_lock(args.out):
+        setup_jax()
+        from jaxba._cli._progress_bar import project_progress
+        from jaxba._io._project._batch_run import run_batch
+
+        if args.own_process:
+            from jaxba import _report
+            from jaxba._gc import freeze_long_lived
+
+            _report.write_reports  # imported now, frozen with the rest
+            freeze_long_lived()  # the modules and the projects read live until the end
+
+        with project_progress(len(args.projects), say, bar=args.progress) as progress:
+            try:
+                rows = run_batch(args.projects, args.out, progress=progress.say,
+                                 advance=progress.advance, entries=entries,
+                                 scheduler=args.scheduler, chunk_size=args.chunk,
+                                 resume=args.resume)
+            except SchedulerError as error:
+                raise UsageError(str(error)) from None
+    ok = sum(row["status"] == "ok" for row in rows)
+    say(f"{ok} of {len(rows)} projects converged")
+    return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED
