@@ -12,6 +12,7 @@ Each subcommand is an `_add_<name>` function that registers its parser and its `
 import argparse
 import contextlib
 import dataclasses
+import math
 import os
 import pathlib
 import shutil
@@ -22,6 +23,8 @@ import threading
 import time
 import traceback
 from collections.abc import Iterator, Sequence
+
+from ._compare import add_compare
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT, EXIT_INTERNAL = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a Ctrl-C
@@ -125,6 +128,17 @@ def _add_adjust(subparsers) -> None:
         help="also write NAME.html: summary, tables and figures in one offline page",
     )
     parser.add_argument(
+        "--uncertainty", type=float, nargs="?", const=math.inf, default=None,
+        metavar="DISTANCE",
+        help="also write each camera's projection uncertainty over its sensor at DISTANCE"
+             " (object units; default infinity): uncertainty_CAMERA.csv and figures",
+    )
+    parser.add_argument(
+        "--uncertainty-frame", choices=("object", "camera"), default="object",
+        help="object (default): the ray fixed in the world the camera saw, its pose carried"
+             " along; camera: fixed in the camera frame (intrinsics only)",
+    )
+    parser.add_argument(
         "--solver", choices=("auto", "dense", "schur"), default=None,
         help="dense normal equations, or object points eliminated (Schur complement); auto:"
              " schur above 2000 unknowns (default: the project's solver setting, auto)",
@@ -155,6 +169,25 @@ def _write_figures(project, result, out_dir, *, plots: bool, html: bool) -> list
         files[path] = image
     if html:
         files[html_path(project.spec, out_dir)] = html_report(project, result, figures=images)
+    replace_files(files)
+    return list(files)
+
+
+def _write_uncertainty(project, result, out_dir, args) -> list[pathlib.Path]:
+    """uncertainty_CAMERA.csv and its figures (`jaxba._report._uncertainty`) in `out_dir`,
+    never over an input file."""
+    from jaxba._report import check_targets, replace_files
+    from jaxba._report._uncertainty import camera_uncertainties, uncertainty_files
+
+    if not args.uncertainty > 0:
+        raise _UsageError(f"--uncertainty {args.uncertainty}: the distance must be > 0")
+    maps, notes = camera_uncertainties(project, result, distance=args.uncertainty,
+                                       frame=args.uncertainty_frame)
+    for note in notes:
+        _error(note, "warning")
+    files = uncertainty_files(maps, out_dir, frame=args.uncertainty_frame,
+                              distance=args.uncertainty)
+    check_targets(files, project.spec.input_files, f"project {project.spec.name!r}")
     replace_files(files)
     return list(files)
 
@@ -265,6 +298,8 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
             if args.plots or args.report:
                 written += _write_figures(project, result, out_dir, plots=args.plots,
                                           html="html" in args.report)
+            if args.uncertainty is not None:
+                written += _write_uncertainty(project, result, out_dir, args)
     except (_report.OutputError, OSError) as error:
         raise _UsageError(str(error)) from None
 
@@ -597,6 +632,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_import(subparsers)
     _add_bal(subparsers)
     _add_batch(subparsers)
+    add_compare(subparsers)
     return parser
 
 

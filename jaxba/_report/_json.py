@@ -6,7 +6,9 @@ import math
 import numpy as np
 
 from .._io._project._build import Project
+from .._models._cameras import CAMERA_MODELS
 from .._statistics._adjustment import Adjustment
+from .._statistics._derived import camera_covariance
 from ._collect import (
     ParameterTable,
     camera_correlations,
@@ -134,6 +136,26 @@ def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:
     }
 
 
+def _camera_models(project: Project, result: Adjustment) -> dict[str, dict]:
+    """Per camera what a comparison of calibrations needs (`jaxba.compare`): its model key,
+    image size (`sensor`, null if not given), `pixel_size` (mm models; null otherwise), the
+    model's constants, and its parameters in the model's order and units with their
+    covariance (fixed ones 0; σ̂0² N⁻¹ as the σ of "cameras")."""
+    models = {}
+    for cid, (model, row) in project.camera_rows.items():
+        camera = project.spec.cameras[cid]
+        models[cid] = _nulls({
+            "model": model,
+            "sensor": list(camera.sensor) if camera.sensor is not None else None,
+            "pixel_size": list(camera.pixel_size) if camera.pixel_size is not None else None,
+            "constants": {n: camera.constants[n] for n in CAMERA_MODELS[model].constant_names},
+            "parameters": list(CAMERA_MODELS[model].parameter_names),
+            "values": np.asarray(result.parameters.cameras[model])[row].tolist(),
+            "covariance": camera_covariance(result, model, row).tolist(),
+        })
+    return models
+
+
 def _variance_components(result: Adjustment) -> dict[str, dict] | None:
     if result.variance_components is None:
         return None
@@ -224,6 +246,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     compilation apart; see `_timings`); initialisation (what `complete_project` computed,
     `Completion.summary()`), only when the approximations were computed; datum (how it is
     defined: `Project.datum`). Iteration 0 is the approximations.
+    camera_models (per camera: model, sensor, pixel_size, constants, parameters, values and
+    their covariance: what `jaxba.compare` reads).
     Every parameter carries "status": free, fixed or weighted; a tied camera parameter
     "tied to CAMERA.parameter" (its source's unknown: the same value and std).
     """
@@ -267,6 +291,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "image_residuals": _nulls(image_residual_summaries(project, result)),
         "observation_groups": _nulls(group_summaries(project, result)),
         "correlations": _correlations(project, result),
+        "camera_models": _camera_models(project, result),
         "variance_components": _variance_components(result),
         "variance_component_iterations": (
             int(result.variance_iterations) if result.variance_components is not None else None

@@ -2,13 +2,19 @@
 
 For the grid pixels q (pixels of A's sensor), the ray p_A(q) of calibration A (at a distance
 or a direction) is rotated by R and projected by calibration B:
-Δ(q) = q_B(R p_A(q)) - q. R is the rotation that best aligns them (or I): it minimises
-ΔᵀΣ_Δ⁺Δ, Σ_Δ = J_A Σ_A J_Aᵀ + J_B Σ_B J_Bᵀ the joint covariance of Δ over all grid pixels
-(J = ∂Δ/∂θ by `jax.jacfwd`, Σ the covariance of each camera's parameters). The pixels share
-the few unknowns, so Σ_Δ has rank r ≤ the number of estimated parameters: with
-Σ_Δ = C Cᵀ (C = [J_A L_A, J_B L_B], Σ = L Lᵀ) and C = U S Vᵀ, χ² = |S_r⁻¹ U_rᵀ Δ|² over the r
-singular values above `RANK_RTOL` of the largest, with r - 3 degrees of freedom after a
-fitted rotation (it takes three), r without.
+Δ(q) = q_B(R p_A(q)) - q, with Σ_Δ = J_A Σ_A J_Aᵀ + J_B Σ_B J_Bᵀ its joint covariance over
+all grid pixels (J = ∂Δ/∂θ by `jax.jacfwd`, Σ the covariance of each camera's parameters).
+R is the rotation that best aligns them (or I): it minimises Σ_q Δ_qᵀ W_q Δ_q, W_q the
+inverse of pixel q's own 2 x 2 block of Σ_Δ (Gauss-Newton on the rotation vector ρ; the
+differences reported are the aligned ones). The test takes the fit to first order: the
+fitted difference Q Δ(ρ = 0), Q = I - G (GᵀWG)⁻¹ GᵀW (G = ∂Δ/∂ρ at 0; QG = 0, so a rotation
+between the two camera frames drops out), has the covariance Q Σ_Δ Qᵀ. The pixels share the
+few unknowns, so that has a rank r no larger than the number of estimated parameters: with
+Q Σ_Δ Qᵀ = C Cᵀ (C = Q [J_A L_A, J_B L_B], Σ = L Lᵀ) and C = U S Vᵀ,
+χ² = |S_r⁻¹ U_rᵀ Q Δ(0)|² over the r singular values above `RANK_RTOL` of the largest, with r
+degrees of freedom (r drops where a rotation's pattern is one a change of intrinsics makes).
+Weighting the fit by the full Σ_Δ⁺ instead would leave the rotation almost unfitted: the
+part of a rotation's pattern that no change of intrinsics reproduces lies where Σ_Δ is small.
 """
 
 import dataclasses
@@ -34,9 +40,10 @@ class Calibration:
     """One camera's calibration: `model` (a `CAMERA_MODELS` key), its `parameters` (p,) in
     the model's order and units, their `covariance` (p, p) (fixed ones 0), the model's
     `constants` ((name, value) pairs), `sensor` (ncols, nrows) and, for a mm model, the
-    `grid` that converts pixels; `name` says where it came from."""
+    `grid` that converts pixels; `camera` its ID, `name` says where it came from."""
 
     name: str
+    camera: str
     model: str
     parameters: np.ndarray
     covariance: np.ndarray
@@ -115,6 +122,14 @@ def _differences(a: tuple, b: tuple, pixels, distance, theta_a, theta_b, rho):
     return jax.vmap(one)(pixels)
 
 
+def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
+    """The (2n, 2n) block-diagonal matrix of `blocks` (n, 2, 2)."""
+    n = blocks.shape[0]
+    out = np.zeros((n, 2, n, 2))
+    out[np.arange(n), :, np.arange(n), :] = blocks
+    return out.reshape(2 * n, 2 * n)
+
+
 def _square_root(covariance: np.ndarray) -> np.ndarray:
     """L with L Lᵀ = `covariance` (symmetric, positive semi-definite; negative rounding
     clipped)."""
@@ -153,21 +168,30 @@ def compare_calibrations(
     n = pixels.shape[0]
     factor = np.concatenate([j_a.reshape(2 * n, -1) @ _square_root(a.covariance),
                              j_b.reshape(2 * n, -1) @ _square_root(b.covariance)], axis=1)
+    blocks = factor.reshape(n, 2, -1)
+    weights = np.linalg.pinv(blocks @ np.swapaxes(blocks, 1, 2), hermitian=True)  # (n, 2, 2)
+    residual_map = np.eye(2 * n)
+    if fit == "rotation":
+        # The test is linear in Δ(0): Q Δ(0) with Q = I - G (GᵀWG)⁻¹ GᵀW at ρ = 0, QG = 0.
+        g = j_rho.reshape(2 * n, 3)
+        weighted = _block_diagonal(weights) @ g
+        residual_map -= g @ np.linalg.solve(g.T @ weighted, weighted.T)
+    tested = residual_map @ delta.ravel()
+    for _ in range(_FIT_STEPS if fit == "rotation" else 0):  # the aligned Δ shown
+        weighted = _block_diagonal(weights) @ j_rho.reshape(2 * n, 3)
+        rho = rho - np.linalg.solve(j_rho.reshape(2 * n, 3).T @ weighted,
+                                    weighted.T @ delta.ravel())
+        delta, _, _, j_rho = (np.asarray(x) for x in _differences(*args, jax.device_put(rho)))
+    factor = residual_map @ factor
     u, s, _ = np.linalg.svd(factor, full_matrices=False)
     rank = int(np.sum(s > RANK_RTOL * s[0]))
-    whiten = u[:, :rank].T / s[:rank, None]  # (r, 2n): Σ_Δ⁺ = whitenᵀ whiten
-    if fit == "rotation":
-        for _ in range(_FIT_STEPS):
-            h, g = whiten @ delta.ravel(), whiten @ j_rho.reshape(2 * n, 3)
-            rho = rho - np.linalg.lstsq(g, h, rcond=None)[0]
-            delta, _, _, j_rho = (np.asarray(x) for x in _differences(*args, jax.device_put(rho)))
-    whitened = whiten @ delta.ravel()
+    whitened = (u[:, :rank].T @ tested) / s[:rank]
     chi2 = float(whitened @ whitened)
-    dof = rank - (3 if fit == "rotation" else 0)
     blocks = factor.reshape(n, 2, -1)
-    per_pixel = np.einsum("ni,nij,nj->n", delta,
+    per_pixel = np.einsum("ni,nij,nj->n", tested.reshape(n, 2),
                           np.linalg.pinv(blocks @ np.swapaxes(blocks, 1, 2), hermitian=True),
                           delta)
+    dof = rank
     return Comparison(pixels, delta, per_pixel, rho, chi2, dof, rank,
                       float(scipy.stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan,
                       fit, float(distance))
@@ -182,7 +206,7 @@ def calibration_of(result, camera, sensor: tuple[int, int], *, grid: PixelGrid |
 
     ref = camera_ref(result, camera)
     return Calibration(
-        name=str(camera) if name is None else name, model=ref.model,
+        name=str(camera) if name is None else name, camera=str(camera), model=ref.model,
         parameters=np.asarray(result.parameters.cameras[ref.model][ref.row], dtype=float),
         covariance=camera_covariance(result, ref.model, ref.row), constants=ref.constants,
         sensor=tuple(int(v) for v in sensor), grid=grid)
