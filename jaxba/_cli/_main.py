@@ -146,9 +146,11 @@ def _add_adjust(subparsers) -> None:
     parser.set_defaults(run=_adjust)
 
 
-def _write_figures(project, result, out_dir, *, plots: bool, html: bool) -> list[pathlib.Path]:
+def _write_figures(project, result, out_dir, *, plots: bool, html: bool,
+                   uncertainty: dict | None = None) -> list[pathlib.Path]:
     """The report's figures (`figure_set`) as NAME.png files (`plots`) and NAME.html
-    (`html`) with them embedded, in `out_dir`; each figure drawn once.
+    (`html`) with them embedded, in `out_dir`; each figure drawn once; `uncertainty`: the
+    files `_write_uncertainty` wrote, for the HTML report's section.
 
     Never over an input: a figure whose file name is an input's is skipped with a warning
     (NAME.html was checked before the run); the files replace the old ones together
@@ -168,14 +170,16 @@ def _write_figures(project, result, out_dir, *, plots: bool, html: bool) -> list
             continue
         files[path] = image
     if html:
-        files[html_path(project.spec, out_dir)] = html_report(project, result, figures=images)
+        files[html_path(project.spec, out_dir)] = html_report(
+            project, result, figures=images,
+            uncertainty={path.name: content for path, content in (uncertainty or {}).items()})
     replace_files(files)
     return list(files)
 
 
-def _write_uncertainty(project, result, out_dir, args) -> list[pathlib.Path]:
+def _write_uncertainty(project, result, out_dir, args) -> dict[pathlib.Path, str | bytes]:
     """uncertainty_CAMERA.csv and its figures (`jaxba._report._uncertainty`) in `out_dir`,
-    never over an input file."""
+    never over an input file; returns them by path."""
     from jaxba._report import check_targets, replace_files
     from jaxba._report._uncertainty import camera_uncertainties, uncertainty_files
 
@@ -189,7 +193,7 @@ def _write_uncertainty(project, result, out_dir, args) -> list[pathlib.Path]:
                               distance=args.uncertainty)
     check_targets(files, project.spec.input_files, f"project {project.spec.name!r}")
     replace_files(files)
-    return list(files)
+    return files
 
 
 def _read_checked(args: argparse.Namespace):
@@ -295,11 +299,13 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
     try:
         with timings.phase("reports"):
             written = _report.write_reports(project, result, out_dir)
+            uncertainty = {}
+            if args.uncertainty is not None:
+                uncertainty = _write_uncertainty(project, result, out_dir, args)
+                written += list(uncertainty)
             if args.plots or args.report:
                 written += _write_figures(project, result, out_dir, plots=args.plots,
-                                          html="html" in args.report)
-            if args.uncertainty is not None:
-                written += _write_uncertainty(project, result, out_dir, args)
+                                          html="html" in args.report, uncertainty=uncertainty)
     except (_report.OutputError, OSError) as error:
         raise _UsageError(str(error)) from None
 

@@ -4,17 +4,17 @@ For the grid pixels q (pixels of A's sensor), the ray p_A(q) of calibration A (a
 or a direction) is rotated by R and projected by calibration B:
 Δ(q) = q_B(R p_A(q)) - q, with Σ_Δ = J_A Σ_A J_Aᵀ + J_B Σ_B J_Bᵀ its joint covariance over
 all grid pixels (J = ∂Δ/∂θ by `jax.jacfwd`, Σ the covariance of each camera's parameters).
-R is the rotation that best aligns them (or I): it minimises Σ_q Δ_qᵀ W_q Δ_q, W_q the
-inverse of pixel q's own 2 x 2 block of Σ_Δ (Gauss-Newton on the rotation vector ρ; the
-differences reported are the aligned ones). The test takes the fit to first order: the
-fitted difference Q Δ(ρ = 0), Q = I - G (GᵀWG)⁻¹ GᵀW (G = ∂Δ/∂ρ at 0; QG = 0, so a rotation
-between the two camera frames drops out), has the covariance Q Σ_Δ Qᵀ. The pixels share the
-few unknowns, so that has a rank r no larger than the number of estimated parameters: with
-Q Σ_Δ Qᵀ = C Cᵀ (C = Q [J_A L_A, J_B L_B], Σ = L Lᵀ) and C = U S Vᵀ,
-χ² = |S_r⁻¹ U_rᵀ Q Δ(0)|² over the r singular values above `RANK_RTOL` of the largest, with r
-degrees of freedom (r drops where a rotation's pattern is one a change of intrinsics makes).
-Weighting the fit by the full Σ_Δ⁺ instead would leave the rotation almost unfitted: the
-part of a rotation's pattern that no change of intrinsics reproduces lies where Σ_Δ is small.
+The pixels share the few unknowns, so Σ_Δ has a small rank: with Σ_Δ = C Cᵀ
+(C = [J_A L_A, J_B L_B], Σ = L Lᵀ) and C = U S Vᵀ, the test keeps the r leading singular
+directions, r at most the larger number of estimated parameters of the two (they describe
+one lens: their patterns overlap, and the rest of the spectrum is the curvature between two
+nearby linearisations, which whitening would blow up), and χ² = |h|², h = S_r⁻¹ U_rᵀ Δ, with
+r degrees of freedom. With a fitted rotation, h loses its projection on the whitened
+rotation patterns H = S_r⁻¹ U_rᵀ G (G = ∂Δ/∂ρ), the generalised least-squares fit, and the
+degrees of freedom rank(H). The differences reported are aligned by the rotation that
+minimises Σ_q Δ_qᵀ W_q Δ_q, W_q the inverse of pixel q's own 2 x 2 block of Σ_Δ
+(Gauss-Newton on the rotation vector ρ): the generalised fit may turn about the optical axis
+to absorb noise, which the per-pixel weights do not.
 """
 
 import dataclasses
@@ -57,7 +57,8 @@ class Comparison:
     """The outcome of `compare_calibrations`.
 
     - `pixels` (n, 2): the grid (pixels of A's sensor); `difference` (n, 2): Δ = (du, dv)
-      in pixels; `chi2_pixels` (n,): each pixel's Δᵀ Σ_ii⁻¹ Δ with its own 2 x 2 block;
+      in pixels, aligned; `chi2_pixels` (n,): each pixel's Δᵀ Σ_ii⁻¹ Δ (before alignment)
+      with its own 2 x 2 block;
     - `rotation` (3,): the fitted rotation vector (radians, A's camera frame), 0 without a fit;
     - `chi2`, `dof`, `p_value`: the joint test; `rank` of Σ_Δ; `fit`, `distance`.
     """
@@ -122,6 +123,13 @@ def _differences(a: tuple, b: tuple, pixels, distance, theta_a, theta_b, rho):
     return jax.vmap(one)(pixels)
 
 
+def _per_pixel_chi2(factor: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """(n,) Δ_qᵀ Σ_qq⁺ Δ_q of every pixel with its own 2 x 2 block of Σ_Δ = factor factorᵀ."""
+    blocks = factor.reshape(delta.shape[0], 2, -1)
+    inverse = np.linalg.pinv(blocks @ np.swapaxes(blocks, 1, 2), hermitian=True)
+    return np.einsum("ni,nij,nj->n", delta, inverse, delta)
+
+
 def _block_diagonal(blocks: np.ndarray) -> np.ndarray:
     """The (2n, 2n) block-diagonal matrix of `blocks` (n, 2, 2)."""
     n = blocks.shape[0]
@@ -168,30 +176,29 @@ def compare_calibrations(
     n = pixels.shape[0]
     factor = np.concatenate([j_a.reshape(2 * n, -1) @ _square_root(a.covariance),
                              j_b.reshape(2 * n, -1) @ _square_root(b.covariance)], axis=1)
+    u, s, _ = np.linalg.svd(factor, full_matrices=False)
+    estimated = max(int(np.sum(np.diag(c.covariance) > 0)) for c in (a, b))
+    rank = min(int(np.sum(s > RANK_RTOL * s[0])), estimated)
+    whiten = u[:, :rank].T / s[:rank, None]  # (r, 2n)
+    tested = whiten @ delta.ravel()
+    dof = rank
+    if fit == "rotation":
+        # min over ρ of |whiten (Δ(0) + G ρ)|²: the whitened Δ(0) less its projection on
+        # the whitened rotation patterns H, which take rank(H) degrees of freedom.
+        h = whiten @ j_rho.reshape(2 * n, 3)
+        basis, singular, _ = np.linalg.svd(h, full_matrices=False)
+        basis = basis[:, singular > RANK_RTOL * max(singular[0], 1e-300)]
+        tested = tested - basis @ (basis.T @ tested)
+        dof -= basis.shape[1]
+    chi2 = float(tested @ tested)
+    per_pixel = _per_pixel_chi2(factor, delta)
     blocks = factor.reshape(n, 2, -1)
     weights = np.linalg.pinv(blocks @ np.swapaxes(blocks, 1, 2), hermitian=True)  # (n, 2, 2)
-    residual_map = np.eye(2 * n)
-    if fit == "rotation":
-        # The test is linear in Δ(0): Q Δ(0) with Q = I - G (GᵀWG)⁻¹ GᵀW at ρ = 0, QG = 0.
+    for _ in range(_FIT_STEPS if fit == "rotation" else 0):  # the aligned Δ shown
         g = j_rho.reshape(2 * n, 3)
         weighted = _block_diagonal(weights) @ g
-        residual_map -= g @ np.linalg.solve(g.T @ weighted, weighted.T)
-    tested = residual_map @ delta.ravel()
-    for _ in range(_FIT_STEPS if fit == "rotation" else 0):  # the aligned Δ shown
-        weighted = _block_diagonal(weights) @ j_rho.reshape(2 * n, 3)
-        rho = rho - np.linalg.solve(j_rho.reshape(2 * n, 3).T @ weighted,
-                                    weighted.T @ delta.ravel())
+        rho = rho - np.linalg.solve(g.T @ weighted, weighted.T @ delta.ravel())
         delta, _, _, j_rho = (np.asarray(x) for x in _differences(*args, jax.device_put(rho)))
-    factor = residual_map @ factor
-    u, s, _ = np.linalg.svd(factor, full_matrices=False)
-    rank = int(np.sum(s > RANK_RTOL * s[0]))
-    whitened = (u[:, :rank].T @ tested) / s[:rank]
-    chi2 = float(whitened @ whitened)
-    blocks = factor.reshape(n, 2, -1)
-    per_pixel = np.einsum("ni,nij,nj->n", tested.reshape(n, 2),
-                          np.linalg.pinv(blocks @ np.swapaxes(blocks, 1, 2), hermitian=True),
-                          delta)
-    dof = rank
     return Comparison(pixels, delta, per_pixel, rho, chi2, dof, rank,
                       float(scipy.stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan,
                       fit, float(distance))
