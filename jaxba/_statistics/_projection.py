@@ -34,7 +34,6 @@ from .._models._cameras import CAMERA_MODELS, PixelGrid
 from .._models._poses import POSE_MODELS
 from .._problem._observations import ImagePoints
 from .._problem._parameters import flatten, unflatten
-from ._adjustment import Adjustment
 
 FRAMES = ("object", "camera")
 _NEWTON_STEPS = 30  # unprojection from the principal ray; a few suffice for usual lenses
@@ -74,9 +73,10 @@ class CameraRef:
     groups: tuple[int, ...]
 
 
-def camera_ref(result: Adjustment, camera_id) -> CameraRef:
-    """The `CameraRef` of `camera_id` (an ID of `result.cameras`); `KeyError` naming the
-    cameras there is when it is none of them."""
+def camera_ref(result, camera_id) -> CameraRef:
+    """The `CameraRef` of `camera_id` (an ID of `result.cameras`, `result` an `Adjustment`:
+    not imported here, whose method this module serves); `KeyError` naming the cameras
+    there is when it is none of them."""
     for model, ids in result._ids.cameras.items():
         if camera_id in ids:
             row = list(ids).index(camera_id)
@@ -168,7 +168,7 @@ def _frame_fit_blocks(model, constants, pose, iop, eops, points, measured, sigma
     return jax.vmap(one)(eops, points, measured, sigma)
 
 
-def _frame_map(result: Adjustment, ref: CameraRef, positions) -> tuple[np.ndarray, np.ndarray]:
+def _frame_map(result, ref: CameraRef, positions) -> tuple[np.ndarray, np.ndarray]:
     """(L, cols): z = (Δiop, T) = L Δθ over the unknowns at `flatten` positions `cols`
     (the camera's parameters, its images' poses, the points they observe; points left out
     where the adjustment eliminated them and holds no cross-covariances)."""
@@ -209,7 +209,7 @@ def _frame_map(result: Adjustment, ref: CameraRef, positions) -> tuple[np.ndarra
 
 
 def projection_uncertainty(
-    result: Adjustment,
+    result,
     camera,
     pixels: Float[np.ndarray, "n 2"],
     distance: float | Float[np.ndarray, " n"] = math.inf,
