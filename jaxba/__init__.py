@@ -91,6 +91,9 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._io._synthetic": ("SyntheticTruth", "write_synthetic_project"),
     "._io._close_range": ("write_close_range_project",),
     "._adjust._variance_components": ("VarianceComponent", "estimate_variance_components"),
+    "._statistics._projection": ("ProjectionUncertainty", "projection_uncertainty"),
+    "._statistics._compare": ("Calibration", "Comparison", "calibration_of"),
+    "._io._calibration": ("compare", "read_calibration"),
 })
 
 

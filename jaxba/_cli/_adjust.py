@@ -3,6 +3,7 @@ asked, its figures and HTML page)."""
 
 import argparse
 import dataclasses
+import math
 import pathlib
 import time
 
@@ -45,11 +46,41 @@ def add_adjust(subparsers) -> None:
         help="also write NAME.html: summary, tables and figures in one offline page",
     )
     parser.add_argument(
+        "--uncertainty", type=float, nargs="?", const=math.inf, default=None,
+        metavar="DISTANCE",
+        help="also write each camera's projection uncertainty over its sensor at DISTANCE"
+             " (object units; default infinity): uncertainty_CAMERA.csv and figures",
+    )
+    parser.add_argument(
+        "--uncertainty-frame", choices=("object", "camera"), default="object",
+        help="object (default): the ray fixed in the world the camera saw, its pose carried"
+             " along; camera: fixed in the camera frame (intrinsics only)",
+    )
+    parser.add_argument(
         "--solver", choices=("auto", "dense", "schur"), default=None,
         help="dense normal equations, or object points eliminated (Schur complement); auto:"
              " schur above 2000 unknowns (default: the project's solver setting, auto)",
     )
     parser.set_defaults(run=run)
+
+
+def _write_uncertainty(project, result, out_dir, args) -> dict[pathlib.Path, str | bytes]:
+    """uncertainty_CAMERA.csv and its figures (`jaxba._report._uncertainty`) in `out_dir`,
+    never over an input file; returns them by path."""
+    from jaxba._report import check_targets, replace_files
+    from jaxba._report._uncertainty import camera_uncertainties, uncertainty_files
+
+    if not args.uncertainty > 0:
+        raise UsageError(f"--uncertainty {args.uncertainty}: the distance must be > 0")
+    maps, notes = camera_uncertainties(project, result, distance=args.uncertainty,
+                                       frame=args.uncertainty_frame)
+    for note in notes:
+        print_error(note, "warning")
+    files = uncertainty_files(maps, out_dir, frame=args.uncertainty_frame,
+                              distance=args.uncertainty)
+    check_targets(files, project.spec.input_files, f"project {project.spec.name!r}")
+    replace_files(files)
+    return files
 
 
 def _read_checked(args: argparse.Namespace):
@@ -130,10 +161,14 @@ def _run_locked(args, spec, out_dir, read_seconds: float) -> int:
     try:
         with timings.phase("reports"):
             written = _report.write_reports(project, result, out_dir)
+            uncertainty = {}
+            if args.uncertainty is not None:
+                uncertainty = _write_uncertainty(project, result, out_dir, args)
+                written += list(uncertainty)
             if args.plots or args.report:
                 written += _report.write_figures(
                     project, result, out_dir, plots=args.plots, html="html" in args.report,
-                    warn=lambda message: print_error(message, "warning"))
+                    uncertainty=uncertainty, warn=lambda message: print_error(message, "warning"))
     except (_report.OutputError, OSError) as error:
         raise UsageError(str(error)) from None
 

@@ -1,5 +1,6 @@
 """The `jaxba` command line: its parser, assembled from one module per command (`_adjust`,
-`_init`, `_import`, `_bal_command`, `_batch`, `_export`, `_detect`), and the entry point.
+`_init`, `_import`, `_bal_command`, `_batch`, `_export`, `_detect`, `_compare`), and the
+entry point.
 
 Thin: reading, adjusting and reporting live in the library and `jaxba._report`; the command
 modules parse arguments, set up jax (float64, persistent compilation cache), hold the output
@@ -29,6 +30,7 @@ from ._common import (
     print_error,
     remembered_interrupts,
 )
+from ._compare import add_compare
 from ._detect import add_detect
 from ._export import add_export
 from ._import import add_import
@@ -50,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"jaxba {_version()}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (add_adjust, add_init, add_import, add_bal, add_batch, add_export, add_detect):
+    for add in (add_adjust, add_init, add_import, add_bal, add_batch, add_export, add_detect,
+                add_compare):
         add(subparsers)
     return parser
 

@@ -9,9 +9,12 @@ from ._paths import html_path
 
 
 def write_figures(project, result, out_dir, *, plots: bool, html: bool,
-                  warn: Callable[[str], None]) -> list[pathlib.Path]:
+                  warn: Callable[[str], None], uncertainty: dict | None = None
+                  ) -> list[pathlib.Path]:
     """The report's figures (`figure_set`) as NAME.png files (`plots`) and NAME.html
-    (`html`) with them embedded, in `out_dir`; each figure drawn once.
+    (`html`) with them embedded, in `out_dir`; each figure drawn once; `uncertainty`: the
+    projection-uncertainty files already written (path -> content), for the HTML report's
+    section.
 
     Never over an input: a figure whose file name is an input's is skipped with a warning
     (`warn`; NAME.html was checked before the run); the files replace the old ones together
@@ -30,6 +33,8 @@ def write_figures(project, result, out_dir, *, plots: bool, html: bool,
             continue
         files[path] = image
     if html:
-        files[html_path(project.spec, out_dir)] = html_report(project, result, figures=images)
+        files[html_path(project.spec, out_dir)] = html_report(
+            project, result, figures=images,
+            uncertainty={path.name: content for path, content in (uncertainty or {}).items()})
     replace_files(files)
     return list(files)

@@ -53,13 +53,16 @@ def png_bytes(figure) -> bytes:
 
 
 def html_report(
-    project: Project, result: Adjustment, *, figures: dict[str, bytes] | None = None
+    project: Project, result: Adjustment, *, figures: dict[str, bytes] | None = None,
+    uncertainty: dict[str, bytes] | None = None,
 ) -> str:
     """The report page (UTF-8 text): summary, cameras, images, points (the first
     `MAX_POINT_ROWS`), observation groups, the largest normalised residuals, data-snooping
     rejections and the figures of `figure_set`, embedded as PNG.
 
     `figures`: PNG bytes by figure name, already drawn (e.g. for `--plots`); None draws them.
+    `uncertainty`: the files of `uncertainty_files` by name (CSV text, PNG bytes): a section
+    on the projection uncertainty of each camera with its maps; None leaves it out.
     """
     from ._plots._set import figure_set
 
@@ -75,6 +78,8 @@ def html_report(
         ("residuals", "Largest normalised residuals", _largest(project, result)),
         ("figures", "Figures", _figures(shown, figures)),
     ]
+    if uncertainty:
+        sections.insert(-1, ("uncertainty", "Projection uncertainty", _uncertainty(uncertainty)))
     name = html.escape(project.spec.name)
     nav = "".join(f'<li><a href="#{key}">{title}</a></li>' for key, title, _ in sections)
     body = "\n".join(f'<section id="{key}">\n<h2>{title}</h2>\n{content}\n</section>'
@@ -261,6 +266,27 @@ def _largest(project: Project, result: Adjustment) -> str:
             " points: mm, or pixels for pixel models); w the normalised residual, r the"
             " redundancy number.</p>\n")
     return note + text
+
+
+def _uncertainty(files: dict[str, str | bytes]) -> str:
+    """Per camera σ in the worst direction at the sensor's centre, its median and largest
+    over the grid (uncertainty_<camera>.csv), and the two figures."""
+    rows, images = [], []
+    for name, content in files.items():
+        if name.endswith(".csv"):
+            table = np.loadtxt(io.StringIO(content), delimiter=",", skiprows=1, ndmin=2)
+            centre = table[:, :2].mean(axis=0)
+            near = np.argmin(np.linalg.norm(table[:, :2] - centre, axis=1))
+            worst = table[:, 2]
+            rows.append([_e(name.removeprefix("uncertainty_").removesuffix(".csv")),
+                         f"{worst[near]:.3g}", f"{np.median(worst):.3g}",
+                         f"{worst.max():.3g}"])
+        elif name.endswith(".png"):
+            data = base64.b64encode(content).decode("ascii")
+            images.append(f'<figure><img alt="{_e(name)}" src="data:image/png;base64,{data}">'
+                          f"<figcaption>{_e(name)}</figcaption></figure>")
+    header = ["camera", "σ worst at the centre (px)", "median (px)", "largest (px)"]
+    return _table(header, rows) + "\n" + "\n".join(images)
 
 
 def _figures(shown, figures: dict[str, bytes]) -> str:

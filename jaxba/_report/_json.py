@@ -6,7 +6,9 @@ import math
 import numpy as np
 
 from .._io._project._build import Project
+from .._models._cameras import CAMERA_MODELS
 from .._statistics._adjustment import Adjustment
+from .._statistics._derived import camera_covariance
 from ._collect import (
     ParameterTable,
     camera_correlations,
@@ -127,26 +129,33 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     return "{\n" + inner + f",\n{inner}".join(items) + f"\n{indent}}}"
 
 
-def _camera_model(model: str, camera) -> dict:
-    return {"model": model,
-            "sensor": None if camera.sensor is None else [int(n) for n in camera.sensor],
-            "pixel_size": (None if camera.pixel_size is None
-                           else [float(size) for size in camera.pixel_size])}
-
-
-def _camera_models(project: Project) -> dict[str, dict]:
-    """Per camera what its values need to be used elsewhere (`jaxba export`): the model
-    (with a ray refraction "<model>+<refraction>"), its sensor (columns, rows) and pixel
-    size (mm, x and y), null where cameras.toml gives none."""
-    return {cid: _camera_model(model, project.spec.cameras[cid])
-            for cid, (model, _) in project.camera_rows.items()}
-
-
 def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:
     return {
         cid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
         for cid, (names, matrix) in camera_correlations(project, result).items()
     }
+
+
+def _camera_models(project: Project, result: Adjustment) -> dict[str, dict]:
+    """Per camera what its values need to be used elsewhere (`jaxba export`, `jaxba.compare`):
+    its model key (with a ray refraction "<model>+<refraction>"), image size (`sensor`:
+    columns, rows; null if not given), `pixel_size` (mm, x and y; null where cameras.toml
+    gives none), the model's constants, and its parameters in the model's order and units
+    with their covariance (fixed ones 0; σ̂0² N⁻¹ as the σ of "cameras")."""
+    models = {}
+    for cid, (model, row) in project.camera_rows.items():
+        camera = project.spec.cameras[cid]
+        models[cid] = _nulls({
+            "model": model,
+            "sensor": None if camera.sensor is None else [int(n) for n in camera.sensor],
+            "pixel_size": (None if camera.pixel_size is None
+                           else [float(size) for size in camera.pixel_size]),
+            "constants": {n: camera.constants[n] for n in CAMERA_MODELS[model].constant_names},
+            "parameters": list(CAMERA_MODELS[model].parameter_names),
+            "values": np.asarray(result.parameters.cameras[model])[row].tolist(),
+            "covariance": camera_covariance(result, model, row).tolist(),
+        })
+    return models
 
 
 def _variance_components(result: Adjustment) -> dict[str, dict] | None:
@@ -223,8 +232,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
 
     Keys of docs/outputs.md (converged, sigma0, redundancy, iterations, cameras, images, points;
     angles and their σ in decimal degrees) plus: project, message, steps, n_observations,
-    n_unknowns, sigma0_squared, sigma0_prior, camera_models (per camera: model, sensor,
-    pixel_size), units (image: "mm", "pixel" for pixel-unit
+    n_unknowns, sigma0_squared, sigma0_prior, units (image: "mm", "pixel" for pixel-unit
     camera models, or "mixed"; image_cameras: per camera), image_cameras, image_residuals (RMS
     in mm and px: overall, per camera, per image; data-snooping rejections left out),
     observation_groups (n, vᵀPv), correlations (per camera: the estimated IOPs and their
@@ -240,6 +248,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     compilation apart; see `_timings`); initialisation (what `complete_project` computed,
     `Completion.summary()`), only when the approximations were computed; datum (how it is
     defined: `Project.datum`). Iteration 0 is the approximations.
+    camera_models (per camera: model, sensor, pixel_size, constants, parameters, values and
+    their covariance: what `jaxba.compare` reads).
     Every parameter carries "status": free, fixed or weighted; a tied camera parameter
     "tied to CAMERA.parameter" (its source's unknown: the same value and std).
     """
@@ -277,13 +287,13 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
             for it in result.iterations
         ],
         "cameras": {cid: _entries(table, 0) for cid, table in cameras.items()},
-        "camera_models": _camera_models(project),
         "images": {iid: _entries(images, k) for k, iid in enumerate(images.ids)},
         "image_cameras": {iid: project.spec.images[iid].camera for iid in images.ids},
         "points": points,
         "image_residuals": _nulls(image_residual_summaries(project, result)),
         "observation_groups": _nulls(group_summaries(project, result)),
         "correlations": _correlations(project, result),
+        "camera_models": _camera_models(project, result),
         "variance_components": _variance_components(result),
         "variance_component_iterations": (
             int(result.variance_iterations) if result.variance_components is not None else None

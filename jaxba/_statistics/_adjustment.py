@@ -101,6 +101,18 @@ class Adjustment:
         pandas is installed, else a dict of NumPy columns."""
         return observation_table(self, self._ids)
 
+    def projection_uncertainty(self, camera, pixels, distance=float("inf"), *,
+                               frame: str = "object", grid=None):
+        """Σ_q (n, 2, 2) of the image points `pixels` (n, 2) of camera `camera` (its ID) at
+        `distance` (object units, inf for a direction), the ray fixed in the world the
+        camera saw (`frame="object"`) or in the camera frame (`"camera"`, intrinsics only):
+        a `ProjectionUncertainty` with `sigma_worst` and `sigma_rms`. `pixels` in the
+        model's image units, or pixels with a mm model's `grid` (`PixelGrid`)
+        (`jaxba._statistics._projection`)."""
+        from ._projection import projection_uncertainty  # it imports this module
+
+        return projection_uncertainty(self, camera, pixels, distance, frame=frame, grid=grid)
+
     def summary(self) -> str:
         """A few lines: convergence, σ̂0 and its χ² test, redundancy, datum, backend,
         outliers, timings (`jaxba._statistics._summary`)."""

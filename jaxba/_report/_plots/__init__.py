@@ -15,4 +15,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._normal": ("plot_normalised_residuals",),
     "._residuals": ("plot_image_residuals",),
     "._set": ("figure_set",),
+    "._uncertainty": ("plot_sensor_map", "plot_sigma_along_ray"),
 })
