@@ -1,0 +1,147 @@
+"""Rigs in the core: an image's pose composed from its frame's and its camera's relative pose
+(`Parameters.mounts`, `ImagePoints.mount`) against the composed pose written as an ordinary
+image, row Jacobians against central differences, the Schur backend against the dense one,
+and the formal σ of the baseline and the relative angles against Monte Carlo replicates."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import FD_ATOL, FD_RTOL, central_difference, synthetic_rig
+
+import jaxba
+from jaxba._models._poses import OpkPose
+from jaxba._problem._parameters import flatten, parameter_labels, unflatten
+from jaxba._statistics._rigs import baseline, composed_pose_sigma, composed_poses
+
+COMPOSE_ATOL = 1e-9  # pixels: a rig row against its composed pose as an image row (float64)
+BACKEND_ATOL = 1e-8  # unknowns (mm, rad, px), Schur against dense
+SIGMA_RTOL = 1e-7  # σ, Schur against dense
+# Central differences of whitened pixel residuals (~4000 in magnitude before the difference):
+# rounding ~4e-13 / step, truncation ~step²: 1e-4 (relative) balances them below 1e-9.
+RIG_FD_STEP = 1e-4
+N_REPLICATES = 200
+# The empirical σ of N_REPLICATES replicates scatters about the formal one by ~1/sqrt(2N)
+# = 5 % (relative); four times that bounds it for every compared quantity.
+MONTE_CARLO_RTOL = 0.2
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return synthetic_rig(seed=0)
+
+
+@pytest.fixture(scope="module")
+def adjusted(rig):
+    problem, _ = rig
+    return jaxba.adjust(problem, solver="dense"), jaxba.adjust(problem, solver="schur")
+
+
+def test_rig_row_is_the_composed_pose(rig):
+    """The residuals of rig rows equal those of ordinary image rows whose poses are the
+    composition written out: M = M_c M_f, X0 = X0_f + M_fᵀ X0_c."""
+    problem, truth = rig
+    group = problem.groups[0]
+    frame, mount = np.asarray(group.image), np.asarray(group.mount)
+    m_f = np.array([np.asarray(OpkPose.from_parameters(r).rotation()) for r in truth.images])
+    m_c = np.array([np.asarray(OpkPose.from_parameters(r).rotation()) for r in truth.mounts])
+    rotation = np.einsum("nij,njk->nik", m_c[mount], m_f[frame])
+    station = (np.asarray(truth.images)[frame, :3]
+               + np.einsum("nji,nj->ni", m_f[frame], np.asarray(truth.mounts)[mount, :3]))
+    images = np.array([np.asarray(OpkPose.from_rotation(r, x).parameters())
+                       for r, x in zip(rotation, station)])
+    plain = eqx.tree_at(lambda g: (g.image, g.mount), group,
+                        (jnp.arange(frame.size), None), is_leaf=lambda x: x is None)
+    expected = plain.residuals(eqx.tree_at(lambda p: p.images, truth, jnp.asarray(images)),
+                               problem.refraction)
+    got = group.residuals(truth, problem.refraction)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=COMPOSE_ATOL)
+    np.testing.assert_allclose(composed_poses(truth, "opk", frame[:5], mount[:5]), images[:5],
+                               rtol=0, atol=1e-12)
+
+
+def test_rig_row_jacobians_match_differences(rig):
+    """`row_jacobians` (IOP, frame, mount, point columns: `local_values`) against central
+    differences of `residuals` of the row alone, its unknowns as one-row blocks."""
+    problem, truth = rig
+    group = problem.groups[0]
+    _, jacobians = group.row_jacobians(truth, problem.refraction)
+    values = np.asarray(group.local_values(truth))
+    assert values.shape[1] == 10 + 6 + 6 + 3
+    for row in (0, 100, 500, 700):  # both cameras
+        one = eqx.tree_at(lambda g: (g.camera, g.image, g.point, g.mount, g.measured, g.stddev),
+                          group, (jnp.zeros(1, int),) * 4
+                          + (group.measured[row:row + 1], group.stddev[row:row + 1]))
+
+        def f(v, one=one):
+            params = jaxba.Parameters({"opencv": v[None, :10]}, v[None, 10:16], v[None, 22:],
+                                      v[None, 16:22])
+            return one.residuals(params, problem.refraction)[0]
+
+        steps = RIG_FD_STEP * np.maximum(1.0, np.abs(values[row]))
+        expected = central_difference(f, jnp.asarray(values[row]), steps)
+        np.testing.assert_allclose(jacobians[row], expected, rtol=FD_RTOL, atol=FD_ATOL)
+
+
+def test_schur_matches_dense(adjusted):
+    dense, schur = adjusted
+    assert dense.converged and schur.converged and schur.backend == "schur"
+    np.testing.assert_allclose(flatten(schur.parameters), flatten(dense.parameters),
+                               rtol=0, atol=BACKEND_ATOL)
+    np.testing.assert_allclose(flatten(schur.precision.std), flatten(dense.precision.std),
+                               rtol=SIGMA_RTOL, atol=1e-15)
+    for result in adjusted:
+        np.testing.assert_allclose(baseline(result.parameters, result.precision, 1),
+                                   baseline(dense.parameters, dense.precision, 1),
+                                   rtol=SIGMA_RTOL)
+
+
+def test_labels_and_estimates_name_mounts(rig, adjusted):
+    problem, _ = rig
+    labels = parameter_labels(problem.initial, {"opencv": ["L", "R"]}, None, None,
+                              ["reference", "stereo/right"])
+    assert labels[-6:] == [f"mount stereo/right {n}" for n in OpkPose.parameter_names]
+    result = jaxba.adjust(problem, labels=labels)
+    right = result.mounts["stereo/right"]
+    assert right["X0"].status == "free" and right["X0"].sigma > 0
+    assert result.mounts["reference"]["phi"].status == "fixed"
+    np.testing.assert_allclose(right["X0"].value, adjusted[0].parameters.mounts[1, 0])
+
+
+def test_composed_sigma_matches_propagation(adjusted):
+    """An image's σ composed from its frame and its camera (12 x 12 covariance) against the
+    same propagation by finite differences of `composed_poses`."""
+    result = adjusted[0]
+    params, precision = result.parameters, result.precision
+    sigma = composed_pose_sigma(params, precision, "opk", 3, 1)
+    values = np.concatenate([params.images[3], params.mounts[1]])
+
+    def compose(v):
+        moved = eqx.tree_at(lambda p: (p.images, p.mounts), params,
+                            (jnp.asarray(params.images).at[3].set(v[:6]),
+                             jnp.asarray(params.mounts).at[1].set(v[6:])))
+        return jnp.asarray(composed_poses(moved, "opk", np.array([3]), np.array([1]))[0])
+
+    jacobian = np.asarray(central_difference(compose, jnp.asarray(values), 1e-7))
+    positions = unflatten(params, np.arange(flatten(params).size))
+    index = np.concatenate([np.asarray(positions.images)[3], np.asarray(positions.mounts)[1]])
+    covariance = precision.covariance_of(index)
+    expected = np.sqrt(np.diag(jacobian @ covariance @ jacobian.T))
+    np.testing.assert_allclose(sigma, expected, rtol=1e-5)
+
+
+def test_baseline_and_angle_sigma_match_monte_carlo(rig, adjusted):
+    """The formal σ of the baseline and of the relative angles against the spread of
+    N_REPLICATES re-adjusted replicates with fresh image noise (one batched call)."""
+    problem, _ = rig
+    result = adjusted[0]
+    replicates = jaxba.monte_carlo(problem, N_REPLICATES, jax.random.key(7),
+                                   at=result.parameters)
+    mounts = np.asarray(replicates.solutions.parameters.mounts)[:, 1]
+    empirical = np.concatenate([[np.std(np.linalg.norm(mounts[:, :3], axis=1), ddof=1)],
+                                np.std(mounts[:, 3:], axis=0, ddof=1)])
+    scale = 1 / result.sigma0  # the replicates' noise is the a priori σ
+    formal = np.concatenate([[baseline(result.parameters, result.precision, 1)[1]],
+                             np.asarray(result.precision.std.mounts)[1, 3:]]) * scale
+    np.testing.assert_allclose(empirical, formal, rtol=MONTE_CARLO_RTOL)
