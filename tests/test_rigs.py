@@ -145,3 +145,37 @@ def test_baseline_and_angle_sigma_match_monte_carlo(rig, adjusted):
     formal = np.concatenate([[baseline(result.parameters, result.precision, 1)[1]],
                              np.asarray(result.precision.std.mounts)[1, 3:]]) * scale
     np.testing.assert_allclose(empirical, formal, rtol=MONTE_CARLO_RTOL)
+
+
+def test_batch_of_rigs_equals_each_alone(adjusted):
+    """Two rigs of different sizes padded into one batch (`adjust_batch`): each as
+    `adjust` alone, its mounts and their σ included."""
+    small, _ = synthetic_rig(seed=1, n_frames=6)
+    results = jaxba.adjust_batch([synthetic_rig(seed=0)[0], small])
+    for result, alone in zip(results, (adjusted[0], jaxba.adjust(small))):
+        assert result.converged
+        np.testing.assert_allclose(result.parameters.mounts, alone.parameters.mounts,
+                                   rtol=0, atol=BACKEND_ATOL)
+        np.testing.assert_allclose(result.precision.std.mounts, alone.precision.std.mounts,
+                                   rtol=SIGMA_RTOL, atol=1e-15)
+
+
+@pytest.mark.parametrize("backend", ["dense", "schur"])
+def test_baseline_gradient_through_the_solve(rig, backend):
+    """d baseline / d (one measured coordinate of the right camera) through the solve
+    (`jaxba.adjusted`, implicit differentiation) against central differences of re-solves."""
+    problem, _ = rig
+    row = 600  # a right-camera row
+
+    def length(shift):
+        group = problem.groups[0]
+        moved = eqx.tree_at(lambda g: g.measured, group, group.measured.at[row, 0].add(shift))
+        solved = jaxba.adjusted(eqx.tree_at(lambda p: p.groups, problem, (moved,)),
+                                backend=backend)
+        return jnp.linalg.norm(solved.mounts[1, :3])
+
+    gradient = jax.grad(length)(0.0)
+    step = 1e-3  # pixels: the baseline is smooth in the data, the re-solves converge to 1e-10
+    expected = (length(step) - length(-step)) / (2 * step)
+    assert gradient != 0
+    np.testing.assert_allclose(gradient, expected, rtol=1e-5)
