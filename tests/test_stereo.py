@@ -95,3 +95,31 @@ def test_image_row_round_trip(scene):
     expected = cv2.projectPoints(scene.board, rvecs[0], tvecs[0], matrix, np.zeros(5))[0]
     ideal = p[:, :2] / p[:, 2:] @ np.diag([matrix[0, 0], matrix[1, 1]]) + matrix[:2, 2]
     np.testing.assert_allclose(ideal, expected.reshape(-1, 2), atol=1e-9)
+
+
+def test_results_json_reports_the_rig(rig, tmp_path):
+    """results.json: "rigs" with the right camera's relative pose (degrees) and baseline,
+    their σ; "frames" one per pair; "images" every image, the right ones composed; the .out
+    has the rig section."""
+    import json
+
+    project, result = rig
+    jaxba.write_reports(project, result, tmp_path)
+    tree = json.loads((tmp_path / "results.json").read_text())
+    right = tree["rigs"]["stereo"]["right"]
+    length, sigma = baseline(result.parameters, result.precision, 1)
+    assert right["baseline"] == {"value": length, "std": sigma}
+    assert right["phi"]["value"] == pytest.approx(np.degrees(result.parameters.mounts[1, 4]))
+    assert right["X0"]["status"] == "free" and right["X0"]["std"] > 0
+    assert list(tree["frames"]) == [f"pair{k:02d}" for k in PAIRS]
+    assert len(tree["images"]) == 2 * len(PAIRS)
+    # A left image is its frame; a right image is the frame followed by the rig's pose.
+    assert tree["images"]["left03"] == tree["frames"]["pair03"]
+    m = opk_to_matrix(result.parameters.images[2, 3:])
+    centre = result.parameters.images[2, :3] + m.T @ result.parameters.mounts[1, :3]
+    assert [tree["images"]["right03"][n]["value"] for n in ("X0", "Y0", "Z0")] == (
+        pytest.approx(centre.tolist(), abs=1e-12))
+    assert tree["correlations"]["stereo/right"]["parameters"] == [
+        "X0", "Y0", "Z0", "omega", "phi", "kappa"]
+    out = (tmp_path / "stereo.out").read_text()
+    assert "Baselines" in out and "stereo/right" in out
