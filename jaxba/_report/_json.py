@@ -27,7 +27,7 @@ from ._collect import (
 )
 from ._no_sigma import no_sigma_entries
 from ._paths import OBSERVATIONS_FILE
-from ._rigs import frame_table, mount_correlations, rigs_tree
+from ._rigs import frame_table, mount_correlations, mounts_tree, rigs_tree
 
 
 def _number(value) -> float | None:
@@ -285,6 +285,7 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         frames = frame_table(project, result)
         tree["frames"] = {fid: _entries(frames, k) for k, fid in enumerate(frames.ids)}
         tree["rigs"] = _nulls(rigs_tree(project, result, _entries))
+        tree["mounts"] = _nulls(mounts_tree(project, result))
         tree["correlations"].update(
             {mid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
              for mid, (names, matrix) in mount_correlations(project, result).items()})

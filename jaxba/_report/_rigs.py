@@ -74,6 +74,25 @@ def rigs_tree(project: Project, result: Adjustment, entries) -> dict:
     tree: dict[str, dict] = {rig: {} for rig in project.spec.rigs}
     for k, mid in enumerate(table.ids):
         rig, camera = project.rigs.mount_cameras[k + 1]
+        if rig not in tree:  # a camera on a GNSS/INS platform: `mounts_tree`
+            continue
         length, sigma = baselines[mid]
         tree[rig][camera] = {**entries(table, k), "baseline": {"value": length, "std": sigma}}
+    return tree
+
+
+def mounts_tree(project: Project, result: Adjustment) -> dict:
+    """results.json "mounts": {camera: {"lever_arm", "boresight": {"value": [3], "std": [3],
+    "status": [3]}}} of the cameras on GNSS/INS platforms (boresight in degrees)."""
+    table = mount_table(project, result)
+    tree = {}
+    for k, mid in enumerate(table.ids):
+        rig, camera = project.rigs.mount_cameras[k + 1]
+        if rig in project.spec.rigs:
+            continue
+        tree[camera] = {
+            part: {"value": table.values[k, columns].tolist(),
+                   "std": table.stds[k, columns].tolist(),
+                   "status": [table.status[k][j] for j in range(columns.start, columns.stop)]}
+            for part, columns in (("lever_arm", slice(0, 3)), ("boresight", slice(3, 6)))}
     return tree

@@ -334,7 +334,7 @@ def build_project(spec: ProjectSpec) -> Project:
     frame_ids, rigs = image_ids, None
     image_index = {iid: k for k, iid in enumerate(image_ids)}
     mount_index = mounts = mounts_free = None
-    if spec.rigs:
+    if spec.rigs or any(camera.mount is not None for camera in spec.cameras.values()):
         rigs = rig_layout(spec, image_ids, eop, eop_free, eop_sigma)
         frame_ids, eop, eop_free, eop_sigma = (rigs.frame_ids, rigs.frames, rigs.frame_free,
                                                rigs.frame_sigma)

@@ -5,6 +5,10 @@ Approximations: a frame's pose is its reference camera's image's (else another m
 moved back through that camera's mount); a mount's values are rigs.toml's where given, else
 the mean relative pose of its camera over the frames that hold an image of it and one of the
 reference camera (rotations averaged by the SVD projection of their mean onto SO(3)).
+
+A camera on a GNSS/INS platform (`CameraSpec.mount`) is the same mechanism: each of its images
+is a frame of its own, the body's pose (the images table's values and GNSS/INS σ are the
+body's), followed by the camera's lever arm and boresight, a mount row "platform/<camera>".
 """
 
 import dataclasses
@@ -18,6 +22,7 @@ from ._spec import ProjectSpec
 
 # The identity mount (row 0): every rig's reference camera and every image outside a rig.
 REFERENCE_MOUNT = "reference"
+PLATFORM = "platform"  # the "rig" of a camera on a GNSS/INS platform
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,8 +31,9 @@ class RigLayout:
 
     - `frame_ids`: the rows of the images block; `frames`, `frame_free`, `frame_sigma`
       (n_frames, 6) their approximations, free mask and GNSS/INS σ (inf: none);
-    - `mount_ids`: the rows of the mounts block ("reference", then "<rig>/<camera>");
-      `mount_cameras` (rig, camera) per row (None for "reference"); `mounts`, `mount_free`,
+    - `mount_ids`: the rows of the mounts block ("reference", then "<rig>/<camera>", then
+      "platform/<camera>"); `mount_cameras` (rig or "platform", camera) per row (None for
+      "reference"); `mounts`, `mount_free`,
       `mount_sigma` (n_mounts, 6) as for frames (σ: rigs.toml's priors);
     - `image_frame`, `image_mount` (n_images,): every image's rows, in the images table's
       order.
@@ -50,20 +56,31 @@ def rig_layout(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray, free: n
                sigma: np.ndarray) -> RigLayout:
     """The frames and mounts of `spec` from every image's approximation `eop`, free mask and
     σ (n_images, 6; radians). GNSS/INS observations and fixed EOPs go to the frame where the
-    reference camera took the image; on another rig camera's image they are refused."""
+    reference camera took the image, or where a platform's camera did (the body's); on
+    another rig camera's image they are refused."""
     mount_ids, cameras, mount_of = [REFERENCE_MOUNT], [None], {}
     for rig in spec.rigs.values():
         for camera in rig.mounts:
             mount_of[camera] = len(mount_ids)
             mount_ids.append(f"{rig.id}/{camera}")
             cameras.append((rig.id, camera))
+    in_rigs = {camera for rig in spec.rigs.values() for camera in rig.cameras}
+    for camera in (c for c in spec.cameras.values() if c.mount is not None):
+        if camera.id in in_rigs:
+            raise ProjectError(f"camera {camera.id!r} is in a rig and has a [{camera.id}.mount]"
+                               " on a GNSS/INS platform: one or the other")
+        mount_of[camera.id] = len(mount_ids)
+        mount_ids.append(f"{PLATFORM}/{camera.id}")
+        cameras.append((PLATFORM, camera.id))
     frame_of = [spec.frames.get(iid, iid) for iid in image_ids]
     frame_ids = list(dict.fromkeys(frame_of))
     frame_row = {fid: k for k, fid in enumerate(frame_ids)}
     image_frame = np.array([frame_row[f] for f in frame_of], dtype=int)
     image_mount = np.array([mount_of.get(spec.images[iid].camera, 0) for iid in image_ids],
                            dtype=int)
-    for k in np.flatnonzero(image_mount > 0):
+    on_platform = np.array([cameras[m] is not None and cameras[m][0] == PLATFORM
+                            for m in image_mount], dtype=bool)
+    for k in np.flatnonzero((image_mount > 0) & ~on_platform):
         if not (free[k].all() and np.isinf(sigma[k]).all()):
             image = spec.images[image_ids[k]]
             raise ProjectError(
@@ -77,12 +94,13 @@ def rig_layout(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray, free: n
     # Reference images last: where a frame has one, its pose and states win.
     for k in np.argsort(image_mount == 0, kind="stable"):
         row = image_frame[k]
-        frames[row] = _frame_from_image(eop[k], mounts[image_mount[k]])
+        frames[row] = (eop[k] if on_platform[k]  # the body's pose, as GNSS/INS give it
+                       else _frame_from_image(eop[k], mounts[image_mount[k]]))
         frame_free[row], frame_sigma[row] = free[k], sigma[k]
     mount_free = np.zeros((len(mount_ids), 6), dtype=bool)
     mount_sigma = np.full((len(mount_ids), 6), np.inf)
     for row, (rig, camera) in enumerate(cameras[1:], start=1):
-        mount = spec.rigs[rig].mounts[camera]
+        mount = _mount_spec(spec, rig, camera)
         for j, name in enumerate(MOUNT_NAMES):
             mount_free[row, j] = name in mount.free or name in mount.sigma
             given = mount.sigma.get(name, np.inf)
@@ -102,7 +120,7 @@ def _mount_values(spec, cameras, eop, image_frame, image_mount) -> np.ndarray:
     """(n_mounts, 6) approximations of the mounts (module docstring); row 0 the identity."""
     mounts = np.zeros((len(cameras), 6))
     for row, (rig, camera) in enumerate(cameras[1:], start=1):
-        given = spec.rigs[rig].mounts[camera].values
+        given = _mount_spec(spec, rig, camera).values
         values = np.array([np.nan if given[n] is None else given[n] for n in MOUNT_NAMES])
         values[3:] = np.radians(values[3:])
         if np.isnan(values).any():
@@ -115,6 +133,11 @@ def _mount_values(spec, cameras, eop, image_frame, image_mount) -> np.ndarray:
             values = np.where(np.isnan(values), estimate, values)
         mounts[row] = values
     return mounts
+
+
+def _mount_spec(spec: ProjectSpec, rig: str, camera: str):
+    """The `MountSpec` of `camera` in `rig` (rigs.toml), or of its platform (cameras.toml)."""
+    return spec.cameras[camera].mount if rig == PLATFORM else spec.rigs[rig].mounts[camera]
 
 
 def _mean_relative_pose(spec, rig: str, eop, image_frame, of_camera) -> np.ndarray | None:

@@ -35,7 +35,7 @@ from ..._models._cameras._names import (
     lens_model,
 )
 from ._errors import ProjectError
-from ._rigs import read_frames, read_rigs
+from ._rigs import read_frames, read_platform_mount, read_rigs
 from ._spec import (
     AdjustmentSettings,
     CameraSpec,
@@ -56,7 +56,8 @@ _PROJECT_TABLES = ("project", "files", "adjustment")
 _PROJECT_KEYS = ("name", "image_units")
 _REQUIRED_FILES = ("cameras", "images", "image_points", "points")
 _OPTIONAL_FILES = ("distances", "rigs", "frames")
-_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", *TIE_KEYS)
+_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", "mount",
+                *TIE_KEYS)
 # `[ID.refraction]` of a flat port: its parameters, but the port normal as one 3-vector; the
 # indices > 0, distance and thickness ≥ 0; n_air 1 unless given, the normal the optical axis.
 _PORT_KEYS = ("model", "distance", "thickness", "n_air", "n_glass", "n_medium", "normal",
@@ -347,6 +348,8 @@ def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
         pixel_size=_toml_pair(table.get("pixel_size"), f"{where} pixel_size", _toml_float),
         sensor=_toml_pair(table.get("sensor"), f"{where} sensor", _toml_int),
         constants=constants,
+        mount=(read_platform_mount(camera_id, table["mount"], f"{file}: [{camera_id}.mount]")
+               if "mount" in table else None),
     )
 
 

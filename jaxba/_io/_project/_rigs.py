@@ -1,5 +1,6 @@
 """Rigs and frames of a project (docs/project-files.md, "Rigs"): rigs.toml, one table per
 rig, and the frames table, `image_id frame_id`; validated against the cameras and images.
+A camera's `[ID.mount]` on a GNSS/INS platform (lever arm and boresight) is read here too.
 
 Plain Python: `_readers.py` loads the TOML document and splits the frames table into rows,
 this module checks what they say. Angles stay in degrees, as in the files.
@@ -77,6 +78,49 @@ def _read_mount(camera: str, table: dict, where: str) -> MountSpec:
             raise ProjectError(f"{where[:-1]}.sigma] {name}: {name!r} is also in free; a "
                                "parameter is either free or weighted, not both")
     return MountSpec(camera, values, frozenset(free) - set(sigma), sigma)
+
+
+_PLATFORM_KEYS = ("lever_arm", "boresight", "free", "sigma")
+_PLATFORM_PARTS = {"lever_arm": MOUNT_NAMES[:3], "boresight": MOUNT_NAMES[3:]}
+
+
+def read_platform_mount(camera: str, table: Any, where: str) -> MountSpec:
+    """`[ID.mount]` of cameras.toml: `lever_arm = [dx, dy, dz]` (the perspective centre in
+    the body frame, object units) and `boresight = [domega, dphi, dkappa]` (degrees, body ->
+    camera), each 0 where left out; `free` lists "lever_arm" and/or "boresight" (default:
+    neither, both known), `[ID.mount.sigma]` gives a σ (one number, or three) to weight
+    either instead."""
+    if not isinstance(table, dict):
+        raise ProjectError(f"{where}: expected a table [.mount], got {table!r}")
+    for key in table:
+        if key not in _PLATFORM_KEYS:
+            raise ProjectError(f"{where}: unknown key {key!r}; allowed keys: "
+                               f"{', '.join(_PLATFORM_KEYS)}")
+    values = {}
+    for part, names in _PLATFORM_PARTS.items():
+        given = table.get(part, [0.0, 0.0, 0.0])
+        if not isinstance(given, list) or len(given) != 3:
+            raise ProjectError(f"{where} {part}: expected a list of three numbers, got {given!r}")
+        values.update({n: _number(v, f"{where} {part}") for n, v in zip(names, given)})
+    free = table.get("free", [])
+    if not isinstance(free, list) or not all(part in _PLATFORM_PARTS for part in free):
+        raise ProjectError(f"{where} free: expected a list of lever_arm, boresight, got {free!r}")
+    sigma_table = table.get("sigma", {})
+    if not isinstance(sigma_table, dict) or not set(sigma_table) <= set(_PLATFORM_PARTS):
+        raise ProjectError(f"{where} sigma: expected a table of lever_arm and/or boresight σ, "
+                           f"got {sigma_table!r}")
+    sigma = {}
+    for part, given in sigma_table.items():
+        if part in free:
+            raise ProjectError(f"{where} sigma {part}: {part!r} is also in free; it is either "
+                               "free or weighted, not both")
+        given = given if isinstance(given, list) else [given] * 3
+        if len(given) != 3:
+            raise ProjectError(f"{where} sigma {part}: expected one σ or three, got {given!r}")
+        sigma.update({n: _number(v, f"{where} sigma {part}", positive=True)
+                      for n, v in zip(_PLATFORM_PARTS[part], given)})
+    return MountSpec(camera, values, frozenset(n for part in free
+                                               for n in _PLATFORM_PARTS[part]), sigma)
 
 
 def _number(value: Any, where: str, *, positive: bool = False) -> float:

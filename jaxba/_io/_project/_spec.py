@@ -78,6 +78,9 @@ class CameraSpec:
     # the camera estimates on its own (the reader expands them into per-image cameras).
     ties: dict[str, tuple[str, str]] = dataclasses.field(default_factory=dict)
     per_image: tuple[str, ...] = ()
+    # `[ID.mount]`: the camera on a GNSS/INS platform, its lever arm (X0 Y0 Z0) and
+    # boresight (omega phi kappa) as a pose in the body frame; None: no platform.
+    mount: "MountSpec | None" = None
 
     @property
     def model_key(self) -> str:
