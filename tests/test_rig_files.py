@@ -101,3 +101,50 @@ def test_a_rig_cameras_observed_pose_is_refused(block, tmp_path):
     images.write_text("\n".join(lines) + "\n")
     with pytest.raises(jaxba.ProjectError, match="img02.*rig camera 'C2'.*reference camera"):
         jaxba.build_project(jaxba.read_project(path))
+
+
+def _with_platform(tmp_path, project, mount: str):
+    """A copy of `project` whose camera C1 has the `[C1.mount]` table `mount`."""
+    import shutil
+
+    for path in project.parent.iterdir():
+        shutil.copy(path, tmp_path / path.name)
+    cameras = tmp_path / "cameras.toml"
+    cameras.write_text(cameras.read_text().replace("[C2]", mount + "\n[C2]"))
+    return tmp_path / project.name
+
+
+def test_a_platform_camera_is_the_body_then_its_mount(block, tmp_path):
+    """`[C1.mount]`: C1's images are frames of their own holding the images table's values
+    (the body's pose), followed by the lever arm and boresight (degrees read as radians);
+    with both 0 the residuals are those of the project without the mount."""
+    mount = ('[C1.mount]\nlever_arm = [0.1, -0.2, 0.3]\nboresight = [0.5, 0.0, -0.25]\n'
+             'free = ["boresight"]\n[C1.mount.sigma]\nlever_arm = 0.01\n')
+    project = jaxba.build_project(jaxba.read_project(_with_platform(tmp_path, block, mount)))
+    layout = project.rigs
+    assert layout.mount_ids == ["reference", "platform/C1"]
+    np.testing.assert_allclose(layout.mounts[1], [0.1, -0.2, 0.3, *np.radians([0.5, 0, -0.25])])
+    assert project.problem.free.mounts.tolist()[1] == [True] * 6  # weighted and free
+    assert any(g.name == "mount_priors" for g in project.problem.groups)
+    spec = project.spec
+    np.testing.assert_allclose(layout.frames[0, :3], spec.images["img01"].eop[:3])
+    np.testing.assert_array_equal(layout.image_mount, [1, 0] * 4)
+    plain = jaxba.build_project(jaxba.read_project(block)).problem
+    (tmp_path / "zero").mkdir()
+    zero = _with_platform(tmp_path / "zero", block, "[C1.mount]\n")
+    zero = jaxba.build_project(jaxba.read_project(zero)).problem
+    np.testing.assert_allclose(np.asarray(zero.whitened(zero.initial)[0]),
+                               np.asarray(plain.whitened(plain.initial)[0]), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("mount, message", [
+    ("[C1.mount]\nlever_arm = [0.1, 0.2]\n", "[C1.mount] lever_arm: expected a list of three"),
+    ('[C1.mount]\nfree = ["lever"]\n', "[C1.mount] free: expected a list of lever_arm"),
+    ('[C1.mount]\nfree = ["boresight"]\n[C1.mount.sigma]\nboresight = 0.1\n',
+     "'boresight' is also in free"),
+    ("[C1.mount]\nheight = 2\n", "[C1.mount]: unknown key 'height'"),
+])
+def test_bad_platform_mounts_are_refused(block, tmp_path, mount, message):
+    with pytest.raises(jaxba.ProjectError) as error:
+        jaxba.read_project(_with_platform(tmp_path, block, mount))
+    assert message in str(error.value)
