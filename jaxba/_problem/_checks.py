@@ -46,8 +46,8 @@ def check_problem(problem: BundleProblem, labels: list[str] | None = None) -> No
 
 def _reached(problem: BundleProblem) -> np.ndarray:
     """(n_all,) bool in `flatten` order: the unknowns some real observation depends on,
-    from the blocks each group's rows refer to, the camera rows of image-point groups and
-    the unknowns the priors observe directly."""
+    from the blocks each group's rows refer to, the camera (and mount) rows of image-point
+    groups and the unknowns the priors observe directly."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.free).size))
     positions = jax.tree.map(np.asarray, positions)
     reached = np.zeros(flatten(problem.free).size, dtype=bool)
@@ -60,5 +60,8 @@ def _reached(problem: BundleProblem) -> np.ndarray:
         camera, model = getattr(group, "camera", None), getattr(group, "model", None)
         if camera is not None and model in positions.cameras:  # image points: their camera
             reached[positions.cameras[model][np.asarray(camera)[real]]] = True
+        mount = getattr(group, "mount", None)
+        if mount is not None:  # image points of rig cameras: their mounts
+            reached[positions.mounts[np.asarray(mount)[real]]] = True
         reached[np.asarray(group.prior_positions(positions), dtype=int)] = True
     return reached

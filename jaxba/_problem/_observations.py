@@ -251,8 +251,9 @@ class ImagePoints(AbstractObservationGroup):
         return ("x", "y")
 
     def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
-        if self.mount is not None:
-            return (("frame", "images", self.image), ("mount", "mounts", self.mount),
+        if self.mount is not None:  # a frame and a camera name a rig's image
+            return (("frame", "images", self.image),
+                    ("camera", f"cameras/{self.model}", self.camera),
                     ("point", "points", self.point))
         return ("image", "images", self.image), ("point", "points", self.point)
 
