@@ -114,7 +114,9 @@ def test_results_json_reports_the_rig(rig, tmp_path):
     assert list(tree["frames"]) == [f"pair{k:02d}" for k in PAIRS]
     assert len(tree["images"]) == 2 * len(PAIRS)
     # A left image is its frame; a right image is the frame followed by the rig's pose.
-    assert tree["images"]["left03"] == tree["frames"]["pair03"]
+    for name, entry in tree["frames"]["pair03"].items():  # composed with the identity
+        assert tree["images"]["left03"][name]["value"] == pytest.approx(entry["value"], abs=1e-12)
+        assert tree["images"]["left03"][name]["std"] == pytest.approx(entry["std"], rel=1e-9)
     m = opk_to_matrix(result.parameters.images[2, 3:])
     centre = result.parameters.images[2, :3] + m.T @ result.parameters.mounts[1, :3]
     assert [tree["images"]["right03"][n]["value"] for n in ("X0", "Y0", "Z0")] == (
@@ -123,3 +125,8 @@ def test_results_json_reports_the_rig(rig, tmp_path):
         "X0", "Y0", "Z0", "omega", "phi", "kappa"]
     out = (tmp_path / "stereo.out").read_text()
     assert "Baselines" in out and "stereo/right" in out
+    from jaxba._report._plots._set import figure_set
+
+    figures = {figure.name: b"" for figure in figure_set(project, result)}  # not drawn
+    page = jaxba.html_report(project, result, figures=figures)
+    assert '<section id="rigs">' in page and "pair13" in page
