@@ -27,8 +27,9 @@ _ANGLE_COLUMNS = slice(3, 6)
 class Project:
     """A project ready to adjust: the problem plus what maps its rows back to IDs.
 
-    `camera_rows[camera_id] = (model, row)`; `image_ids` and `point_ids` are the row
-    order of the image and point blocks; `labels` names every scalar unknown;
+    `camera_rows[camera_id] = (model, row)`; `image_ids` every image of the images table
+    (the row order of the image block, unless there are rigs: `frame_ids`), `point_ids` the
+    row order of the point block; `labels` names every scalar unknown;
     `initialisation`: what `complete_project` computed (`Completion.summary()`, the
     `initialisation` section of results.json), None when the files held every approximation.
     `datum`: how the datum is defined (`datum_summary`; the `datum` section of the reports).
