@@ -71,15 +71,17 @@ def test_rig_row_jacobians_match_differences(rig):
     _, jacobians = group.row_jacobians(truth, problem.refraction)
     values = np.asarray(group.local_values(truth))
     assert values.shape[1] == 10 + 6 + 6 + 3
-    for row in (0, 100, 500, 700):  # both cameras
+    @jax.jit
+    def residual(v, measured, stddev):  # the row alone, its unknowns as one-row blocks
         one = eqx.tree_at(lambda g: (g.camera, g.image, g.point, g.mount, g.measured, g.stddev),
-                          group, (jnp.zeros(1, int),) * 4
-                          + (group.measured[row:row + 1], group.stddev[row:row + 1]))
+                          group, (jnp.zeros(1, int),) * 4 + (measured, stddev))
+        params = jaxba.Parameters({"opencv": v[None, :10]}, v[None, 10:16], v[None, 22:],
+                                  v[None, 16:22])
+        return one.residuals(params, problem.refraction)[0]
 
-        def f(v, one=one):
-            params = jaxba.Parameters({"opencv": v[None, :10]}, v[None, 10:16], v[None, 22:],
-                                      v[None, 16:22])
-            return one.residuals(params, problem.refraction)[0]
+    for row in (0, 100, 500, 700):  # both cameras
+        def f(v, row=row):
+            return residual(v, group.measured[row:row + 1], group.stddev[row:row + 1])
 
         steps = RIG_FD_STEP * np.maximum(1.0, np.abs(values[row]))
         expected = central_difference(f, jnp.asarray(values[row]), steps)
