@@ -108,14 +108,16 @@ def schur_damped_step(problem, structure, params, damping):
 
 
 def synthetic_rig(seed: int = 0, n_frames: int = 8, noise_px: float = 0.2,
-                  baseline: float = 120.0):
-    """A stereo rig (two `opencv` cameras, pixels) over a fixed 3D target (mm), and its truth.
+                  baseline: float = 120.0, n_cameras: int = 2):
+    """A rig of `n_cameras` `opencv` cameras (pixels; 2: a stereo pair, 4: a head with the
+    cameras at the corners of a square of side `baseline`) over a fixed 3D target (mm), and
+    its truth.
 
     Returns (problem, truth): the `BundleProblem` (images block: one pose per frame; mounts:
-    row 0 the fixed identity of the reference camera, row 1 the right camera's pose in the rig
-    frame, free; fx, fy, cx, cy, k1 of both cameras free; the target fixed) with measurements
-    computed at the truth plus N(0, noise_px²), and the true Parameters. The approximations are
-    the truth moved a little, as a detector's closed form gives them.
+    row 0 the fixed identity of the reference camera, row k camera k's pose in the rig
+    frame, free; fx, fy, cx, cy, k1 of every camera free; the target fixed) with
+    measurements computed at the truth plus N(0, noise_px²), and the true Parameters. The
+    approximations are the truth moved a little, as a detector's closed form gives them.
     """
     rng = np.random.default_rng(seed)
     grid = np.stack(np.meshgrid(np.arange(9) * 25.0, np.arange(6) * 25.0), -1).reshape(-1, 2)
@@ -126,15 +128,19 @@ def synthetic_rig(seed: int = 0, n_frames: int = 8, noise_px: float = 0.2,
         station = np.array([*rng.uniform(-150, 150, 2), -600.0 + rng.uniform(-50, 50)])
         frames.append([*(station - np.array([baseline / 2, 0, 0])), np.pi + angles[0],
                        angles[1], angles[2]])
-    mounts = np.array([np.zeros(6), [baseline, 2.0, -1.5, *np.radians([0.5, -3.0, 0.8])]])
+    corners = [[baseline, 2.0, -1.5], [0.0, baseline, 1.0], [baseline, baseline, -2.0]]
+    turns = np.radians([[0.5, -3.0, 0.8], [2.0, 0.5, -1.0], [-1.0, 2.0, 1.5]])
+    mounts = np.array([np.zeros(6), *(np.concatenate([c, t]) for c, t in
+                                     zip(corners[:n_cameras - 1], turns))])
     iop = np.array([[900.0, 905.0, 320.0, 240.0, 0, -0.1, 0.05, 0, 0, 0],
-                    [880.0, 882.0, 330.0, 235.0, 0, -0.12, 0.04, 0, 0, 0]])
+                    [880.0, 882.0, 330.0, 235.0, 0, -0.12, 0.04, 0, 0, 0]])[
+                        np.arange(n_cameras) % 2]
     free_iop = np.zeros_like(iop, dtype=bool)
     free_iop[:, [0, 1, 2, 3, 5]] = True
     n_points = points.shape[0]
-    camera = np.repeat([0, 1], n_frames * n_points)
-    frame = np.tile(np.repeat(np.arange(n_frames), n_points), 2)
-    point = np.tile(np.arange(n_points), 2 * n_frames)
+    camera = np.repeat(np.arange(n_cameras), n_frames * n_points)
+    frame = np.tile(np.repeat(np.arange(n_frames), n_points), n_cameras)
+    point = np.tile(np.arange(n_points), n_cameras * n_frames)
     truth = jaxba.Parameters({"opencv": jnp.asarray(iop)}, jnp.asarray(np.array(frames)),
                              jnp.asarray(points), jnp.asarray(mounts))
     group = jaxba.ImagePoints(
@@ -148,13 +154,15 @@ def synthetic_rig(seed: int = 0, n_frames: int = 8, noise_px: float = 0.2,
                         (jnp.asarray(measured), jnp.full(measured.shape, noise_px)))
     moved = np.array(frames) + np.concatenate([rng.normal(0, 5, (n_frames, 3)),
                                                rng.normal(0, 0.01, (n_frames, 3))], 1)
-    start_mounts = mounts + np.array([np.zeros(6), [5, -3, 2, 0.01, -0.01, 0.01]])
+    start_mounts = mounts + np.concatenate(
+        [np.zeros((1, 6)), np.tile([5, -3, 2, 0.01, -0.01, 0.01], (n_cameras - 1, 1))])
     initial = jaxba.Parameters({"opencv": jnp.asarray(iop * [1.01, 0.99, 1, 1, 1, 0, 1, 1, 1, 1])},
                                jnp.asarray(moved), jnp.asarray(points),
                                jnp.asarray(start_mounts))
+    free_mounts = np.repeat(np.arange(n_cameras)[:, None] > 0, 6, axis=1)  # all but row 0
     free = jaxba.Parameters({"opencv": jnp.asarray(free_iop)},
                             jnp.ones((n_frames, 6), bool), jnp.zeros((n_points, 3), bool),
-                            jnp.asarray(np.array([[False] * 6, [True] * 6])))
+                            jnp.asarray(free_mounts))
     return jaxba.BundleProblem(initial=initial, free=free, groups=(group,)), truth
 
 

@@ -222,3 +222,16 @@ def test_lever_arm_and_boresight_of_an_aerial_block():
     mount, sigma = result.parameters.mounts[0], result.precision.std.mounts[0]
     np.testing.assert_array_less(np.abs(mount - truth.mounts[0]), 3 * sigma)
     assert np.all(np.degrees(sigma[3:]) < 0.02)  # the boresight is well determined
+
+
+def test_four_camera_head():
+    """Four cameras at the corners of a 120 mm square (`synthetic_rig(n_cameras=4)`): the
+    three relative poses within 3 σ of the truth, the baselines (120, 120, 170 mm) too."""
+    problem, truth = synthetic_rig(seed=2, n_frames=6, n_cameras=4)
+    result = jaxba.adjust(problem)
+    assert result.converged
+    mounts, sigma = result.parameters.mounts[1:], result.precision.std.mounts[1:]
+    np.testing.assert_array_less(np.abs(mounts - truth.mounts[1:]), 3 * sigma)
+    for row in (1, 2, 3):
+        length, length_sigma = baseline(result.parameters, result.precision, row)
+        assert abs(length - np.linalg.norm(truth.mounts[row, :3])) < 3 * length_sigma
