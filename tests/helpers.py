@@ -105,3 +105,136 @@ def schur_damped_step(problem, structure, params, damping):
     x_r, x_e = solve_bundle_damped(structure, normal, damping)
     step = _to_parameters(structure, params, x_r, x_e)
     return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))
+
+
+def synthetic_rig(seed: int = 0, n_frames: int = 8, noise_px: float = 0.2,
+                  baseline: float = 120.0, n_cameras: int = 2):
+    """A rig of `n_cameras` `opencv` cameras (pixels; 2: a stereo pair, 4: a head with the
+    cameras at the corners of a square of side `baseline`) over a fixed 3D target (mm), and
+    its truth.
+
+    Returns (problem, truth): the `BundleProblem` (images block: one pose per frame; mounts:
+    row 0 the fixed identity of the reference camera, row k camera k's pose in the rig
+    frame, free; fx, fy, cx, cy, k1 of every camera free; the target fixed) with
+    measurements computed at the truth plus N(0, noise_px²), and the true Parameters. The
+    approximations are the truth moved a little, as a detector's closed form gives them.
+    """
+    rng = np.random.default_rng(seed)
+    grid = np.stack(np.meshgrid(np.arange(9) * 25.0, np.arange(6) * 25.0), -1).reshape(-1, 2)
+    points = np.column_stack([grid - grid.mean(0), 20.0 * np.sin(grid[:, 0] / 60.0)])
+    frames = []
+    for _ in range(n_frames):  # the rig about 600 mm in front of the target, looking at it
+        angles = np.radians(rng.uniform(-15, 15, 3))
+        station = np.array([*rng.uniform(-150, 150, 2), -600.0 + rng.uniform(-50, 50)])
+        frames.append([*(station - np.array([baseline / 2, 0, 0])), np.pi + angles[0],
+                       angles[1], angles[2]])
+    corners = [[baseline, 2.0, -1.5], [0.0, baseline, 1.0], [baseline, baseline, -2.0]]
+    turns = np.radians([[0.5, -3.0, 0.8], [2.0, 0.5, -1.0], [-1.0, 2.0, 1.5]])
+    mounts = np.array([np.zeros(6), *(np.concatenate([c, t]) for c, t in
+                                     zip(corners[:n_cameras - 1], turns))])
+    iop = np.array([[900.0, 905.0, 320.0, 240.0, 0, -0.1, 0.05, 0, 0, 0],
+                    [880.0, 882.0, 330.0, 235.0, 0, -0.12, 0.04, 0, 0, 0]])[
+                        np.arange(n_cameras) % 2]
+    free_iop = np.zeros_like(iop, dtype=bool)
+    free_iop[:, [0, 1, 2, 3, 5]] = True
+    n_points = points.shape[0]
+    camera = np.repeat(np.arange(n_cameras), n_frames * n_points)
+    frame = np.tile(np.repeat(np.arange(n_frames), n_points), n_cameras)
+    point = np.tile(np.arange(n_points), n_cameras * n_frames)
+    truth = jaxba.Parameters({"opencv": jnp.asarray(iop)}, jnp.asarray(np.array(frames)),
+                             jnp.asarray(points), jnp.asarray(mounts))
+    group = jaxba.ImagePoints(
+        name="image_points", model="opencv", camera=jnp.asarray(camera),
+        image=jnp.asarray(frame), point=jnp.asarray(point),
+        measured=jnp.zeros((camera.size, 2)), stddev=jnp.ones((camera.size, 2)),
+        mount=jnp.asarray(camera))
+    computed = -np.asarray(group.residuals(truth, jaxba.NoRefraction()))
+    measured = computed + noise_px * rng.standard_normal(computed.shape)
+    group = eqx.tree_at(lambda g: (g.measured, g.stddev), group,
+                        (jnp.asarray(measured), jnp.full(measured.shape, noise_px)))
+    moved = np.array(frames) + np.concatenate([rng.normal(0, 5, (n_frames, 3)),
+                                               rng.normal(0, 0.01, (n_frames, 3))], 1)
+    start_mounts = mounts + np.concatenate(
+        [np.zeros((1, 6)), np.tile([5, -3, 2, 0.01, -0.01, 0.01], (n_cameras - 1, 1))])
+    initial = jaxba.Parameters({"opencv": jnp.asarray(iop * [1.01, 0.99, 1, 1, 1, 0, 1, 1, 1, 1])},
+                               jnp.asarray(moved), jnp.asarray(points),
+                               jnp.asarray(start_mounts))
+    free_mounts = np.repeat(np.arange(n_cameras)[:, None] > 0, 6, axis=1)  # all but row 0
+    free = jaxba.Parameters({"opencv": jnp.asarray(free_iop)},
+                            jnp.ones((n_frames, 6), bool), jnp.zeros((n_points, 3), bool),
+                            jnp.asarray(free_mounts))
+    return jaxba.BundleProblem(initial=initial, free=free, groups=(group,)), truth
+
+
+def synthetic_aerial(seed: int = 0, noise_mm: float = 0.005, gnss_sigma: float = 0.05,
+                     ins_sigma_deg: float = 0.005):
+    """A camera on a GNSS/INS platform over terrain: 3 strips of 6 vertical images (60 %
+    forward, 30 % side overlap, alternating flight directions), c = 100 mm (smac, fixed),
+    1000 m above ground, a grid of 121 points (those seen in 2 images or more kept), 4 of
+    them control points (σ 2 cm, the corners); the body's pose observed
+    by GNSS (σ `gnss_sigma`, m) and INS (σ `ins_sigma_deg`); the camera's lever arm (the
+    perspective centre in the body frame, 10-30 cm) and boresight (body -> camera, 0.1-0.5
+    degrees) the mount to recover (`Parameters.mounts` row 0, free, starting at 0).
+
+    Returns (problem, truth): the images block holds the bodies' poses, the observations are
+    computed at the truth plus noise (image points, GNSS/INS values and control alike).
+    """
+    rng = np.random.default_rng(seed)
+    c, half = 100.0, np.array([45.0, 30.0])  # mm: principal distance, half the format
+    height, scale = 1000.0, 1000.0 / 100.0 * 1000.0  # m; image mm -> ground mm
+    footprint = 2 * half * scale / 1000.0  # m across (x), along (y) track
+    base, spacing = 0.4 * footprint[1], 0.7 * footprint[0]
+    bodies = []
+    for strip in range(3):
+        for k in range(6):
+            y = k * base if strip % 2 == 0 else (5 - k) * base
+            kappa = 0.0 if strip % 2 == 0 else np.pi
+            angles = np.radians(rng.normal(0, 1.0, 2))
+            bodies.append([strip * spacing, y, height, *angles, kappa + np.radians(
+                rng.normal(0, 1.0))])
+    bodies = np.array(bodies)
+    grid = np.stack(np.meshgrid(np.linspace(-300, 2 * spacing + 300, 11),
+                                np.linspace(-200, 5 * base + 200, 11)), -1).reshape(-1, 2)
+    points = np.column_stack([grid, rng.uniform(-20, 20, len(grid))])
+    mount = np.array([0.15, -0.25, 0.30, *np.radians([0.3, -0.2, 0.4])])
+    iop = np.zeros((1, 12))
+    iop[0, 2] = c
+    truth = jaxba.Parameters({"smac": jnp.asarray(iop)}, jnp.asarray(bodies),
+                             jnp.asarray(points), jnp.asarray(mount[None]))
+    image, point = (np.repeat(np.arange(len(bodies)), len(points)),
+                    np.tile(np.arange(len(points)), len(bodies)))
+    group = jaxba.ImagePoints(
+        name="image_points", model="smac", camera=jnp.zeros(image.size, int),
+        image=jnp.asarray(image), point=jnp.asarray(point), measured=jnp.zeros((image.size, 2)),
+        stddev=jnp.ones((image.size, 2)), mount=jnp.zeros(image.size, int))
+    computed = -np.asarray(group.residuals(truth, jaxba.NoRefraction()))
+    seen = np.all(np.abs(computed) < half, axis=1)
+    kept = np.bincount(point[seen], minlength=len(points)) >= 2  # points in 2 images or more
+    seen &= kept[point]
+    points, point = points[kept], (np.cumsum(kept) - 1)[point]
+    truth = eqx.tree_at(lambda p: p.points, truth, jnp.asarray(points))
+    measured = computed[seen] + noise_mm * rng.standard_normal(computed[seen].shape)
+    group = jaxba.ImagePoints(
+        name="image_points", model="smac", camera=jnp.zeros(int(seen.sum()), int),
+        image=jnp.asarray(image[seen]), point=jnp.asarray(point[seen]),
+        measured=jnp.asarray(measured), stddev=jnp.full(measured.shape, noise_mm),
+        mount=jnp.zeros(int(seen.sum()), int))
+    sigma = np.array([gnss_sigma] * 3 + [np.radians(ins_sigma_deg)] * 3)
+    gnss = jaxba.ParameterObservations(
+        name="gnss_ins", block="images", rows=jnp.arange(len(bodies)),
+        observed=jnp.asarray(bodies + sigma * rng.standard_normal(bodies.shape)),
+        stddev=jnp.asarray(np.broadcast_to(sigma, bodies.shape).copy()))
+    corners = np.stack([points[:, 0] + points[:, 1], points[:, 0] - points[:, 1]], 1)
+    control_rows = np.array([np.argmin(corners[:, 0]), np.argmax(corners[:, 0]),
+                             np.argmin(corners[:, 1]), np.argmax(corners[:, 1])])
+    control = jaxba.ParameterObservations(
+        name="control", block="points", rows=jnp.asarray(control_rows),
+        observed=jnp.asarray(points[control_rows] + 0.02 * rng.standard_normal((4, 3))),
+        stddev=jnp.full((4, 3), 0.02))
+    moved = points + rng.normal(0, 1.0, points.shape)
+    initial = jaxba.Parameters({"smac": jnp.asarray(iop)}, jnp.asarray(np.asarray(gnss.observed)),
+                               jnp.asarray(moved), jnp.zeros((1, 6)))
+    free = jaxba.Parameters({"smac": jnp.zeros((1, 12), bool)}, jnp.ones(bodies.shape, bool),
+                            jnp.ones(points.shape, bool), jnp.ones((1, 6), bool))
+    problem = jaxba.BundleProblem(initial=initial, free=free, groups=(group, gnss, control))
+    return problem, truth

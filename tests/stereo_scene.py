@@ -1,76 +1,108 @@
-"""OpenCV's stereo sample (shared data `opencv_stereo`: 13 pairs of 640 x 480 images of a
-9 x 6 chessboard) as jaxba projects of one camera: corners by cv2.findChessboardCorners and
-cornerSubPix (as its SOURCES.md), the board on a unit grid (fixed), approximations of the
-poses from cv2.calibrateCamera of the same images."""
+"""OpenCV's stereo sample (../data/opencv_stereo, 13 chessboard pairs) as OpenCV sees it and as a
+jaxba project: corners by `cv2.findChessboardCorners` + `cv2.cornerSubPix`, each camera by
+`cv2.calibrateCamera`, the pair by `cv2.stereoCalibrate`, and the project files that say the
+same (model `opencv`, pixels, the board fixed on a unit grid, approximations from OpenCV's
+single-camera calibrations)."""
 
-import json
-import os
+import dataclasses
 import pathlib
 
 import numpy as np
 
-from jaxba._io._synthetic import opk_from_rotation
-
-# Beside the checkout, or where $JAXBA_OPENCV_STEREO says; the tests skip without it.
-DATA = pathlib.Path(os.environ.get(
-    "JAXBA_OPENCV_STEREO",
-    pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "opencv_stereo"))
-PATTERN = (9, 6)
-SENSOR = (640, 480)
-FREE = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]  # OpenCV's default set
-NUMBERS = (1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14)
+BOARD = (9, 6)  # inner corners
+PAIRS = (1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 14)
+FLIP = np.diag([1.0, -1.0, -1.0])  # OpenCV's camera frame <-> jaxba's (docs/conventions.md)
+STRICT = (3, 500, 1e-15)  # (COUNT + EPS, iterations, ε): OpenCV iterates to convergence
 
 
-def corners(cv2, side: str) -> dict[int, np.ndarray]:
-    """{image number: (54, 2) refined corners} of the `side` ("left", "right") images."""
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
-    found = {}
-    for n in NUMBERS:
-        image = cv2.imread(str(DATA / f"{side}{n:02d}.jpg"), cv2.IMREAD_GRAYSCALE)
-        ok, points = cv2.findChessboardCorners(image, PATTERN)
-        if ok:
-            refined = cv2.cornerSubPix(image, points, (11, 11), (-1, -1), criteria)
-            found[n] = refined.reshape(-1, 2).astype(float)
-    return found
+def data_folder() -> pathlib.Path:
+    return pathlib.Path(__file__).resolve().parent / "data" / "opencv_stereo"
 
 
-def board() -> np.ndarray:
-    """(54, 3) corners on a unit grid, in findChessboardCorners' order."""
-    return np.array([[x, y, 0.0] for y in range(PATTERN[1]) for x in range(PATTERN[0])])
+@dataclasses.dataclass(frozen=True)
+class Stereo:
+    """OpenCV's view: board points (n, 3), corners per camera (13, n, 2), the single-camera
+    calibrations (K, dist, rvecs, tvecs) and `stereoCalibrate`'s (K1, D1, K2, D2, R, T)."""
+
+    board: np.ndarray
+    corners: dict
+    single: dict
+    stereo: tuple
 
 
-def write_project(cv2, out: pathlib.Path, found: dict[int, np.ndarray], numbers,
-                  name: str) -> pathlib.Path:
-    """A project of the images `numbers` of `found` in `out`; returns the project file."""
-    numbers = [n for n in numbers if n in found]
-    objects = [board().astype(np.float32)] * len(numbers)
-    images = [found[n].astype(np.float32) for n in numbers]
-    _, k, dist, rvecs, tvecs = cv2.calibrateCamera(objects, images, SENSOR, None, None)
-    out.mkdir(parents=True, exist_ok=True)
-    values = {"fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2], "skew": 0.0,
-              "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0}
-    lines = ["[C1]", 'model = "opencv"', f"sensor = [{SENSOR[0]}, {SENSOR[1]}]"]
-    lines += [f"{key} = {float(v)!r}" for key, v in values.items()]
-    lines.append(f"free = {json.dumps(FREE)}")
-    (out / "cameras.toml").write_text("\n".join(lines) + "\n")
-    (out / "points.txt").write_text("\n".join(
-        f"{j + 1} {x!r} {y!r} {z!r} 0 0 0" for j, (x, y, z) in enumerate(board().tolist()))
-        + "\n")
-    flip = np.diag([1.0, -1.0, -1.0])  # OpenCV's camera frame -> jaxba's (y up, -z ahead)
-    rows, observed = [], []
-    for n, rvec, tvec in zip(numbers, rvecs, tvecs):
-        rotation = cv2.Rodrigues(rvec)[0]
-        station = -rotation.T @ tvec.ravel()
-        opk = np.degrees(opk_from_rotation(flip @ rotation))
-        rows.append(f"i{n} C1 " + " ".join(repr(float(v)) for v in (*station, *opk)))
-        observed += [f"i{n} {j + 1} {u!r} {v!r}" for j, (u, v) in enumerate(found[n].tolist())]
-    (out / "orientation.txt").write_text("\n".join(rows) + "\n")
-    (out / "image_points.txt").write_text("\n".join(observed) + "\n")
-    project_file = out / f"{name}.toml"
-    project_file.write_text("\n".join([
-        "[project]", f"name = {json.dumps(name)}", 'image_units = "pixel"', "",
-        "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
-        'image_points = "image_points.txt"', 'points = "points.txt"', "",
-        "[adjustment]", "image_sigma = 0.3", "max_iterations = 50",
-    ]) + "\n")
-    return project_file
+def opencv_stereo() -> Stereo:
+    import cv2
+
+    board = np.zeros((BOARD[0] * BOARD[1], 3), np.float32)
+    board[:, :2] = np.mgrid[0:BOARD[0], 0:BOARD[1]].T.reshape(-1, 2)
+    corners, single = {}, {}
+    for side in ("left", "right"):
+        found = []
+        for k in PAIRS:
+            image = cv2.imread(str(data_folder() / f"{side}{k:02d}.jpg"), cv2.IMREAD_GRAYSCALE)
+            ok, xy = cv2.findChessboardCorners(image, BOARD)
+            assert ok, f"{side}{k:02d}"
+            criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
+            found.append(cv2.cornerSubPix(image, xy, (11, 11), (-1, -1), criteria))
+        corners[side] = np.array(found, dtype=np.float64).reshape(len(PAIRS), -1, 2)
+        single[side] = cv2.calibrateCamera([board] * len(PAIRS), found, (640, 480), None, None,
+                                           criteria=STRICT)[1:]
+    (k1, d1), (k2, d2) = (single[s][:2] for s in ("left", "right"))
+    stereo = cv2.stereoCalibrate(
+        [board] * len(PAIRS), [c.astype(np.float32) for c in corners["left"]],
+        [c.astype(np.float32) for c in corners["right"]], k1.copy(), d1.copy(), k2.copy(),
+        d2.copy(), (640, 480), flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=STRICT)
+    return Stereo(board.astype(float), corners, single, stereo[1:7])
+
+
+def image_row(rvec, tvec) -> list[float]:
+    """A jaxba images row (X0, Y0, Z0, omega, phi, kappa degrees) from OpenCV's pose."""
+    import cv2
+
+    from jaxba._models._rotation_numpy import matrix_to_opk
+
+    rotation = cv2.Rodrigues(np.asarray(rvec, float))[0]
+    station = -rotation.T @ np.ravel(tvec)
+    return [*station, *np.degrees(matrix_to_opk(FLIP @ rotation))]
+
+
+def write_project(folder: pathlib.Path, scene: Stereo, *, rig: bool = True,
+                  intrinsics: dict | None = None) -> pathlib.Path:
+    """The jaxba project of `scene` in `folder`: both cameras `opencv` with OpenCV's free set
+    (fx fy cx cy k1 k2 p1 p2 k3) from their single-camera calibrations, every image's pose
+    from them, the board fixed; with `rig` the pairs are frames of rig "stereo" (reference
+    left, the right camera's pose in the rig free and computed from the images').
+    `intrinsics`: {camera: the nine values}, fixed, instead."""
+    folder.mkdir(parents=True, exist_ok=True)
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    cameras, images, frames, points = [], [], [], []
+    for side in ("left", "right"):
+        matrix, dist, rvecs, tvecs = scene.single[side]
+        dist = np.ravel(dist)
+        values = [matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], *dist[[0, 1, 2, 3, 4]]]
+        free = list(names) if intrinsics is None else []
+        values = values if intrinsics is None else intrinsics[side]
+        cameras += [f"[{side}]", 'model = "opencv"', "sensor = [640, 480]",
+                    *(f"{n} = {v!r}" for n, v in zip(names, map(float, values))),
+                    f"free = {free!r}".replace("'", '"'), ""]
+        for k, pair in enumerate(PAIRS):
+            row = image_row(rvecs[k], tvecs[k])
+            images.append(f"{side}{pair:02d} {side} " + " ".join(repr(float(v)) for v in row))
+            frames.append(f"{side}{pair:02d} pair{pair:02d}")
+            points += [f"{side}{pair:02d} {p} {x!r} {y!r}"
+                       for p, (x, y) in enumerate(scene.corners[side][k].tolist())]
+    (folder / "cameras.toml").write_text("\n".join(cameras))
+    (folder / "images.txt").write_text("\n".join(images) + "\n")
+    (folder / "image_points.txt").write_text("\n".join(points) + "\n")
+    (folder / "points.txt").write_text("".join(
+        f"{k} {x!r} {y!r} {z!r} 0 0 0\n" for k, (x, y, z) in enumerate(scene.board.tolist())))
+    files = ['cameras = "cameras.toml"', 'images = "images.txt"',
+             'image_points = "image_points.txt"', 'points = "points.txt"']
+    if rig:
+        (folder / "frames.txt").write_text("\n".join(frames) + "\n")
+        (folder / "rigs.toml").write_text('[stereo]\nreference = "left"\n[stereo.right]\n')
+        files += ['rigs = "rigs.toml"', 'frames = "frames.txt"']
+    project = folder / "stereo.toml"
+    project.write_text('[project]\nname = "stereo"\nimage_units = "pixel"\n\n[files]\n'
+                       + "\n".join(files) + "\n\n[adjustment]\nimage_sigma = 0.5\n")
+    return project

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 import scipy.stats
-import stereo_scene
+import stereo_cameras
 from board_scene import SENSOR, TRUTH, adjusted, write_project
 
 import jaxba
@@ -144,18 +144,18 @@ def test_opencv_stereo_cross_validation(tmp_path):
     outcome is printed: model error may show), and the left camera against the right one,
     which the test must reject."""
     cv2 = pytest.importorskip("cv2")
-    if not stereo_scene.DATA.is_dir():
-        pytest.skip(f"no {stereo_scene.DATA}")
-    left, right = stereo_scene.corners(cv2, "left"), stereo_scene.corners(cv2, "right")
+    if not stereo_cameras.DATA.is_dir():
+        pytest.skip(f"no {stereo_cameras.DATA}")
+    left, right = stereo_cameras.corners(cv2, "left"), stereo_cameras.corners(cv2, "right")
     assert len(left) == len(right) == 13
 
     def calibration(found, numbers, name):
-        project_file = stereo_scene.write_project(cv2, tmp_path / name, found, numbers, name)
+        project_file = stereo_cameras.write_project(cv2, tmp_path / name, found, numbers, name)
         _, result = adjusted(project_file)
         assert result.converged
-        return jaxba.calibration_of(result, "C1", stereo_scene.SENSOR, name=name)
+        return jaxba.calibration_of(result, "C1", stereo_cameras.SENSOR, name=name)
 
-    numbers = stereo_scene.NUMBERS
+    numbers = stereo_cameras.NUMBERS
     odd = calibration(left, [n for n in numbers if n % 2], "left_odd")
     even = calibration(left, [n for n in numbers if not n % 2], "left_even")
     both_left, both_right = calibration(left, numbers, "left"), calibration(right, numbers, "right")

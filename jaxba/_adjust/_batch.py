@@ -85,11 +85,11 @@ def _signature(problem: BundleProblem) -> tuple:
     """What must agree between problems for them to share a padded shape."""
     groups = tuple(
         (type(g).__name__, getattr(g, "model", None), getattr(g, "block", None),
-         tuple(np.shape(g.stddev)[1:]))
+         tuple(np.shape(g.stddev)[1:]), getattr(g, "mount", None) is None)
         for g in problem.groups
     )
     cameras = tuple((m, np.shape(b)[1]) for m, b in sorted(problem.initial.cameras.items()))
-    return groups, cameras, problem.refraction, problem.robust
+    return groups, cameras, problem.initial.mounts is None, problem.refraction, problem.robust
 
 
 def _pad_rows(array, n: int, fill=None):
@@ -112,6 +112,7 @@ def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractOb
         field.name: getattr(group, field.name)
         for field in dataclasses.fields(group)
         if not field.metadata.get("static", False) and field.name != "stddev"
+        and getattr(group, field.name) is not None
     }
     padded = {key: _pad_rows(value, n) for key, value in leaves.items()}
     stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
@@ -146,7 +147,8 @@ class BatchShape:
     """The padded shape of a batch, all that its compiled programs depend on: rows per
     camera model, images, points (the spare one included), rows per observation group, the
     length of the free-index vector and, per group of the linearisation plan, its live
-    slots and (keys, rows per key) (None for a group that is not row-local)."""
+    slots and (keys, rows per key) (None for a group that is not row-local); `mounts` the
+    rows of the mounts block (None: no rigs)."""
 
     cameras: dict[str, int]
     images: int
@@ -155,6 +157,7 @@ class BatchShape:
     free: int
     live: tuple[tuple[int, ...] | None, ...] | None = None
     keys: tuple[tuple[int, int] | None, ...] | None = None
+    mounts: int | None = None
 
 
 def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
@@ -167,6 +170,8 @@ def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
         rows=tuple(max(np.shape(p.groups[g].stddev)[0] for p in problems)
                    for g in range(len(problems[0].groups))),
         free=max(p.n_unknowns() for p in problems),
+        mounts=None if problems[0].initial.mounts is None
+        else max(p.initial.mounts.shape[0] for p in problems),
     )
 
 
@@ -178,6 +183,7 @@ def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndar
                  for m, n in shape.cameras.items()},
         images=np.zeros((shape.images, 6)),
         points=np.zeros((shape.points, 3)),
+        mounts=None if shape.mounts is None else np.zeros((shape.mounts, 6)),
     )
     names = [g.name for g in problems[0].groups]
     padded, indices = [], []
@@ -194,7 +200,9 @@ def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndar
                             ties=next(iter(ties)))
         padded.append(one)
         indices.append(free_indices(one))
-    spare = flatten(padded[0].initial).size - 3  # X of the spare (last) point
+    size = flatten(padded[0].initial).size
+    spare = int(np.asarray(unflatten(padded[0].initial, np.arange(size)).points)[-1, 0])
+    # X of the spare (last) point; points are not the last block where there are mounts
     free_index = np.full((len(problems), shape.free), spare)
     for k, index in enumerate(indices):
         free_index[k, : len(index)] = index
@@ -265,6 +273,8 @@ def _holds(shape: BatchShape, own: BatchShape) -> bool:
     return (shape.cameras.keys() == own.cameras.keys()
             and all(shape.cameras[m] >= n for m, n in own.cameras.items())
             and shape.images >= own.images and shape.points >= own.points
+            and (shape.mounts is None) == (own.mounts is None)
+            and (shape.mounts or 0) >= (own.mounts or 0)
             and len(shape.rows) == len(own.rows)
             and all(a >= b for a, b in zip(shape.rows, own.rows)) and shape.free >= own.free)
 

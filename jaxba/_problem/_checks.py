@@ -7,10 +7,11 @@ with, a point nobody measured. Without these checks such a problem fails inside 
 approximations were to blame.
 """
 
+import jax
 import numpy as np
 
 from ._bundle import BundleProblem
-from ._parameters import Parameters, flatten, parameter_labels, unflatten
+from ._parameters import flatten, parameter_labels, unflatten
 
 
 class ProblemError(ValueError):
@@ -34,7 +35,8 @@ def check_problem(problem: BundleProblem, labels: list[str] | None = None) -> No
     if unreached.size:
         owners = list(dict.fromkeys(labels[k].rsplit(" ", 1)[0] for k in unreached))
         what = {"camera": "no image was taken with it", "image": "no image points or other "
-                "observations", "point": "it is measured in no image"}
+                "observations", "point": "it is measured in no image",
+                "mount": "no image of a rig frame was taken with it"}
         first = owners[0]
         more = f" (and {len(owners) - 1} more: {', '.join(owners[1:4])})" if owners[1:] else ""
         raise ProblemError(
@@ -44,11 +46,10 @@ def check_problem(problem: BundleProblem, labels: list[str] | None = None) -> No
 
 def _reached(problem: BundleProblem) -> np.ndarray:
     """(n_all,) bool in `flatten` order: the unknowns some real observation depends on,
-    from the blocks each group's rows refer to, the camera rows of image-point groups and
-    the unknowns the priors observe directly."""
+    from the blocks each group's rows refer to, the camera (and mount) rows of image-point
+    groups and the unknowns the priors observe directly."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.free).size))
-    positions = Parameters({m: np.asarray(c) for m, c in positions.cameras.items()},
-                           np.asarray(positions.images), np.asarray(positions.points))
+    positions = jax.tree.map(np.asarray, positions)
     reached = np.zeros(flatten(problem.free).size, dtype=bool)
     for group in problem.groups:
         if group.constraint:
@@ -59,5 +60,8 @@ def _reached(problem: BundleProblem) -> np.ndarray:
         camera, model = getattr(group, "camera", None), getattr(group, "model", None)
         if camera is not None and model in positions.cameras:  # image points: their camera
             reached[positions.cameras[model][np.asarray(camera)[real]]] = True
+        mount = getattr(group, "mount", None)
+        if mount is not None:  # image points of rig cameras: their mounts
+            reached[positions.mounts[np.asarray(mount)[real]]] = True
         reached[np.asarray(group.prior_positions(positions), dtype=int)] = True
     return reached

@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._custom_types import Vector2, Vector3
 from .._models._cameras import CAMERA_MODELS, AbstractRefraction
-from .._models._poses import POSE_MODELS, image_frames
+from .._models._poses import POSE_MODELS, AbstractPose, ComposedPose, image_frames
 from ._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES, Parameters
 
 
@@ -180,6 +180,16 @@ def _frame_collinearity_residual(
     return (measured - camera.image_point(frame.to_camera(point), measured, k)) / sigma
 
 
+def row_pose(pose: type[AbstractPose], inputs, delta: Array, mounted: bool):
+    """The frame of one image row moved by `delta`: the pose's `row_frame` (delta (6,)), or
+    with `mounted` the frame's then the mount's (inputs a pair, delta (12,): the frame's
+    6 then the mount's), composed (`ComposedPose`)."""
+    if not mounted:
+        return pose.row_frame(inputs, delta)
+    return ComposedPose(pose.row_frame(inputs[0], delta[:6]),
+                        pose.row_frame(inputs[1], delta[6:]))
+
+
 class ImagePoints(AbstractObservationGroup):
     """Image coordinates of points, all taken with cameras of one model and images of one
     pose model.
@@ -203,6 +213,12 @@ class ImagePoints(AbstractObservationGroup):
     "image_points:<camera ID>" (project files: reports, variance components and data
     snooping per camera, as many cameras as there are in one group and one program);
     False: the group is one part under its name.
+
+    `mount`: None, or the row of `Parameters.mounts` of every row's camera in a rig: `image`
+    then indexes the rig's frame (an `images` row) and the row's pose is the frame's pose
+    followed by the mount (`ComposedPose`); a row outside a rig, or of a rig's reference
+    camera, points to a fixed identity mount. `local_values` and the Jacobians then carry
+    the mount's 6 parameters after the frame's.
     """
 
     name: str = eqx.field(static=True)
@@ -215,6 +231,7 @@ class ImagePoints(AbstractObservationGroup):
     pose: str = eqx.field(static=True, default="opk")
     constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
     per_camera: bool = eqx.field(static=True, default=False)
+    mount: Int[Array, " n"] | None = None
     removed_whole: ClassVar[bool] = True
 
     def kind(self) -> str:
@@ -234,22 +251,34 @@ class ImagePoints(AbstractObservationGroup):
         return ("x", "y")
 
     def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
+        if self.mount is not None:  # a frame and a camera name a rig's image
+            return (("frame", "images", self.image),
+                    ("camera", f"cameras/{self.model}", self.camera),
+                    ("point", "points", self.point))
         return ("image", "images", self.image), ("point", "points", self.point)
 
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
-        """IOPs of the camera, pose parameters of the image, XYZ of the point, per row."""
+        """IOPs of the camera, pose parameters of the image (or frame, then mount), XYZ of
+        the point, per row."""
+        mount = [] if self.mount is None else [jnp.asarray(params.mounts)[self.mount]]
         return jnp.concatenate([
             jnp.asarray(params.cameras[self.model])[self.camera],
             jnp.asarray(params.images)[self.image],
+            *mount,
             jnp.asarray(params.points)[self.point],
         ], axis=1)
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
-        """Whitened residuals (n, 2), each image's frame (`AbstractPose.frame`) made once."""
-        frames = image_frames(POSE_MODELS[self.pose], jnp.asarray(params.images))
+        """Whitened residuals (n, 2), each image's frame (`AbstractPose.frame`) made once
+        (and each mount's)."""
+        pose = POSE_MODELS[self.pose]
+        frames = jax.tree.map(lambda x: x[self.image],
+                              image_frames(pose, jnp.asarray(params.images)))
+        if self.mount is not None:
+            mounts = image_frames(pose, jnp.asarray(params.mounts))
+            frames = ComposedPose(frames, jax.tree.map(lambda x: x[self.mount], mounts))
         return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, None))(
-            jnp.asarray(params.cameras[self.model])[self.camera],
-            jax.tree.map(lambda x: x[self.image], frames),
+            jnp.asarray(params.cameras[self.model])[self.camera], frames,
             jnp.asarray(params.points)[self.point], self.measured, self.stddev, refraction)
 
     def row_jacobians(
@@ -259,20 +288,24 @@ class ImagePoints(AbstractObservationGroup):
         base class does, the image's pose through its model's `row_frame` (from
         `row_inputs`, made once per image)."""
         pose = POSE_MODELS[self.pose]
-        inputs = pose.row_inputs(jnp.asarray(params.images))
+        inputs = jax.tree.map(lambda x: x[self.image],
+                              pose.row_inputs(jnp.asarray(params.images)))
+        if self.mount is not None:
+            mounts = pose.row_inputs(jnp.asarray(params.mounts))
+            inputs = (inputs, jax.tree.map(lambda x: x[self.mount], mounts))
 
         def row(iop, delta, point, pose_inputs, measured, sigma):
-            e = self._row_residual(iop, pose.row_frame(pose_inputs, delta), point, measured,
-                                   sigma, refraction)
+            frame = row_pose(pose, pose_inputs, delta, self.mount is not None)
+            e = self._row_residual(iop, frame, point, measured, sigma, refraction)
             return e, e
 
         jacobian = jax.jacrev(row, argnums=(0, 1, 2), has_aux=True)
         n = self.image.shape[0]
+        width = 6 if self.mount is None else 12
         (d_iop, d_pose, d_point), residuals = jax.vmap(jacobian)(
             jnp.asarray(params.cameras[self.model])[self.camera],
-            jnp.zeros((n, 6), jnp.asarray(params.images).dtype),
-            jnp.asarray(params.points)[self.point],
-            jax.tree.map(lambda x: x[self.image], inputs), self.measured, self.stddev)
+            jnp.zeros((n, width), jnp.asarray(params.images).dtype),
+            jnp.asarray(params.points)[self.point], inputs, self.measured, self.stddev)
         return residuals, jnp.concatenate([d_iop, d_pose, d_point], axis=2)
 
     def _row_residual(self, iop, frame, point, measured, sigma, refraction):
@@ -281,9 +314,10 @@ class ImagePoints(AbstractObservationGroup):
 
 
 class ParameterObservations(AbstractObservationGroup):
-    """Direct observations of parameters: control coordinates, GNSS/INS EOPs, IOP priors.
+    """Direct observations of parameters: control coordinates, GNSS/INS EOPs, IOP priors,
+    priors on rig cameras' relative poses.
 
-    `rows` index the block `block` ("points", "images" or "cameras/<model>"); `observed`
+    `rows` index the block `block` ("points", "images", "mounts" or "cameras/<model>"); `observed`
     and `stddev` have the block's width, with σ = inf where an entry is not observed.
     """
 
@@ -294,17 +328,19 @@ class ParameterObservations(AbstractObservationGroup):
     stddev: Float[Array, "n k"]
 
     def kind(self) -> str:
-        return {"points": "control", "images": "gnss_ins"}.get(self.block, "camera_priors")
+        kinds = {"points": "control", "images": "gnss_ins", "mounts": "mount_priors"}
+        return kinds.get(self.block, "camera_priors")
 
     def coordinate_names(self) -> tuple[str, ...]:
         if self.block == "points":
             return POINT_PARAMETER_NAMES
-        if self.block == "images":
+        if self.block in ("images", "mounts"):
             return IMAGE_PARAMETER_NAMES
         return CAMERA_MODELS[self.block.removeprefix("cameras/")].parameter_names
 
     def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
-        label = {"points": "point", "images": "image"}.get(self.block, "camera")
+        label = {"points": "point", "images": "image", "mounts": "mount"}.get(
+            self.block, "camera")
         return ((label, self.block, self.rows),)
 
     def local_values(self, params: Parameters) -> Float[Array, "n k"]:

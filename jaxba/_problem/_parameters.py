@@ -1,4 +1,4 @@
-"""The unknowns of a bundle: camera (IOP), image (EOP) and object-point blocks."""
+"""The unknowns of a bundle: camera (IOP), image (EOP), object-point and rig-mount blocks."""
 
 import equinox as eqx
 import jax
@@ -11,6 +11,7 @@ from .._models._poses import OpkPose
 
 IMAGE_PARAMETER_NAMES = OpkPose.parameter_names  # the images columns of project files
 POINT_PARAMETER_NAMES = ("X", "Y", "Z")
+MOUNT_PARAMETER_NAMES = IMAGE_PARAMETER_NAMES  # a camera's pose in its rig's frame
 ANGLE_NAMES = ("omega", "phi", "kappa")
 
 
@@ -22,14 +23,20 @@ class Parameters(eqx.Module):
     - `images`: (n_images, 6): the pose model's parameters (`BundleProblem.pose`): X0, Y0,
       Z0 (object units), omega, phi, kappa (radians) for "opk", r, t for "rodrigues".
     - `points`: (n_points, 3): X, Y, Z (object units).
+    - `mounts`: (n_mounts, 6) or None (no rigs): the poses of rig cameras in their rig's
+      frame, rows of the same pose model as `images` (for "opk": X0, Y0, Z0 the perspective
+      centre in the rig frame, omega, phi, kappa the rotation rig -> camera). A rig image's
+      pose is its frame's `images` row followed by its camera's mount (`ComposedPose`).
+      None keeps a bundle without rigs free of any trace of them.
     """
 
     cameras: dict[str, Float[Array, "n_cameras n_iop"]]
     images: Float[Array, "n_images 6"]
     points: Float[Array, "n_points 3"]
+    mounts: Float[Array, "n_mounts 6"] | None = None
 
     def block(self, name: str) -> Array:
-        """The block called "images", "points" or "cameras/<model>"."""
+        """The block called "images", "points", "mounts" or "cameras/<model>"."""
         if name.startswith("cameras/"):
             return self.cameras[name.removeprefix("cameras/")]
         return getattr(self, name)
@@ -65,11 +72,12 @@ def parameter_labels(
     camera_ids: dict[str, list[str]] | None = None,
     image_ids: list[str] | None = None,
     point_ids: list[str] | None = None,
+    mount_ids: list[str] | None = None,
 ) -> list[str]:
     """A readable name for every scalar unknown, in `flatten` order.
 
-    E.g. "camera C1 c", "image img03 omega", "point 12 Z"; row numbers stand in for
-    missing IDs.
+    E.g. "camera C1 c", "image img03 omega", "point 12 Z", "mount stereo/right X0"; row
+    numbers stand in for missing IDs.
     """
     def ids(given, n):
         return list(given) if given is not None else [str(i) for i in range(n)]
@@ -77,11 +85,13 @@ def parameter_labels(
     def block(prefix: str, row_ids: list[str], names) -> list[str]:
         return [f"{prefix} {i} {n}" for i in row_ids for n in names]
 
-    # The blocks in `flatten` order: cameras by sorted model name, images, points.
+    # The blocks in `flatten` order: cameras by sorted model name, images, points, mounts.
     labels = []
     for model in sorted(params.cameras):
         rows = ids((camera_ids or {}).get(model), params.cameras[model].shape[0])
         labels += block("camera", rows, CAMERA_MODELS[model].parameter_names)
     labels += block("image", ids(image_ids, params.images.shape[0]), IMAGE_PARAMETER_NAMES)
     labels += block("point", ids(point_ids, params.points.shape[0]), POINT_PARAMETER_NAMES)
+    if params.mounts is not None:
+        labels += block("mount", ids(mount_ids, params.mounts.shape[0]), MOUNT_PARAMETER_NAMES)
     return labels

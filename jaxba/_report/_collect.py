@@ -35,6 +35,7 @@ from .._statistics._observation_statistics import (
     row_parts,
     with_coordinate,
 )
+from .._statistics._rigs import composed_pose_sigma, composed_poses
 from .._statistics._summary import (
     OutlierSummary,
     VarianceTest,
@@ -215,9 +216,42 @@ def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTa
     return tables
 
 
+def frame_sigma(project: Project) -> list[tuple]:
+    """The GNSS/INS σ (file units: None free, 0 fixed, > 0 weighted) of every row of the
+    images block: every image's, or with rigs every frame's."""
+    if project.rigs is None:
+        return [project.spec.images[iid].eop_sigma for iid in project.image_ids]
+    sigma = project.rigs.frame_sigma.copy()
+    sigma[:, 3:] = np.degrees(sigma[:, 3:])
+    return np.where(np.isfinite(sigma), sigma, np.nan).tolist()
+
+
+def _composed_image_table(project: Project, result: Adjustment) -> ParameterTable:
+    """Every image's pose in a project with rigs: its frame's followed by its camera's in
+    the rig (the reference camera's: the frame's), σ propagated from the 12 x 12 covariance
+    of both; status the frame's for the reference camera's images, else fixed where frame
+    and mount are, free otherwise (its own pose is no unknown)."""
+    rigs, params, pose = project.rigs, result.parameters, result.problem.pose
+    frames, mounts = rigs.image_frame, rigs.image_mount
+    values = np.array(composed_poses(params, pose, frames, mounts))
+    stds = np.array([composed_pose_sigma(params, result.precision, pose, f, m)
+                     for f, m in zip(frames.tolist(), mounts.tolist())]).reshape(-1, 6)
+    free = (np.asarray(project.problem.free.images)[frames]
+            | np.asarray(project.problem.free.mounts)[mounts])
+    frame_status = _status_table(project.problem.free.images, frame_sigma(project))[frames]
+    status = np.where(mounts[:, None] == 0, frame_status,
+                      np.where(free, FREE, FIXED).astype(object))
+    angles = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
+    values[:, angles], stds[:, angles] = np.degrees(values[:, angles]), np.degrees(stds[:, angles])
+    return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.image_ids), values, stds, status)
+
+
 @_shared
 def image_table(project: Project, result: Adjustment) -> ParameterTable:
-    """EOPs of all images; omega, phi, kappa and their σ in decimal degrees."""
+    """EOPs of all images; omega, phi, kappa and their σ in decimal degrees (with rigs each
+    composed from its frame's and its camera's: `_composed_image_table`)."""
+    if project.rigs is not None:
+        return _composed_image_table(project, result)
     angles = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
     values = np.array(result.parameters.images, dtype=float)
     stds = np.array(result.precision.std.images, dtype=float)
@@ -275,8 +309,9 @@ def project_ids(project: Project) -> Ids:
     cameras: dict[str, list[str]] = {}
     for cid, (model, row) in sorted(project.camera_rows.items(), key=lambda item: item[1]):
         cameras.setdefault(model, []).append(cid)
+    mounts = () if project.rigs is None else tuple(project.rigs.mount_ids)
     return Ids({model: tuple(ids) for model, ids in cameras.items()},
-               tuple(project.image_ids), tuple(project.point_ids))
+               tuple(project.frame_ids), tuple(project.point_ids), mounts)
 
 
 def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:
@@ -297,6 +332,9 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
     rows = image_point_rows(group_statistics(project, result))
     image = rows.image
+    if project.rigs is not None:  # rows refer to frames and mounts: to images, sorted so
+        rows = _by_image(project, rows)
+        image = rows.image
     cameras = [project.spec.images[iid].camera for iid in project.image_ids]
     units = [camera_units(project, cid) for cid in cameras]
     pixel_size = np.array([
@@ -320,6 +358,19 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
         removed=rows.removed,
         outlier=rows.outlier,
     )
+
+
+def _by_image(project: Project, rows):
+    """`rows` of a project with rigs with `image` the row of `project.image_ids` each
+    (frame and mount name one image), sorted by it."""
+    rigs = project.rigs
+    code = rigs.image_frame * len(rigs.mount_ids) + rigs.image_mount
+    lookup = dict(zip(code.tolist(), range(code.size)))
+    image = np.array([lookup[c] for c in (rows.image * len(rigs.mount_ids) + rows.mount)
+                      .tolist()], dtype=int)
+    order = np.argsort(image, kind="stable")
+    fields = {f.name: getattr(rows, f.name)[order] for f in dataclasses.fields(rows)}
+    return dataclasses.replace(rows, **{**fields, "image": image[order]})
 
 
 def in_pixel_frame(project: Project, residuals: ImageResiduals) -> ImageResiduals:

@@ -28,6 +28,7 @@ from ._collect import (
     rejections,
     reliability_summary,
 )
+from ._rigs import frame_table, mount_table, rig_baselines
 
 MAX_POINT_ROWS = 1000  # rows of the points table; all of them are in results.json and NAME.sigma
 LARGEST_RESIDUALS = 20  # rows of the table of the largest normalised residuals
@@ -72,6 +73,7 @@ def html_report(
     sections = [
         ("summary", "Summary", _summary(project, result)),
         ("cameras", "Cameras", _cameras(project, result)),
+        *([("rigs", "Rigs", _rigs(project, result))] if project.rigs is not None else []),
         ("images", "Images", _images(project, result)),
         ("points", "Object points", _points(project, result)),
         ("groups", "Observation groups", _groups(project, result)),
@@ -205,6 +207,24 @@ def _images(project: Project, result: Adjustment) -> str:
               + [f"σ {name}" for name in names])
     return ("<p class=\"note\">Angles in degrees; σ 0 (\"-\"): fixed.</p>\n"
             + _table(header, _parameter_rows(table, extra), ids=2))
+
+
+def _rigs(project: Project, result: Adjustment) -> str:
+    """Every rig camera's (and platform camera's) pose in its rig with its baseline, and
+    every frame's pose."""
+    mounts, baselines = mount_table(project, result), rig_baselines(project, result)
+    extra = [[f"{_value(baselines[mid][0], baselines[mid][1])} ± {_sigma(baselines[mid][1])}"]
+             for mid in mounts.ids]
+    names = [*mounts.names]
+    header = ["camera", "baseline"] + names + [f"σ {name}" for name in names]
+    frames = frame_table(project, result)
+    return ("<p class=\"note\">Each camera's pose in its rig's frame (the reference camera's;"
+            " rotation rig → camera, degrees) and its baseline, the distance from the"
+            " reference camera, object units.</p>\n"
+            + _table(header, _parameter_rows(mounts, extra), ids=2)
+            + "\n<h3>Frames</h3>\n"
+            + _table(["frame"] + names + [f"σ {name}" for name in names],
+                     _parameter_rows(frames, [[] for _ in frames.ids])))
 
 
 def _points(project: Project, result: Adjustment) -> str:

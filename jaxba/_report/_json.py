@@ -29,6 +29,7 @@ from ._collect import (
 )
 from ._no_sigma import no_sigma_entries
 from ._paths import OBSERVATIONS_FILE
+from ._rigs import frame_table, mount_correlations, mounts_tree, rigs_tree
 
 
 def _number(value) -> float | None:
@@ -251,7 +252,10 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     camera_models (per camera: model, sensor, pixel_size, constants, parameters, values and
     their covariance: what `jaxba.compare` reads).
     Every parameter carries "status": free, fixed or weighted; a tied camera parameter
-    "tied to CAMERA.parameter" (its source's unknown: the same value and std).
+    "tied to CAMERA.parameter" (its source's unknown: the same value and std). With rigs:
+    "images" every image's pose composed from its frame's and its camera's (σ propagated),
+    "frames" the frames' poses (as "images"), "rigs" {rig: {camera: X0 .. kappa, baseline}}
+    (`rigs_tree`), and "correlations" also per "<rig>/<camera>" its relative pose's.
     """
     precision = result.precision
     cameras = camera_tables(project, result)
@@ -304,6 +308,14 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         "outliers": _outliers(project, result),
         "no_sigma": no_sigma_entries(project, result),
     }
+    if project.rigs is not None:
+        frames = frame_table(project, result)
+        tree["frames"] = {fid: _entries(frames, k) for k, fid in enumerate(frames.ids)}
+        tree["rigs"] = _nulls(rigs_tree(project, result, _entries))
+        tree["mounts"] = _nulls(mounts_tree(project, result))
+        tree["correlations"].update(
+            {mid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
+             for mid, (names, matrix) in mount_correlations(project, result).items()})
     if project.initialisation is not None:
         tree["initialisation"] = _nulls(project.initialisation)
     return tree

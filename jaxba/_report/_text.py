@@ -41,6 +41,7 @@ from ._collect import (
 )
 from ._no_sigma import no_sigma_lines
 from ._numbers import fixed_cells
+from ._rigs import frame_table, mount_correlations, mount_table, rig_baselines
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
 _PX_DECIMALS = 3  # residuals in pixels
@@ -193,16 +194,18 @@ def _camera_section(project: Project, cid: str, camera: ParameterTable) -> list[
     ]
 
 
-def _correlation_section(cid: str, names: list[str], matrix: np.ndarray) -> list[str]:
-    """Lower triangle of the correlation matrix of the estimated IOPs, two decimals."""
+def _correlation_section(cid: str, names: list[str], matrix: np.ndarray,
+                         title: str = "IOP correlations of camera") -> list[str]:
+    """Lower triangle of the correlation matrix of the estimated IOPs (or of what `title`
+    names), two decimals."""
     if not names:
-        return [f"IOP correlations of camera {cid}: no estimated parameters"]
+        return [f"{title} {cid}: no estimated parameters"]
     rows = [
         [name, *(f"{matrix[i, j]:.2f}" for j in range(i + 1)), *([""] * (len(names) - i - 1))]
         for i, name in enumerate(names)
     ]
     return [
-        f"IOP correlations of camera {cid} (estimated parameters; |rho| near 1: hard to separate)",
+        f"{title} {cid} (estimated parameters; |rho| near 1: hard to separate)",
         *table(["", *names], rows, "l" + "r" * len(names)),
     ]
 
@@ -301,6 +304,40 @@ def _image_section(project: Project, images: ParameterTable) -> list[str]:
     ]
 
 
+def rig_section(project: Project, result: Adjustment) -> list[str]:
+    """The rig cameras' poses in their rigs with σ, their baselines, the correlations of
+    each relative pose, and the frames' poses."""
+    mounts = mount_table(project, result)
+    positions = decimals_for(mounts.stds[:, :3], low=4)
+    angles = decimals_for(mounts.stds[:, 3:], low=4)
+    header = ["camera", *mounts.names, *(f"s{n}" for n in mounts.names), "status"]
+    baselines = rig_baselines(project, result)
+    lengths = np.array(list(baselines.values()), dtype=float).reshape(-1, 2)
+    decimals = decimals_for(lengths[:, 1], low=4)
+    lines = [
+        "Rigs: every camera's pose in its rig's frame (the reference camera's; X0 Y0 Z0 in"
+        " object units, omega phi kappa in decimal degrees, rotation rig -> camera)",
+        *_parameter_table(header, [], mounts, [positions] * 3 + [angles] * 3),
+        "",
+        "Baselines (the distance of each camera's perspective centre from its rig's"
+        " reference camera's, object units)",
+        *column_table(["camera", "baseline", "sbaseline"], [list(baselines)], lengths,
+                      [decimals] * 2),
+    ]
+    for mid, (names, matrix) in mount_correlations(project, result).items():
+        lines += ["", *_correlation_section(mid, names, matrix,
+                                            "Correlations of the relative pose of")]
+    frames = frame_table(project, result)
+    positions = decimals_for(frames.stds[:, :3], low=4)
+    angles = decimals_for(frames.stds[:, 3:], low=4)
+    header = ["frame", *frames.names, *(f"s{n}" for n in frames.names), "status"]
+    return lines + [
+        "",
+        "Frames: one pose per frame, the rig's (its reference camera's)",
+        *_parameter_table(header, [], frames, [positions] * 3 + [angles] * 3),
+    ]
+
+
 def _point_section(points: ParameterTable) -> list[str]:
     decimals = decimals_for(points.stds, low=4)
     header = ["point", *points.names, *(f"s{n}" for n in points.names), "status"]
@@ -365,6 +402,8 @@ def out_text(project: Project, result: Adjustment) -> str:
     reliability = _reliability_section(project, result)
     if reliability:
         lines += ["", *reliability]
+    if project.rigs is not None:
+        lines += ["", *rig_section(project, result)]
     lines += ["", *_image_section(project, image_table(project, result))]
     lines += ["", *_point_section(point_table(project, result))]
     lines += ["", *_ellipsoid_section(project, result)]

@@ -91,6 +91,12 @@ class Adjustment:
         return self._unknowns.images()
 
     @property
+    def mounts(self) -> ById:
+        """Mount ID -> `Estimates`: a rig camera's pose in its rig's frame (X0 .. kappa,
+        radians); empty without rigs. `images` are then the rigs' frames."""
+        return self._unknowns.mounts()
+
+    @property
     def points(self) -> ById:
         """Point ID -> `PointEstimate`: X, Y, Z with σ, the 3 x 3 covariance and its kind."""
         return self._unknowns.points()

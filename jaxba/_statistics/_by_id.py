@@ -142,15 +142,24 @@ class UnknownTables:
         return ById("camera", rows, make)
 
     def images(self) -> ById:
+        return self._poses("image", self.positions.images, self.ids.images)
+
+    def mounts(self) -> ById:
+        """The rig cameras' relative poses (none without rigs)."""
+        positions = self.positions.mounts
+        return self._poses("mount", np.zeros((0, 6), int) if positions is None else positions,
+                           self.ids.mounts)
+
+    def _poses(self, what: str, positions: np.ndarray, ids) -> ById:
         pose = POSE_MODELS[self.result.problem.pose]
         names = pose.parameter_names
         units = ["rad" if name in pose.angle_names else None for name in names]
 
         def make(row):
-            estimates = self._estimates(self.positions.images[row], names, units)
-            return Estimates(self.ids.images[row], self.result.problem.pose, estimates)
+            estimates = self._estimates(positions[row], names, units)
+            return Estimates(ids[row], self.result.problem.pose, estimates)
 
-        return ById("image", {iid: k for k, iid in enumerate(self.ids.images)}, make)
+        return ById(what, {iid: k for k, iid in enumerate(ids)}, make)
 
     def points(self) -> ById:
         def make(row):

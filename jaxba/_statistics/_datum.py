@@ -29,7 +29,9 @@ def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk"
     """Apply X -> centre + (1 + s) R(a) (X - centre) + t to all points and stations.
 
     theta = (t, a, s) (7,): translation (object units), Rodrigues rotation vector (rad),
-    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay. `pose`:
+    scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay; rig
+    cameras' relative poses (`Parameters.mounts`) keep their rotations, their perspective
+    centres in the rig frame scale by 1 + s. `pose`:
     the pose model of the images rows (`BundleProblem.pose`), which converts them to and
     from M and X0.
     """
@@ -48,7 +50,12 @@ def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk"
         return model.from_rotation(m, station).parameters()
 
     images = jax.vmap(pose)(turned, stations)
-    return Parameters(params.cameras, images, move(params.points))
+    mounts = params.mounts
+    if mounts is not None:  # a rig scales with the network; its cameras turn with it
+        relative = jax.vmap(model.from_parameters)(mounts)
+        mounts = jax.vmap(pose)(jax.vmap(model.rotation)(relative),
+                                (1 + s) * jax.vmap(model.station)(relative))
+    return Parameters(params.cameras, images, move(params.points), mounts)
 
 
 def similarity_directions(params: Parameters, centre, *, pose: str = "opk") -> np.ndarray:

@@ -1,5 +1,6 @@
 """The IDs of the rows of an adjustment's blocks: from the labels `adjust` was given
-(`parameter_labels` names: "camera C1 c", "image img03 X0", "point 12 X"; `adjust_project`
+(`parameter_labels` names: "camera C1 c", "image img03 X0", "point 12 X", "mount rig/C2 X0";
+`adjust_project`
 passes the project's) or, without labels, the row numbers (cameras numbered over all models in
 `flatten` order: models by name, then rows)."""
 
@@ -11,6 +12,7 @@ import numpy as np
 from .._models._cameras import CAMERA_MODELS
 from .._problem._parameters import (
     IMAGE_PARAMETER_NAMES,
+    MOUNT_PARAMETER_NAMES,
     POINT_PARAMETER_NAMES,
     Parameters,
     flatten,
@@ -21,14 +23,16 @@ from .._problem._parameters import (
 @dataclasses.dataclass(frozen=True)
 class Ids:
     """The ID of every row of the unknowns' blocks: `cameras` {model: (id per row)},
-    `images` and `points` (id per row)."""
+    `images`, `points` and `mounts` (id per row; `images` are frames where there are
+    rigs, `mounts` () without rigs)."""
 
     cameras: dict[str, tuple[Hashable, ...]]
     images: tuple[Hashable, ...]
     points: tuple[Hashable, ...]
+    mounts: tuple[Hashable, ...] = ()
 
     def block(self, name: str) -> tuple[Hashable, ...]:
-        """The IDs of the block called "images", "points" or "cameras/<model>"."""
+        """The IDs of the block called "images", "points", "mounts" or "cameras/<model>"."""
         if name.startswith("cameras/"):
             return self.cameras[name.removeprefix("cameras/")]
         return getattr(self, name)
@@ -40,8 +44,9 @@ def index_ids(params: Parameters) -> Ids:
     for model in sorted(params.cameras):
         n = int(np.shape(params.cameras[model])[0])
         cameras[model], start = tuple(range(start, start + n)), start + n
+    mounts = () if params.mounts is None else tuple(range(np.shape(params.mounts)[0]))
     return Ids(cameras, tuple(range(np.shape(params.images)[0])),
-               tuple(range(np.shape(params.points)[0])))
+               tuple(range(np.shape(params.points)[0])), mounts)
 
 
 def ids_from_labels(params: Parameters, labels: list[str]) -> Ids:
@@ -75,5 +80,7 @@ def ids_from_labels(params: Parameters, labels: list[str]) -> Ids:
     everyone = [cid for ids in cameras.values() for cid in ids]
     if len(set(everyone)) < len(everyone):
         raise ValueError("labels: a camera ID names cameras of two models")
+    mounts = () if positions.mounts is None else block(
+        "mount", positions.mounts, MOUNT_PARAMETER_NAMES[0])
     return Ids(cameras, block("image", positions.images, IMAGE_PARAMETER_NAMES[0]),
-               block("point", positions.points, POINT_PARAMETER_NAMES[0]))
+               block("point", positions.points, POINT_PARAMETER_NAMES[0]), mounts)

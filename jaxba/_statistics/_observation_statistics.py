@@ -45,7 +45,8 @@ class ImagePointRows:
 
     `group` (n,): the row's group in `result.problem.groups`, `row` (n,) its row there;
     `camera`, `image`, `point`
-    (n,): rows of the camera (within its group's model), image and point blocks; `xy`, `v`
+    (n,): rows of the camera (within its group's model), image and point blocks; `mount`
+    (n,) the row of the mounts block (-1 for groups without rigs); `xy`, `v`
     (n, 2) in the image units of the row's camera model; `r`, `w` (n, 2) NaN where unknown;
     `removed`: rejected by data snooping (v at the final solution, which did not use it);
     `outlier`: removed, or |w| above the critical value on either coordinate.
@@ -56,6 +57,7 @@ class ImagePointRows:
     camera: np.ndarray
     image: np.ndarray
     point: np.ndarray
+    mount: np.ndarray
     xy: np.ndarray
     v: np.ndarray
     r: np.ndarray
@@ -186,6 +188,8 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
         camera=stack(lambda k, s: s.group.camera).astype(int)[order],
         image=image[order],
         point=stack(lambda k, s: s.group.point).astype(int)[order],
+        mount=stack(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
+                    else s.group.mount).astype(int)[order],
         xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
         v=stack(lambda k, s: s.v, (0, 2))[order],
         r=stack(lambda k, s: s.r, (0, 2))[order],

@@ -17,6 +17,7 @@ from ..._problem._observations import Distances, ImagePoints, ParameterObservati
 from ..._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from ..._statistics._free_network import inner_constraints
 from ._errors import ProjectError
+from ._frames import RigLayout, rig_layout
 from ._spec import ProjectSpec
 
 _ANGLE_COLUMNS = slice(3, 6)
@@ -26,11 +27,14 @@ _ANGLE_COLUMNS = slice(3, 6)
 class Project:
     """A project ready to adjust: the problem plus what maps its rows back to IDs.
 
-    `camera_rows[camera_id] = (model, row)`; `image_ids` and `point_ids` are the row
-    order of the image and point blocks; `labels` names every scalar unknown;
+    `camera_rows[camera_id] = (model, row)`; `image_ids` every image of the images table
+    (the row order of the image block, unless there are rigs: `frame_ids`), `point_ids` the
+    row order of the point block; `labels` names every scalar unknown;
     `initialisation`: what `complete_project` computed (`Completion.summary()`, the
     `initialisation` section of results.json), None when the files held every approximation.
     `datum`: how the datum is defined (`datum_summary`; the `datum` section of the reports).
+    `rigs`: the frames and mounts (`RigLayout`) of a project with rigs, None without: the
+    image block's rows are then `rigs.frame_ids`, not `image_ids` (`frame_ids`).
     """
 
     spec: ProjectSpec
@@ -42,6 +46,12 @@ class Project:
     labels: list[str]
     initialisation: dict | None = None
     datum: dict = dataclasses.field(default_factory=lambda: {"kind": "control"})
+    rigs: RigLayout | None = None
+
+    @property
+    def frame_ids(self) -> list[str]:
+        """The IDs of the image block's rows: the frames with rigs, else the images."""
+        return self.image_ids if self.rigs is None else self.rigs.frame_ids
 
 
 def _sigma_to_free_and_observed(sigma) -> tuple[bool, float]:
@@ -97,8 +107,8 @@ def _ties(spec: ProjectSpec, camera_rows: dict, iop: dict) -> tuple[tuple[int, i
 
 
 def _images(spec: ProjectSpec):
-    """EOP block (radians), free mask and GNSS/INS observations; a dependent datum frees
-    every EOP (`_dependent_datum` then fixes its own)."""
+    """EOP block (radians), free mask and GNSS/INS σ (radians; inf: none); a dependent datum
+    frees every EOP (`_dependent_datum` then fixes its own)."""
     eop, free, sigma = [], [], []
     ignore_sigma = spec.settings.datum == "dependent"
     for image in spec.images.values():
@@ -111,9 +121,7 @@ def _images(spec: ProjectSpec):
         eop.append(values)
         free.append([f for f, _ in flags])
         sigma.append(observed_sigma)
-    eop, sigma = np.asarray(eop), np.asarray(sigma)
-    groups = _weighted_rows("gnss_ins", "images", eop, sigma)
-    return eop, np.asarray(free), groups
+    return np.asarray(eop).reshape(-1, 6), np.asarray(free), np.asarray(sigma).reshape(-1, 6)
 
 
 def _weighted_rows(name: str, block: str, values: np.ndarray, sigma: np.ndarray) -> list:
@@ -174,12 +182,13 @@ def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
     return xy, sigma
 
 
-def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
+def _image_point_groups(spec, camera_rows, image_index, point_index, grids, mount_index=None):
     """One ImagePoints group per camera model and constants (`per_camera`: reports and
     variance components still part it by camera), each row's camera its row of the model's
     block; pixels -> mm per row's camera for mm-models. Named "image_points" where there is
     one group, else "image_points:<model>" (and ":<k>" for a model's cameras with different
-    constants)."""
+    constants). `image_index`: image ID -> its row of the images block (its frame's with
+    rigs); `mount_index`: image ID -> its camera's mounts row (None: no rigs)."""
     table = spec.image_points
     camera_of = {iid: image.camera for iid, image in spec.images.items()}
     cameras = [camera_of[iid] for iid in table.image]
@@ -187,6 +196,8 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
     camera_code = np.array([codes[cid] for cid in cameras], dtype=int)
     image = np.array([image_index[iid] for iid in table.image], dtype=int)
     point = np.array([point_index[pid] for pid in table.point], dtype=int)
+    mount = (None if mount_index is None
+             else np.array([mount_index[iid] for iid in table.image], dtype=int))
     xy, sigma = np.zeros((len(cameras), 2)), np.zeros((len(cameras), 2))
     row = np.zeros(len(cameras), dtype=int)
     kinds: dict[tuple, list[int]] = {}
@@ -214,6 +225,7 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids):
             stddev=sigma[rows],
             constants=constants,
             per_camera=True,
+            mount=None if mount is None else mount[rows],
         ))
     return groups
 
@@ -319,18 +331,31 @@ def build_project(spec: ProjectSpec) -> Project:
     camera_rows, iop, iop_free, camera_priors = _cameras(spec)
     image_ids = list(spec.images)
     point_ids = used_points(spec)
-    eop, eop_free, gnss = _images(spec)
+    eop, eop_free, eop_sigma = _images(spec)
+    frame_ids, rigs = image_ids, None
+    image_index = {iid: k for k, iid in enumerate(image_ids)}
+    mount_index = mounts = mounts_free = None
+    if spec.rigs or any(camera.mount is not None for camera in spec.cameras.values()):
+        rigs = rig_layout(spec, image_ids, eop, eop_free, eop_sigma)
+        frame_ids, eop, eop_free, eop_sigma = (rigs.frame_ids, rigs.frames, rigs.frame_free,
+                                               rigs.frame_sigma)
+        image_index = dict(zip(image_ids, rigs.image_frame.tolist()))
+        mount_index = dict(zip(image_ids, rigs.image_mount.tolist()))
+        mounts, mounts_free = rigs.mounts, rigs.mount_free
+    gnss = _weighted_rows("gnss_ins", "images", eop, eop_sigma)
+    if rigs is not None:
+        gnss += _weighted_rows("mount_priors", "mounts", rigs.mounts, rigs.mount_sigma)
     datum = datum_summary(spec)
     gauge = np.zeros(np.shape(eop_free), dtype=bool)
     if spec.settings.datum == "dependent":
-        held, datum = _dependent_datum(spec, image_ids, np.asarray(eop), eop_free)
+        held, datum = _dependent_datum(spec, frame_ids, np.asarray(eop), eop_free)
         gauge = np.asarray(eop_free) & ~held
         eop_free = np.asarray(held)
     xyz, xyz_free, control = _points(spec, point_ids)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
-    image_index = {iid: k for k, iid in enumerate(image_ids)}
     point_index = {pid: k for k, pid in enumerate(point_ids)}
-    groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids)
+    groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids,
+                                 mount_index)
     groups += control + gnss + camera_priors
     if spec.distances:
         groups.append(Distances(
@@ -356,10 +381,10 @@ def build_project(spec: ProjectSpec) -> Project:
     robust = (
         None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
     )
-    initial = Parameters(iop, eop, xyz)
+    initial = Parameters(iop, eop, xyz, mounts)
     problem = _on_device(BundleProblem(
         initial=initial,
-        free=Parameters(iop_free, eop_free, xyz_free),
+        free=Parameters(iop_free, eop_free, xyz_free, mounts_free),
         groups=tuple(groups),
         refraction=refraction,
         robust=robust,
@@ -369,8 +394,10 @@ def build_project(spec: ProjectSpec) -> Project:
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
-    labels = parameter_labels(initial, camera_ids, image_ids, point_ids)
+    labels = parameter_labels(initial, camera_ids, frame_ids, point_ids,
+                              None if rigs is None else rigs.mount_ids)
     if settings.datum == "free":
         problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
-    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum)
+    return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum,
+                   rigs=rigs)
 

@@ -35,6 +35,7 @@ from ..._models._cameras._names import (
     lens_model,
 )
 from ._errors import ProjectError
+from ._rigs import read_frames, read_platform_mount, read_rigs
 from ._spec import (
     AdjustmentSettings,
     CameraSpec,
@@ -54,8 +55,9 @@ DEFAULT_CAMERA_MODEL = "smac"
 _PROJECT_TABLES = ("project", "files", "adjustment")
 _PROJECT_KEYS = ("name", "image_units")
 _REQUIRED_FILES = ("cameras", "images", "image_points", "points")
-_OPTIONAL_FILES = ("distances",)
-_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", *TIE_KEYS)
+_OPTIONAL_FILES = ("distances", "rigs", "frames")
+_CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", "mount",
+                *TIE_KEYS)
 # `[ID.refraction]` of a flat port: its parameters, but the port normal as one 3-vector; the
 # indices > 0, distance and thickness ≥ 0; n_air 1 unless given, the normal the optical axis.
 _PORT_KEYS = ("model", "distance", "thickness", "n_air", "n_glass", "n_medium", "normal",
@@ -84,6 +86,7 @@ _IMAGE_COLUMNS = (
 _POINT_COLUMNS = ("point_id", "X", "Y", "Z", "sX", "sY", "sZ")
 _IMAGE_POINT_COLUMNS = ("image_id", "point_id", "x", "y", "sx", "sy")
 _DISTANCE_COLUMNS = ("point_a", "point_b", "distance", "sigma")
+_FRAME_COLUMNS = ("image_id", "frame_id")
 
 
 def read_project(path: str | os.PathLike) -> ProjectSpec:
@@ -126,6 +129,7 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     if "distances" in files:
         distances = _read_distances(files["distances"], points, files["points"].name)
     _check_consistency(images, points, image_points, distances, files)
+    rigs, frames = _read_rigs(files, cameras, images)
 
     inputs = dict.fromkeys([path.resolve(), *(file.path for file in files.values())])
     return ProjectSpec(
@@ -141,7 +145,24 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
         input_files=tuple(inputs),
         files={key: file.path for key, file in files.items()},
         file_names={key: file.name for key, file in files.items()},
+        rigs=rigs,
+        frames=frames,
     )
+
+
+def _read_rigs(files: dict, cameras, images) -> tuple[dict, dict[str, str]]:
+    """rigs.toml and the frames table (`_rigs.py`), each optional, the frames only with rigs."""
+    if "frames" in files and "rigs" not in files:
+        raise ProjectError(f"{files['frames'].name}: frames need rigs (the [files] table has "
+                           "no rigs)")
+    if "rigs" not in files:
+        return {}, {}
+    rigs = read_rigs(_load_toml(files["rigs"].path, files["rigs"].name), files["rigs"].name,
+                     cameras)
+    frames = {}
+    if "frames" in files:
+        frames = read_frames(_rows(files["frames"], _FRAME_COLUMNS, 2), images, rigs)
+    return rigs, frames
 
 
 # --- the project file -------------------------------------------------------------------
@@ -327,6 +348,8 @@ def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:
         pixel_size=_toml_pair(table.get("pixel_size"), f"{where} pixel_size", _toml_float),
         sensor=_toml_pair(table.get("sensor"), f"{where} sensor", _toml_int),
         constants=constants,
+        mount=(read_platform_mount(camera_id, table["mount"], f"{file}: [{camera_id}.mount]")
+               if "mount" in table else None),
     )
 
 

@@ -78,6 +78,9 @@ class CameraSpec:
     # the camera estimates on its own (the reader expands them into per-image cameras).
     ties: dict[str, tuple[str, str]] = dataclasses.field(default_factory=dict)
     per_image: tuple[str, ...] = ()
+    # `[ID.mount]`: the camera on a GNSS/INS platform, its lever arm (X0 Y0 Z0) and
+    # boresight (omega phi kappa) as a pose in the body frame; None: no platform.
+    mount: "MountSpec | None" = None
 
     @property
     def model_key(self) -> str:
@@ -189,6 +192,33 @@ class DistanceSpec:
 
 
 @dataclasses.dataclass(frozen=True)
+class MountSpec:
+    """A rig camera's pose in its rig's frame (rigs.toml `[RIG.CAMERA]`): `values` by name
+    (X0, Y0, Z0 object units, omega, phi, kappa degrees; a name left out is None: its
+    approximation comes from the images'), the names `free`, and `sigma` the weighted
+    ones' σ (degrees for angles)."""
+
+    camera: str
+    values: dict[str, float | None]
+    free: frozenset[str]
+    sigma: dict[str, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class RigSpec:
+    """One table of rigs.toml: the rig's `id`, its `reference` camera (whose frame is the
+    rig frame) and every other camera's `MountSpec`, in file order."""
+
+    id: str
+    reference: str
+    mounts: dict[str, MountSpec]
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return (self.reference, *self.mounts)
+
+
+@dataclasses.dataclass(frozen=True)
 class ProjectSpec:
     """Everything one project file describes, validated."""
 
@@ -206,6 +236,10 @@ class ProjectSpec:
     # names as written there (for messages).
     files: dict[str, pathlib.Path] = dataclasses.field(default_factory=dict)
     file_names: dict[str, str] = dataclasses.field(default_factory=dict)
+    # Rigs (rigs.toml) by ID, and the frames table (frames.txt): image ID -> frame ID; an
+    # image in no frame is a frame of its own.
+    rigs: dict[str, RigSpec] = dataclasses.field(default_factory=dict)
+    frames: dict[str, str] = dataclasses.field(default_factory=dict)
 
     @property
     def missing_images(self) -> list[str]:

@@ -8,6 +8,7 @@ from ._abstract import (
     MatrixPose as MatrixPose,
     image_frames as image_frames,
 )
+from ._composed import ComposedPose as ComposedPose
 from ._opk import OpkPose as OpkPose
 from ._registry import POSE_MODELS as POSE_MODELS
 from ._rodrigues import RodriguesPose as RodriguesPose, rotate_point as rotate_point

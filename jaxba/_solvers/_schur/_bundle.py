@@ -3,12 +3,14 @@
 The unknowns split into a reduced ("camera") side and an eliminated point side:
 
 - reduced side, r: all IOPs of all camera models (shared by the images that use them), all
-  EOPs, and the object points touched by `Distances` (a distance couples two points, so they
-  cannot be eliminated one by one), in that order;
+  EOPs, the rig cameras' relative poses (`Parameters.mounts`, where there are rigs) and the
+  object points touched by `Distances` (a distance couples two points, so they cannot be
+  eliminated one by one), in that order;
 - point side, e: every other object point, 3 unknowns each.
 
-Image observation i touches one IOP row, one EOP row and one point, so its Jacobian splits
-into J_r,i (2 x m: the model's free IOPs + 6 EOPs, plus 3 for a reduced-side point) and
+Image observation i touches one IOP row, one EOP row (and in a rig one mount row) and one
+point, so its Jacobian splits into J_r,i (2 x m: the model's free IOPs + 6 EOPs (+ 6 of the
+mount), plus 3 for a reduced-side point) and
 J_e,i (2 x 3). With U = Σ J_rᵀJ_r + priors (dense, n_r x n_r), V_p = Σ_{i∈p} J_e,iᵀJ_e,i +
 control (3 x 3 per point), W_i = J_r,iᵀ J_e,i and g = Jᵀe, the damped normal equations
 reduce to
@@ -44,6 +46,7 @@ from ..._problem._observations import (
     ImagePoints,
     ParameterObservations,
     _frame_collinearity_residual,
+    row_pose,
 )
 from ..._problem._parameters import Parameters, flatten, unflatten
 from .._cholesky import cholesky_solve
@@ -83,12 +86,13 @@ class BundleStructure(eqx.Module):
     """Index arrays of the Schur split of one `BundleProblem` (built by `bundle_structure`).
 
     Reduced columns are numbered 0..n_reduced-1 (cameras by sorted model name, then images,
-    then the reduced points); column n_reduced is a dummy that absorbs padding.
+    then mounts, then the reduced points); column n_reduced is a dummy that absorbs padding.
     Observation rows: the image observations of all ImagePoints groups, group after group,
     each group's by key (`image_order`: row r is observation `image_order[r]` of the groups
     concatenated), then one padding observation.
     - `image_columns`: (n_image_obs + 1, m) reduced columns of every observation row: the
-      model's IOPs in `iop_columns`, the 6 EOPs, padding, and the 3 columns of a reduced
+      model's IOPs in `iop_columns`, the 6 EOPs (of a rig frame, then the 6 of the row's
+      mount where the group has `mount`), padding, and the 3 columns of a reduced
       point (`point_width` 3 where some points are reduced, else 0: no such columns);
     - `image_point`: (n_image_obs + 1,) eliminated-point index, n_eliminated for a reduced
       point or the padding row;
@@ -140,6 +144,7 @@ class BundleStructure(eqx.Module):
     iop_columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     camera_offsets: tuple[int, ...] = eqx.field(static=True)
     image_offset: int = eqx.field(static=True)
+    mount_offset: int = eqx.field(static=True)
     n_reduced: int = eqx.field(static=True)
     m: int = eqx.field(static=True)
     point_width: int = eqx.field(static=True)
@@ -175,6 +180,8 @@ def bundle_structure(
         column += int(np.size(initial.cameras[model]))
     image_offset = column
     column += int(np.size(initial.images))
+    mount_offset = column
+    column += 0 if initial.mounts is None else int(np.size(initial.mounts))
     n_points = int(initial.points.shape[0])
     coupled = []
     for group in problem.groups:
@@ -207,8 +214,9 @@ def bundle_structure(
     )
     images = [g for g in problem.groups if isinstance(g, ImagePoints)]
     point_width = 3 if reduced_points.size else 0
+    mounted = any(g.mount is not None for g in images)
     m = max([len(iop_columns[models.index(g.model)]) for g in images], default=0) + 6
-    m += point_width
+    m += 6 * mounted + point_width
     columns, point_rows = [], []
     for group in images:
         model_index = models.index(group.model)
@@ -221,6 +229,9 @@ def bundle_structure(
         block[:, free_iop.size : free_iop.size + 6] = (
             image_offset + image[:, None] * 6 + np.arange(6)
         )
+        if group.mount is not None:
+            block[:, free_iop.size + 6 : free_iop.size + 12] = (
+                mount_offset + np.asarray(group.mount)[:, None] * 6 + np.arange(6))
         reduced = point_column[point] >= 0
         block[reduced, m - 3 :] = point_column[point[reduced], None] + np.arange(3)
         columns.append(block)
@@ -273,6 +284,7 @@ def bundle_structure(
         iop_columns=iop_columns,
         camera_offsets=tuple(offsets),
         image_offset=image_offset,
+        mount_offset=mount_offset,
         n_reduced=int(n_reduced),
         m=int(m),
         point_width=point_width,
@@ -369,7 +381,9 @@ def _reduced_vector(
     """The reduced-side entries of a Parameters tree (values, masks) as one vector; `xp`
     numpy for a tree of NumPy arrays (no program compiled)."""
     parts = [xp.ravel(params.cameras[model]) for model in structure.models]
-    parts += [xp.ravel(params.images), xp.ravel(params.points[structure.reduced_points])]
+    parts += [xp.ravel(params.images)]
+    parts += [] if params.mounts is None else [xp.ravel(params.mounts)]
+    parts += [xp.ravel(params.points[structure.reduced_points])]
     return xp.concatenate(parts).astype(params.images.dtype)
 
 
@@ -383,11 +397,16 @@ def _to_parameters(
         cameras[model] = reduced[offset : offset + int(np.prod(shape))].reshape(shape)
     n_images = like.images.shape[0]
     images = reduced[structure.image_offset : structure.image_offset + 6 * n_images]
+    mounts = None
+    if like.mounts is not None:
+        mounts = reduced[structure.mount_offset:structure.mount_offset + like.mounts.size]
+        mounts = mounts.reshape(like.mounts.shape)
     points = jnp.zeros_like(like.points)
     points = points.at[structure.eliminated_points].set(eliminated)
-    start = structure.image_offset + 6 * n_images
+    start = structure.mount_offset + (0 if like.mounts is None else like.mounts.size)
     points = points.at[structure.reduced_points].set(reduced[start:].reshape(-1, 3))
-    return Parameters(cameras=cameras, images=images.reshape(n_images, 6), points=points)
+    return Parameters(cameras=cameras, images=images.reshape(n_images, 6), points=points,
+                      mounts=mounts)
 
 
 def _free_masks(problem: BundleProblem, structure: BundleStructure, dtype) -> tuple[Array, Array]:
@@ -498,10 +517,10 @@ compiled_normal_equations = jax.jit(_normal_and_reduced)
 
 
 def _block_columns(structure: BundleStructure, group: ParameterObservations) -> Array:
-    """(n, width) reduced columns of the observed rows of a camera or image block."""
+    """(n, width) reduced columns of the observed rows of a camera, image or mount block."""
     width = group.observed.shape[1]
-    if group.block == "images":
-        start = structure.image_offset
+    if group.block in ("images", "mounts"):
+        start = structure.image_offset if group.block == "images" else structure.mount_offset
         return start + jnp.asarray(group.rows)[:, None] * width + jnp.arange(width)
     model = group.block.removeprefix("cameras/")
     start = structure.camera_offsets[structure.models.index(model)]
@@ -585,10 +604,10 @@ def _image_blocks(
 
 def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: int, stop: int):
     """One ImagePoints group's observations (camera, image, point, measured, σ, mask,
-    eliminated-point row, key), rows `start`..`stop` of the structure (the group's
-    observations in `image_order`), in chunks of `structure.jacobian_batch`
-    (n_chunks, batch, ...); padding repeats the last observation, masked out, with
-    out-of-range point row and key."""
+    eliminated-point row, key, and the mount where the group has one), rows
+    `start`..`stop` of the structure (the group's observations in `image_order`), in chunks
+    of `structure.jacobian_batch` (n_chunks, batch, ...); padding repeats the last
+    observation, masked out, with out-of-range point row and key."""
     n = stop - start
     batch = max(1, min(structure.jacobian_batch, n))
     pad = -n % batch
@@ -602,6 +621,7 @@ def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: i
             x = jnp.pad(x, widths, constant_values=fill)
         return x.reshape(-1, batch, *x.shape[1:])
 
+    mount = () if group.mount is None else (chunked(group.mount[rows]),)
     return (
         chunked(group.camera[rows]),
         chunked(group.image[rows]),
@@ -611,6 +631,7 @@ def _image_group_chunks(structure: BundleStructure, group: ImagePoints, start: i
         chunked(group.mask()[rows], False),
         chunked(structure.image_point[start:stop], structure.eliminated_points.shape[0]),
         chunked(structure.key[start:stop], structure.key_columns.shape[0]),
+        *mount,
     )
 
 
@@ -632,33 +653,40 @@ def _image_jacobian_blocks(
     Only the IOPs in `structure.iop_columns` are differentiated. The image's pose enters
     through its pose model's `row_frame` (from `row_inputs`, made once per image),
     differentiated by the parameter offset δ at δ = 0."""
-    camera, image, point, measured, sigma, mask, point_row, key = observations
+    camera, image, point, measured, sigma, mask, point_row, key, *mount = observations
     iop_columns = np.asarray(structure.iop_columns[structure.models.index(group.model)], int)
     m, n_iop = structure.m, iop_columns.size
     all_iops = n_iop == params.cameras[group.model].shape[1]
     dtype = params.images.dtype
     pose = POSE_MODELS[group.pose]
 
+    width = 12 if mount else 6
+
     def residual(free_iop, delta, point, iop, pose_inputs, data):
         iop = free_iop if all_iops else iop.at[iop_columns].set(free_iop)
         e = _frame_collinearity_residual(
-            group.model, iop, pose.row_frame(pose_inputs, delta), point, *data[:2],
-            problem.refraction, group.constants,
+            group.model, iop, row_pose(pose, pose_inputs, delta, bool(mount)), point,
+            *data[:2], problem.refraction, group.constants,
         )
         e = jnp.where(data[2], e, 0.0)
         e = e if problem.robust is None else problem.robust(e)
         return e, e
 
     def one(iop, pose_inputs, point, *data):
-        arguments = (iop[iop_columns], jnp.zeros(6, dtype), point, iop, pose_inputs, data)
+        arguments = (iop[iop_columns], jnp.zeros(width, dtype), point, iop, pose_inputs, data)
         (j_iop, j_pose, j_point), e = jax.jacrev(residual, argnums=(0, 1, 2), has_aux=True)(
             *arguments)
         return jnp.concatenate([j_iop, j_pose], axis=1), j_point, e
 
-    pose_inputs = pose.row_inputs(params.images)
+    pose_inputs = jax.tree.map(lambda x: x.at[image].get(mode="clip"),
+                               pose.row_inputs(params.images))
+    if mount:
+        mount_inputs = pose.row_inputs(params.mounts)
+        pose_inputs = (pose_inputs,
+                       jax.tree.map(lambda x: x.at[mount[0]].get(mode="clip"), mount_inputs))
     jc, jp, e = jax.vmap(one)(
         params.cameras[group.model].at[camera].get(mode="clip"),
-        jax.tree.map(lambda x: x.at[image].get(mode="clip"), pose_inputs),
+        pose_inputs,
         params.points.at[point].get(mode="clip"),
         measured,
         sigma,
@@ -667,7 +695,7 @@ def _image_jacobian_blocks(
     mask = mask.astype(dtype)[:, :, None]
     jc, jp, e = jc * mask, jp * mask, e * mask[:, :, 0]
     reduced_point = (point_row == structure.eliminated_points.shape[0])[:, None, None]
-    padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - 6), dtype)
+    padding = jnp.zeros((*jc.shape[:2], m - structure.point_width - n_iop - width), dtype)
     point_part = [jnp.where(reduced_point, jp, 0.0)] if structure.point_width else []
     jr = jnp.concatenate([jc, padding, *point_part], axis=-1)
     jr = jr * free_keys.at[key].get(mode="fill", fill_value=0.0)[:, None, :]
