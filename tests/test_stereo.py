@@ -130,3 +130,30 @@ def test_results_json_reports_the_rig(rig, tmp_path):
     figures = {figure.name: b"" for figure in figure_set(project, result)}  # not drawn
     page = jaxba.html_report(project, result, figures=figures)
     assert '<section id="rigs">' in page and "pair13" in page
+
+
+def test_exported_stereo_yaml_equals_opencv_stereo_calibrate(scene, rig, tmp_path):
+    """The adjusted rig through `jaxba export --format opencv`: OpenCV's stereo YAML whose R
+    and T are those of `stereoCalibrate` on the same corners (to a small fraction of σ), and
+    whose K1, D1, K2, D2 are the adjusted cameras'."""
+    cv2 = pytest.importorskip("cv2")
+    from jaxba._cli._main import main
+
+    project, result = rig
+    jaxba.write_reports(project, result, tmp_path / "out")
+    assert main(["export", str(tmp_path / "out"), "--format", "opencv"]) == 0
+    (path,) = (tmp_path / "out" / "export" / "opencv").glob("stereo_*right*.yml")
+    stored = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    rotation, translation = (stored.getNode(n).mat() for n in ("R", "T"))
+    _, _, _, _, expected_rotation, expected_translation = scene.stereo
+    right = result.mounts["stereo/right"]
+    centre_sigma = max(right[n].sigma for n in ("X0", "Y0", "Z0"))
+    angle_sigma = min(right[n].sigma for n in ("omega", "phi", "kappa"))
+    np.testing.assert_allclose(translation.ravel(), np.ravel(expected_translation),
+                               atol=OPENCV_SIGMA_FRACTION * centre_sigma)
+    np.testing.assert_allclose(rotation, expected_rotation,
+                               atol=OPENCV_SIGMA_FRACTION * angle_sigma)
+    k2 = stored.getNode("K2").mat()
+    assert k2[0, 0] == pytest.approx(result.cameras["right"]["fx"].value, rel=1e-12)
+    assert stored.getNode("D1").mat().ravel()[0] == pytest.approx(
+        result.cameras["left"]["k1"].value, rel=1e-12)
