@@ -11,6 +11,7 @@ writes and that project's calibration.
 """
 
 import csv
+import json
 import os
 import pathlib
 import shutil
@@ -366,6 +367,29 @@ def test_rig_files(tmp_path):
         by_frame.setdefault(frame, []).append(image)
     assert by_frame["7"] == ["left07", "right07"] and "10" not in by_frame
     assert all(len(images) == 2 for images in by_frame.values())
+    _adjust_and_export_rig(out)
+
+
+# jaxba's corners (window half the corner spacing) differ from OpenCV's 11 x 11 window by up to
+# 5.8 px on some images (test_corner_window_against_opencv): the baseline differs from
+# stereoCalibrate's on OpenCV's corners by a few of its σ (0.0025 squares), within 0.5 %.
+BASELINE_REL = 5e-3
+
+
+def _adjust_and_export_rig(out):
+    """A calibrating user's path from the detected rig: `jaxba adjust` converges with the
+    baseline near OpenCV's (SOURCES.md: |T| 3.3381 squares, all free), `jaxba export` writes
+    OpenCV's stereo YAML with that T."""
+    assert _run("adjust", str(out / "calibration.toml"), "--out", str(out / "adjusted")) == 0
+    results = json.loads((out / "adjusted" / "results.json").read_text())
+    baseline = results["rigs"]["stereo"]["right"]["baseline"]
+    assert baseline["value"] == pytest.approx(3.3381, rel=BASELINE_REL)
+    assert 0 < baseline["std"] < 0.01
+    assert _run("export", str(out / "adjusted"), "--format", "opencv") == 0
+    (path,) = (out / "adjusted" / "export" / "opencv").glob("stereo_*right*.yml")
+    stored = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)  # alive while its nodes are read
+    translation = stored.getNode("T").mat()
+    assert np.linalg.norm(translation) == pytest.approx(baseline["value"], rel=1e-12)
 
 
 def test_rig_without_its_reference_camera(tmp_path, capsys):
