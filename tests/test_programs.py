@@ -1,0 +1,198 @@
+"""Stored programs (`jaxba._programs`): a program called through its stored export gives the
+traced program's results bit for bit; a corrupt, stale or unusable file, an unexportable
+program or arguments without a key fall back to tracing; a changed structure gets a new key."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxtyping import Array, Float
+
+import jaxba
+from jaxba import _programs
+from jaxba._adjust import _batch
+
+# The exported and the traced batch program compile to the same arithmetic: bit-identical
+# with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
+# cost) was rounded differently, 7e-14 relative.
+EXPORT_RTOL = 1e-12
+
+
+class Box(eqx.Module):
+    x: Float[Array, " n"]
+    scale: float = eqx.field(static=True)
+
+
+@eqx.filter_jit
+def _program(box: Box, y, power: int):
+    return Box(box.x * box.scale + y**power, box.scale), jnp.sum(jnp.sin(y))
+
+
+def _outline(box: Box, y):
+    return Box(np.zeros(()), box.scale), np.zeros(())
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    """Exports stored in a folder of this test's own; none loaded in this process yet."""
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: tmp_path)
+    monkeypatch.setattr(_programs, "_loaded", {})
+    return tmp_path / _programs.FOLDER
+
+
+def _call(box, y, power=2, outline=_outline, program=_program):
+    return _programs.call_stored("test_box", program, (box, y), (power,), outline)
+
+
+def _equal(a, b) -> bool:
+    leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+    return (jax.tree.structure(a) == jax.tree.structure(b)
+            and all(np.array_equal(p, q) for p, q in zip(leaves_a, leaves_b)))
+
+
+def _close(a, b) -> bool:
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.allclose(p, q, rtol=EXPORT_RTOL, atol=0.0)
+        for p, q in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+
+
+def _usable(path, box, y) -> bool:
+    """A stored export that fits `_call(box, y)`'s arguments (digest, signature)."""
+    leaves = jax.tree.leaves(eqx.filter((box, y), eqx.is_array))
+    return _programs._load(path, leaves, 2) is not None
+
+
+def _box(n=5, scale=1.5, dtype=np.float64):
+    return Box(jax.device_put(np.linspace(0.1, 1.0, n).astype(dtype)), scale)
+
+
+def test_a_stored_program_gives_the_traced_results(folder):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    traced = _program(box, y, 2)
+    first = _call(box, y)  # exported, stored, called
+    (path,) = folder.iterdir()
+    _programs._loaded.clear()  # a later process: read from the file
+    second = _call(box, y)
+    assert _equal(first, traced) and _equal(second, traced)
+    assert list(folder.iterdir()) == [path]
+    assert second[0].scale == box.scale
+
+
+def test_a_changed_structure_gets_a_new_key(folder):
+    y = jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(_box(), y)
+    _call(_box(), y)  # same key: no new file
+    assert len(list(folder.iterdir())) == 1
+    variants = [
+        (_box(scale=2.0), y, 2),  # a static field
+        (_box(), y, 3),  # a static argument
+        (_box(n=6), jax.device_put(np.linspace(-1.0, 2.0, 6)), 2),  # shapes
+        (_box(dtype=np.float32), jax.device_put(np.linspace(-1.0, 2.0, 5, dtype=np.float32)),
+         2),  # dtypes
+    ]
+    for k, (box, y_, power) in enumerate(variants):
+        assert _equal(_call(box, y_, power), _program(box, y_, power))
+        assert len(list(folder.iterdir())) == 2 + k
+
+
+def test_a_corrupt_file_is_ignored_and_replaced(folder):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(box, y)
+    (path,) = folder.iterdir()
+    good = path.read_bytes()
+    for bad in (good[:-1] + bytes([good[-1] ^ 1]), good[: len(good) // 2], b""):
+        path.write_bytes(bad)
+        assert not _usable(path, box, y)
+        _programs._loaded.clear()
+        assert _equal(_call(box, y), _program(box, y, 2))
+        assert _usable(path, box, y)  # stored anew
+
+
+def test_a_stale_file_is_ignored_and_replaced(folder):
+    """A file whose export does not fit the arguments (another program's, with a valid
+    digest) is not called: the program is exported and stored anew."""
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(_box(n=6), jax.device_put(np.linspace(-1.0, 2.0, 6)))
+    (other,) = folder.iterdir()
+    _call(box, y)
+    (path,) = set(folder.iterdir()) - {other}
+    path.write_bytes(other.read_bytes())
+    assert not _usable(path, box, y)
+    _programs._loaded.clear()
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert _usable(path, box, y)
+
+
+def test_a_failing_call_falls_back_and_drops_the_file(folder, monkeypatch):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(box, y)
+    (path,) = folder.iterdir()
+
+    def broken(*args):
+        raise RuntimeError("an export that cannot run")
+
+    key = next(iter(_programs._loaded))
+    _programs._loaded[key] = broken
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert not path.exists() and key not in _programs._loaded
+
+
+def test_no_export_where_none_can_be_made_or_used(folder):
+    """No file, the traced results: with jit disabled, for arguments without a faithful key
+    (a function in a static field), for a program jax cannot export (a host callback) and
+    for an outline that does not match the output."""
+    y = jax.device_put(np.linspace(-1.0, 2.0, 5))
+    with jax.disable_jit():
+        assert _equal(_call(_box(), y), _program(_box(), y, 2))
+
+    class WithFunction(eqx.Module):
+        x: Float[Array, " n"]
+        f: object = eqx.field(static=True)
+
+    odd = WithFunction(y, np.sin)
+    plus_one = _programs.call_stored("test_odd", eqx.filter_jit(lambda w: w.x + 1), (odd,), (),
+                                     lambda w: np.zeros(()))
+    assert np.array_equal(plus_one, np.asarray(y) + 1)
+
+    @eqx.filter_jit
+    def with_callback(box, y, power):
+        host = jax.pure_callback(np.cos, jax.ShapeDtypeStruct(y.shape, y.dtype), y)
+        return Box(box.x + host, box.scale), jnp.sum(y)
+
+    box = _box()
+    called = _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+    assert _equal(called, with_callback(box, y, 2))
+    wrong = _call(box, y, outline=lambda box, y: (np.zeros(()), np.zeros(())))
+    assert _equal(wrong, _program(box, y, 2))
+    assert not folder.exists() or not list(folder.iterdir())
+
+
+def test_the_batch_program_loads_without_tracing(folder, tmp_path, monkeypatch):
+    """`adjust_padded` of two projects through the stored program: stored by the first
+    call, read by a later one that traces nothing, both equal to the traced program to
+    `EXPORT_RTOL`."""
+    problems = [
+        jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
+            tmp_path / f"p{k}", name=f"p{k}", seed=50 + k, n_images=6, n_targets=20,
+        ).project_file)).problem
+        for k in range(2)
+    ]
+    batch = _batch.pad_problems(problems)
+    args = (batch.problem, batch.plan, jax.device_put(batch.n_free))
+    static = (30, 1e-8, 1e-8, 1e-9, None)
+    traced = jax.device_get(_batch._adjust_program(*args, *static))
+    first = jax.device_get(_programs.call_stored(
+        "batch_adjust", _batch._adjust_program, args, static, _batch._adjust_outline))
+    calls = []
+    statistics_one = _batch._statistics_one
+    monkeypatch.setattr(_batch, "_statistics_one", lambda *a: calls.append(1) or
+                        statistics_one(*a))
+    _programs._loaded.clear()
+    results = _batch.adjust_padded(batch, max_steps=30)
+    second = jax.device_get(_programs.call_stored(
+        "batch_adjust", _batch._adjust_program, args, static, _batch._adjust_outline))
+    assert not calls
+    assert _close(first, traced) and _close(second, traced)
+    assert len(list(folder.iterdir())) == 1
+    assert all(r.converged for r in results)
