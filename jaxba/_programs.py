@@ -11,12 +11,13 @@ The first process traces the program once, exports it as a function of the flat 
 of its arguments, writes the export and calls it; the export then has a compilation-cache
 entry of its own. A later process with the same key reads the file, checks it and calls it.
 
-The key is a BLAKE2b digest of everything the trace depends on: the program's name, jaxba's
-version and a digest of its source, the versions of jax, jaxlib, equinox, optimistix and
-lineax, the platform, `jax_enable_x64`, the structure of the arguments (pytree node types and
-their static data, the non-array leaves), every array leaf's shape, dtype and weak type, and
-the static arguments. Arguments whose structure holds anything without a faithful textual form
-(a function, an arbitrary object) get no key: the program is traced as usual.
+The key is a BLAKE2b digest of everything the trace depends on: the program's name, module
+and qualified name, jaxba's version and a digest of its source, the versions of jax, jaxlib,
+equinox, optimistix and lineax, the platform, jax's options that change a trace (`_OPTIONS`:
+`jax_enable_x64`, ...), the structure of the arguments (pytree node types and their static
+data, the non-array leaves), every array leaf's shape, dtype and weak type, and the static
+arguments. Arguments whose structure holds anything without a faithful textual form (a
+function, an arbitrary object) get no key: the program is traced as usual.
 
 File: `<jax cache folder>/jaxba-programs/<name>-<key>.export`, a 32-byte BLAKE2b digest of the
 rest, then `Exported.serialize()`'s bytes; written to a temporary file and renamed (atomic).
@@ -46,6 +47,9 @@ import numpy as np
 FOLDER = "jaxba-programs"  # inside jax's cache folder; jax's own entries end in "-cache"
 _DIGEST = 32  # bytes of BLAKE2b at the head of a stored file
 _LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax")
+# jax's options that change a trace (the others change compilation, which jax keys itself).
+_OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
+            "jax_numpy_dtype_promotion")
 _loaded: dict[str, Callable] = {}  # key: the export's call, jitted, for this process
 
 
@@ -142,7 +146,8 @@ def _key(name: str, program: Callable, tree, leaves: list, rest, static: tuple) 
     """The hex digest naming the export of `name` for these arguments; raises _NoKey."""
     code = getattr(program, "__wrapped__", program)
     parts = [name, getattr(code, "__module__", None), getattr(code, "__qualname__", None),
-             jax.default_backend(), bool(jax.config.jax_enable_x64), _describe(tree),
+             jax.default_backend(), *(_canonical(getattr(jax.config, option)) for option in
+                                       _OPTIONS), _describe(tree),
              _canonical(jax.tree.leaves(rest)), _canonical(static)]
     parts += [(np.shape(leaf), np.dtype(leaf.dtype).str, bool(getattr(leaf, "weak_type", False)))
               for leaf in leaves]
