@@ -30,6 +30,7 @@ export (a host callback), or a failing call of a loaded export, falls back to th
 program. Global configuration is only read, never set.
 """
 
+import contextlib
 import enum
 import functools
 import hashlib
@@ -51,6 +52,7 @@ _LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax")
 _OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
             "jax_numpy_dtype_promotion")
 _loaded: dict[str, Callable] = {}  # key: the export's call, jitted, for this process
+_traced: set[str] = set()  # keys of programs that could not be exported, in this process
 
 
 class _NoKey(Exception):
@@ -76,7 +78,7 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple, outlin
         key = None if folder is None else _key(name, program, tree, leaves, rest, static)
     except _NoKey:
         key = None
-    if key is None:
+    if key is None or key in _traced:
         return program(*args, *static)
     out_arrays, out_rest = eqx.partition(outline(*args), eqx.is_array)
     out_tree = jax.tree.structure(out_arrays)
@@ -87,6 +89,7 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple, outlin
         if exported is None:
             exported = _export(program, tree, rest, static, leaves, out_tree, out_rest)
             if exported is None:  # not exportable, or `outline` is wrong: store nothing
+                _traced.add(key)  # and try no more in this process
                 return program(*args, *static)
             _store(path, exported)
         call = _loaded[key] = jax.jit(exported.call)
@@ -94,7 +97,8 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple, outlin
         flat = call(*leaves)
     except Exception:  # a stale or broken export: trace as usual, drop the file
         _loaded.pop(key, None)
-        path.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            path.unlink(missing_ok=True)
         return program(*args, *static)
     return eqx.combine(jax.tree.unflatten(out_tree, flat), out_rest)
 

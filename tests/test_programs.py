@@ -38,6 +38,7 @@ def folder(tmp_path, monkeypatch):
     """Exports stored in a folder of this test's own; none loaded in this process yet."""
     monkeypatch.setattr(_programs, "_cache_folder", lambda: tmp_path)
     monkeypatch.setattr(_programs, "_loaded", {})
+    monkeypatch.setattr(_programs, "_traced", set())
     return tmp_path / _programs.FOLDER
 
 
@@ -155,14 +156,21 @@ def test_no_export_where_none_can_be_made_or_used(folder):
                                      lambda w: np.zeros(()))
     assert np.array_equal(plus_one, np.asarray(y) + 1)
 
+    traces = []
+
     @eqx.filter_jit
     def with_callback(box, y, power):
+        traces.append(1)
         host = jax.pure_callback(np.cos, jax.ShapeDtypeStruct(y.shape, y.dtype), y)
         return Box(box.x + host, box.scale), jnp.sum(y)
 
     box = _box()
     called = _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
     assert _equal(called, with_callback(box, y, 2))
+    first = len(traces)
+    for _ in range(2):  # no second try at exporting it in this process
+        _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+    assert len(traces) == first
     wrong = _call(box, y, outline=lambda box, y: (np.zeros(()), np.zeros(())))
     assert _equal(wrong, _program(box, y, 2))
     assert not folder.exists() or not list(folder.iterdir())
