@@ -1,6 +1,7 @@
 """Stored programs (`jaxba._programs`): a program called through its stored export gives the
-traced program's results bit for bit; a corrupt, stale or unusable file, an unexportable
-program or arguments without a key fall back to tracing; a changed structure gets a new key."""
+traced program's results (bit for bit; the batch's to `EXPORT_RTOL`); a corrupt, stale or
+unusable file, an unexportable program, arguments without a key or no cache folder fall back
+to tracing; a changed structure gets a new key."""
 
 import equinox as eqx
 import jax
@@ -66,6 +67,21 @@ def _usable(path, box, y) -> bool:
 
 def _box(n=5, scale=1.5, dtype=np.float64):
     return Box(jax.device_put(np.linspace(0.1, 1.0, n).astype(dtype)), scale)
+
+
+def test_no_cache_folder_or_an_unwritable_one(tmp_path, monkeypatch):
+    """No cache folder: traced, nothing written. A folder that cannot be made (under a
+    file): the export is called, nothing written, no error."""
+    monkeypatch.setattr(_programs, "_loaded", {})
+    monkeypatch.setattr(_programs, "_traced", set())
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    assert _equal(_call(box, y), _program(box, y, 2)) and not _programs._loaded
+    blocked = tmp_path / "a file"
+    blocked.write_text("")
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: blocked)
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert list(tmp_path.iterdir()) == [blocked]
 
 
 def test_a_stored_program_gives_the_traced_results(folder):
