@@ -12,12 +12,13 @@ of its arguments, writes the export and calls it; the export then has a compilat
 entry of its own. A later process with the same key reads the file, checks it and calls it.
 
 The key is a BLAKE2b digest of everything the trace depends on: the program's name, module
-and qualified name, jaxba's version and a digest of its source, the versions of jax, jaxlib,
-equinox, optimistix and lineax, the platform, jax's options that change a trace (`_OPTIONS`:
-`jax_enable_x64`, ...), the structure of the arguments (pytree node types and their static
-data, the non-array leaves), every array leaf's shape, dtype and weak type, and the static
-arguments. Arguments whose structure holds anything without a faithful textual form (a
-function, an arbitrary object) get no key: the program is traced as usual.
+and qualified name, jaxba's version and a digest of its source, the versions of Python, jax,
+jaxlib, equinox, optimistix, lineax and numpy, the platform, jax's options that change a
+trace (`_OPTIONS`: `jax_enable_x64`, ...), the structure of the arguments (pytree node types
+and their static data, the non-array leaves), every array leaf's shape, dtype and weak type,
+and the static arguments. Classes and functions are named by module and qualified name, only
+those of jaxba and the libraries (`_KNOWN`). Arguments whose structure holds anything else (a
+user's class, a lambda, an arbitrary object) get no key: the program is traced as usual.
 
 File: `<jax cache folder>/jaxba-programs/<name>-<key>.export`, a 32-byte BLAKE2b digest of the
 rest, then `Exported.serialize()`'s bytes; written to a temporary file and renamed (atomic).
@@ -38,7 +39,9 @@ import importlib.metadata
 import importlib.util
 import os
 import pathlib
+import sys
 import tempfile
+import types
 from collections.abc import Callable
 
 import equinox as eqx
@@ -47,7 +50,11 @@ import numpy as np
 
 FOLDER = "jaxba-programs"  # inside jax's cache folder; jax's own entries end in "-cache"
 _DIGEST = 32  # bytes of BLAKE2b at the head of a stored file
-_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax")
+_LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
+# Modules whose code a key may name by qualified name: jaxba's (its source is in the key), the
+# libraries' (their versions are), Python's own. A class or function of any other module (a
+# user's camera model) may change between processes under the same name: no key.
+_KNOWN = frozenset(("jaxba", *_LIBRARIES, "builtins", "abc", "collections", "typing"))
 # jax's options that change a trace (the others change compilation, which jax keys itself).
 _OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
             "jax_numpy_dtype_promotion")
@@ -59,7 +66,8 @@ class _NoKey(Exception):
     """The arguments hold something without a faithful textual form."""
 
 
-def call_stored(name: str, program: Callable, args: tuple, static: tuple, outline: Callable):
+def call_stored(name: str, program: Callable, args: tuple, static: tuple, outline: Callable,
+                code: tuple = ()):
     """`program(*args, *static)`, called through its stored export where one can be used.
 
     - `name`: the program's name in file names (letters, digits, "_");
@@ -67,7 +75,10 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple, outlin
       the key) of pytrees of arrays `args` and static arguments `static`;
     - `outline(*args)`: a pytree shaped like the program's output (its array leaves of any
       value, its other leaves and static data as the output's), built without tracing. The
-      first process checks it against the traced output and stores nothing on a mismatch.
+      first process checks it against the traced output and stores nothing on a mismatch;
+    - `code`: classes and functions the trace runs that the arguments only name (camera
+      models named by strings): no key, and the program traced as usual, unless all are
+      jaxba's or the libraries'.
 
     Returns what `program(*args, *static)` returns.
     """
@@ -75,7 +86,8 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple, outlin
     leaves, tree = jax.tree.flatten(arrays)
     folder = _folder()
     try:
-        key = None if folder is None else _key(name, program, tree, leaves, rest, static)
+        key = None if folder is None else _key(name, program, tree, leaves, rest,
+                                                (static, code))
     except _NoKey:
         key = None
     if key is None or key in _traced:
@@ -130,8 +142,8 @@ def _serializable() -> bool:
 
 @functools.cache
 def _environment() -> bytes:
-    """jaxba's version and source digest and the traced libraries' versions, once per
-    process (BLAKE2b of every .py file of the package: a few milliseconds)."""
+    """jaxba's version and source digest, the traced libraries' and Python's versions, once
+    per process (BLAKE2b of every .py file of the package: a few milliseconds)."""
     digest = hashlib.blake2b()
     root = pathlib.Path(__file__).resolve().parent
     for path in sorted(root.rglob("*.py")):
@@ -143,6 +155,7 @@ def _environment() -> bytes:
         except importlib.metadata.PackageNotFoundError:
             version = "?"
         digest.update(f"{library} {version};".encode())
+    digest.update(sys.version.encode())
     return digest.digest()
 
 
@@ -178,8 +191,10 @@ def _canonical(value):
         return (type(value).__name__, *(_canonical(v) for v in value))
     if isinstance(value, dict):
         return ("dict", *((_canonical(k), _canonical(v)) for k, v in value.items()))
-    if isinstance(value, type):
-        return f"{value.__module__}.{value.__qualname__}"
+    if isinstance(value, type):  # itself and every class it inherits code from
+        return tuple(_qualified(base) for base in value.__mro__)
+    if isinstance(value, types.FunctionType) and "<" not in value.__qualname__:
+        return _qualified(value)  # a module-level function (no lambda, no closure)
     if isinstance(value, enum.Enum):
         return f"{_canonical(type(value))}.{value.name}"
     if isinstance(value, (np.ndarray, np.generic)):
@@ -190,6 +205,13 @@ def _canonical(value):
     if kind.__name__ == "_Missing" and kind.__module__.startswith("equinox."):
         return "equinox.MISSING"  # equinox's marker in a Module's static data
     raise _NoKey(kind)
+
+
+def _qualified(code) -> str:
+    """`module.qualname` of a class or function of a `_KNOWN` module; raises _NoKey."""
+    if code.__module__.partition(".")[0] not in _KNOWN:
+        raise _NoKey(code)
+    return f"{code.__module__}.{code.__qualname__}"
 
 
 def _load(path: pathlib.Path, leaves: list, n_out: int):

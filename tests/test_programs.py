@@ -3,6 +3,8 @@ traced program's results (bit for bit; the batch's to `EXPORT_RTOL`); a corrupt,
 unusable file, an unexportable program, arguments without a key or no cache folder fall back
 to tracing; a changed structure gets a new key."""
 
+import pathlib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -34,9 +36,14 @@ def _outline(box: Box, y):
     return Box(np.zeros(()), box.scale), np.zeros(())
 
 
+_TESTS = Box.__module__.partition(".")[0]
+
+
 @pytest.fixture
 def folder(tmp_path, monkeypatch):
-    """Exports stored in a folder of this test's own; none loaded in this process yet."""
+    """Exports stored in a folder of this test's own; none loaded in this process yet; this
+    module's classes keyed like jaxba's."""
+    monkeypatch.setattr(_programs, "_KNOWN", _programs._KNOWN | {_TESTS})
     monkeypatch.setattr(_programs, "_cache_folder", lambda: tmp_path)
     monkeypatch.setattr(_programs, "_loaded", {})
     monkeypatch.setattr(_programs, "_traced", set())
@@ -72,6 +79,7 @@ def _box(n=5, scale=1.5, dtype=np.float64):
 def test_no_cache_folder_or_an_unwritable_one(tmp_path, monkeypatch):
     """No cache folder: traced, nothing written. A folder that cannot be made (under a
     file): the export is called, nothing written, no error."""
+    monkeypatch.setattr(_programs, "_KNOWN", _programs._KNOWN | {_TESTS})
     monkeypatch.setattr(_programs, "_loaded", {})
     monkeypatch.setattr(_programs, "_traced", set())
     box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
@@ -157,9 +165,13 @@ def test_a_failing_call_falls_back_and_drops_the_file(folder, monkeypatch):
 
 def test_no_export_where_none_can_be_made_or_used(folder):
     """No file, the traced results: with jit disabled, for arguments without a faithful key
-    (a function in a static field), for a program jax cannot export (a host callback) and
-    for an outline that does not match the output."""
+    (a function in a static field), for code from outside jaxba and its libraries (a user's
+    camera model: here a class of pathlib), for a program jax cannot export (a host
+    callback) and for an outline that does not match the output."""
     y = jax.device_put(np.linspace(-1.0, 2.0, 5))
+    user = _programs.call_stored("test_box", _program, (_box(), y), (2,), _outline,
+                                 code=(pathlib.PurePath,))
+    assert _equal(user, _program(_box(), y, 2)) and not _programs._loaded
     with jax.disable_jit():
         assert _equal(_call(_box(), y), _program(_box(), y, 2))
 
@@ -192,10 +204,10 @@ def test_no_export_where_none_can_be_made_or_used(folder):
     assert not folder.exists() or not list(folder.iterdir())
 
 
-def test_the_batch_program_loads_without_tracing(folder, tmp_path, monkeypatch):
-    """`adjust_padded` of two projects through the stored program: stored by the first
-    call, read by a later one that traces nothing, both equal to the traced program to
-    `EXPORT_RTOL`."""
+def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
+    """`adjust_padded` of two projects: the first call exports and stores the batch's
+    program, a later process (nothing loaded yet) reads it and exports nothing; both equal
+    the traced program's adjustments (estimates, covariance, residuals) to `EXPORT_RTOL`."""
     problems = [
         jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
             tmp_path / f"p{k}", name=f"p{k}", seed=50 + k, n_images=6, n_targets=20,
@@ -203,20 +215,19 @@ def test_the_batch_program_loads_without_tracing(folder, tmp_path, monkeypatch):
         for k in range(2)
     ]
     batch = _batch.pad_problems(problems)
-    args = (batch.problem, batch.plan, jax.device_put(batch.n_free))
-    static = (30, 1e-8, 1e-8, 1e-9, None)
-    traced = jax.device_get(_batch._adjust_program(*args, *static))
-    first = jax.device_get(_programs.call_stored(
-        "batch_adjust", _batch._adjust_program, args, static, _batch._adjust_outline))
-    calls = []
-    statistics_one = _batch._statistics_one
-    monkeypatch.setattr(_batch, "_statistics_one", lambda *a: calls.append(1) or
-                        statistics_one(*a))
-    _programs._loaded.clear()
-    results = _batch.adjust_padded(batch, max_steps=30)
-    second = jax.device_get(_programs.call_stored(
-        "batch_adjust", _batch._adjust_program, args, static, _batch._adjust_outline))
-    assert not calls
-    assert _close(first, traced) and _close(second, traced)
+    stored = _batch.adjust_padded(batch, max_steps=30)
     assert len(list(folder.iterdir())) == 1
-    assert all(r.converged for r in results)
+    _programs._loaded.clear()
+    monkeypatch.setattr(_programs, "_export", None)  # an export now would fail the test
+    loaded = _batch.adjust_padded(batch, max_steps=30)
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    traced = _batch.adjust_padded(batch, max_steps=30)
+    assert all(t.converged for t in traced)
+
+    def arrays(result):
+        return (jaxba.advanced.flatten(result.parameters), result.precision.covariance,
+                result.precision.sigma0_squared, *result.residuals)
+
+    for results in (stored, loaded):
+        for result, reference in zip(results, traced, strict=True):
+            assert _close(arrays(result), arrays(reference))

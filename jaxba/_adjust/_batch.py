@@ -29,6 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from .._models._cameras import CAMERA_MODELS
 from .._problem._bundle import (
     BundleProblem,
     free_indices,
@@ -555,7 +556,8 @@ def adjust_padded(
     solution, stats = jax.device_get(call_stored(
         "batch_adjust", _adjust_program,
         (batch.problem, batch.plan, jax.device_put(batch.n_free)),
-        (max_steps, rtol, atol, datum_rtol, chunk_size), _adjust_outline))
+        (max_steps, rtol, atol, datum_rtol, chunk_size), _adjust_outline,
+        code=tuple(CAMERA_MODELS[model] for model in batch.problem.initial.cameras)))
     layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
     results = []
     for k, problem in enumerate(batch.problems):
