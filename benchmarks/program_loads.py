@@ -54,9 +54,9 @@ def _child(argv: list[str]) -> None:
             _programs._folder = lambda: None
         call_stored = _batch.call_stored
 
-        def timed(*args):
+        def timed(*args, **kwargs):
             start = time.process_time()
-            out = jax.block_until_ready(call_stored(*args))
+            out = jax.block_until_ready(call_stored(*args, **kwargs))
             first.append(time.process_time() - start)
             return out
 
@@ -92,7 +92,10 @@ def _batch_runs(n: int, repeat: int) -> None:
         for r in range(repeat + 1):  # the first of each fills the caches
             for mode in ("stored", "traced"):
                 out = pathlib.Path(tmp) / f"{mode}{r}"
-                runs.append((r, mode, _run([mode, "batch", *paths, "--out", str(out)])))
+                run = _run([mode, "batch", *paths, "--out", str(out)])
+                if run["code"] != 0 or run["first"] is None:
+                    raise RuntimeError(f"jaxba batch ({mode}) failed: exit {run['code']}")
+                runs.append((r, mode, run))
     print(f"jaxba batch of {n} Zhang-size projects, load average {os.getloadavg()[0]:.2f}\n")
     print("| run | program | process CPU s | first call CPU s | trace s | lower s |"
           " cache read s |")
