@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba import _programs
 from jaxba._adjust import _batch
 from jaxba._adjust._batch import adjust_batch, pad_problems
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
@@ -202,8 +203,10 @@ def test_summary_names_parameters_by_model_and_tests_the_variance_factor(
 
 def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):
     """Three projects of three sizes, one per chunk: padded to one shape, they are solved by
-    one compiled program (traced once), not one per size."""
+    one compiled program (traced once and stored once), not one per size."""
     _, paths, _ = projects
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: tmp_path)
+    monkeypatch.setattr(_programs, "_loaded", {})
     traced = []
 
     def counted(*args, **kwargs):
@@ -216,6 +219,7 @@ def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeyp
     rows = run_batch(paths, tmp_path / "out", chunk_size=1)
     assert [row["mode"] for row in rows] == ["batch"] * 3
     assert len(traced) == 1
+    assert len(list((tmp_path / _programs.FOLDER).iterdir())) == 1
 
 
 def test_batched_datum_check_equals_check_datum(projects, tmp_path):

@@ -29,6 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
+from .._models._cameras import CAMERA_MODELS
 from .._problem._bundle import (
     BundleProblem,
     free_indices,
@@ -46,6 +47,7 @@ from .._problem._linearisation import (
 )
 from .._problem._observations import AbstractObservationGroup
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from .._programs import call_stored
 from .._solvers._dense import solve
 from .._solvers._progress import Iteration
 from .._solvers._solution import Solution
@@ -468,6 +470,13 @@ def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, ch
     return _each(one, problem, plan, n_free, chunk_size)
 
 
+def _adjust_outline(problem, plan, n_free) -> tuple[Solution, BatchStatistics]:
+    """The structure of `_adjust_program`'s output (leaves of no meaning), without tracing."""
+    zero = np.zeros(())
+    return (Solution(problem.initial, zero, zero, zero, zero, optx.RESULTS.successful),
+            BatchStatistics(zero, zero, zero, zero, zero))
+
+
 @eqx.filter_jit
 def _screen_program(problem, plan, n_free, datum_rtol):
     return _each(lambda problem, plan, n: _datum_suspect(problem, plan, n, datum_rtol),
@@ -553,9 +562,12 @@ def adjust_padded(
     alphas = [alpha] * n if alpha is None or np.ndim(alpha) == 0 else list(alpha)
     familywises = [familywise] * n if np.ndim(familywise) == 0 else list(familywise)
     labels = labels if labels is not None else [None] * n
-    solution, stats = jax.device_get(_adjust_program(
-        batch.problem, batch.plan, jax.device_put(batch.n_free), max_steps, rtol, atol,
-        datum_rtol, chunk_size))
+    # Called through a stored export where one exists: a later process skips the trace.
+    solution, stats = jax.device_get(call_stored(
+        "batch_adjust", _adjust_program,
+        (batch.problem, batch.plan, jax.device_put(batch.n_free)),
+        (max_steps, rtol, atol, datum_rtol, chunk_size), _adjust_outline,
+        code=tuple(CAMERA_MODELS[model] for model in batch.problem.initial.cameras)))
     layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
     results = []
     for k, problem in enumerate(batch.problems):

@@ -1,0 +1,233 @@
+"""Stored programs (`jaxba._programs`): a program called through its stored export gives the
+traced program's results (bit for bit; the batch's to `EXPORT_RTOL`); a corrupt, stale or
+unusable file, an unexportable program, arguments without a key or no cache folder fall back
+to tracing; a changed structure gets a new key."""
+
+import pathlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxtyping import Array, Float
+
+import jaxba
+from jaxba import _programs
+from jaxba._adjust import _batch
+
+# The exported and the traced batch program compile to the same arithmetic: bit-identical
+# with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
+# cost) was rounded differently, 7e-14 relative.
+EXPORT_RTOL = 1e-12
+
+
+class Box(eqx.Module):
+    x: Float[Array, " n"]
+    scale: float = eqx.field(static=True)
+
+
+@eqx.filter_jit
+def _program(box: Box, y, power: int):
+    return Box(box.x * box.scale + y**power, box.scale), jnp.sum(jnp.sin(y))
+
+
+def _outline(box: Box, y):
+    return Box(np.zeros(()), box.scale), np.zeros(())
+
+
+_TESTS = Box.__module__.partition(".")[0]
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    """Exports stored in a folder of this test's own; none loaded in this process yet; this
+    module's classes keyed like jaxba's."""
+    monkeypatch.setattr(_programs, "_KNOWN", _programs._KNOWN | {_TESTS})
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: tmp_path)
+    monkeypatch.setattr(_programs, "_loaded", {})
+    monkeypatch.setattr(_programs, "_traced", set())
+    return tmp_path / _programs.FOLDER
+
+
+def _call(box, y, power=2, outline=_outline, program=_program):
+    return _programs.call_stored("test_box", program, (box, y), (power,), outline)
+
+
+def _equal(a, b) -> bool:
+    leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+    return (jax.tree.structure(a) == jax.tree.structure(b)
+            and all(np.array_equal(p, q) for p, q in zip(leaves_a, leaves_b)))
+
+
+def _close(a, b) -> bool:
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.allclose(p, q, rtol=EXPORT_RTOL, atol=0.0)
+        for p, q in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+
+
+def _usable(path, box, y) -> bool:
+    """A stored export that fits `_call(box, y)`'s arguments (digest, signature)."""
+    leaves = jax.tree.leaves(eqx.filter((box, y), eqx.is_array))
+    return _programs._load(path, leaves, 2) is not None
+
+
+def _box(n=5, scale=1.5, dtype=np.float64):
+    return Box(jax.device_put(np.linspace(0.1, 1.0, n).astype(dtype)), scale)
+
+
+def test_no_cache_folder_or_an_unwritable_one(tmp_path, monkeypatch):
+    """No cache folder: traced, nothing written. A folder that cannot be made (under a
+    file): the export is called, nothing written, no error."""
+    monkeypatch.setattr(_programs, "_KNOWN", _programs._KNOWN | {_TESTS})
+    monkeypatch.setattr(_programs, "_loaded", {})
+    monkeypatch.setattr(_programs, "_traced", set())
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    assert _equal(_call(box, y), _program(box, y, 2)) and not _programs._loaded
+    blocked = tmp_path / "a file"
+    blocked.write_text("")
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: blocked)
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert list(tmp_path.iterdir()) == [blocked]
+
+
+def test_a_stored_program_gives_the_traced_results(folder):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    traced = _program(box, y, 2)
+    first = _call(box, y)  # exported, stored, called
+    (path,) = folder.iterdir()
+    _programs._loaded.clear()  # a later process: read from the file
+    second = _call(box, y)
+    assert _equal(first, traced) and _equal(second, traced)
+    assert list(folder.iterdir()) == [path]
+    assert second[0].scale == box.scale
+
+
+def test_a_changed_structure_gets_a_new_key(folder):
+    y = jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(_box(), y)
+    _call(_box(), y)  # same key: no new file
+    assert len(list(folder.iterdir())) == 1
+    variants = [
+        (_box(scale=2.0), y, 2),  # a static field
+        (_box(), y, 3),  # a static argument
+        (_box(n=6), jax.device_put(np.linspace(-1.0, 2.0, 6)), 2),  # shapes
+        (_box(dtype=np.float32), jax.device_put(np.linspace(-1.0, 2.0, 5, dtype=np.float32)),
+         2),  # dtypes
+    ]
+    for k, (box, y_, power) in enumerate(variants):
+        assert _equal(_call(box, y_, power), _program(box, y_, power))
+        assert len(list(folder.iterdir())) == 2 + k
+
+
+def test_a_corrupt_file_is_ignored_and_replaced(folder):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(box, y)
+    (path,) = folder.iterdir()
+    good = path.read_bytes()
+    for bad in (good[:-1] + bytes([good[-1] ^ 1]), good[: len(good) // 2], b""):
+        path.write_bytes(bad)
+        assert not _usable(path, box, y)
+        _programs._loaded.clear()
+        assert _equal(_call(box, y), _program(box, y, 2))
+        assert _usable(path, box, y)  # stored anew
+
+
+def test_a_stale_file_is_ignored_and_replaced(folder):
+    """A file whose export does not fit the arguments (another program's, with a valid
+    digest) is not called: the program is exported and stored anew."""
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(_box(n=6), jax.device_put(np.linspace(-1.0, 2.0, 6)))
+    (other,) = folder.iterdir()
+    _call(box, y)
+    (path,) = set(folder.iterdir()) - {other}
+    path.write_bytes(other.read_bytes())
+    assert not _usable(path, box, y)
+    _programs._loaded.clear()
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert _usable(path, box, y)
+
+
+def test_a_failing_call_falls_back_and_drops_the_file(folder, monkeypatch):
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _call(box, y)
+    (path,) = folder.iterdir()
+
+    def broken(*args):
+        raise RuntimeError("an export that cannot run")
+
+    key = next(iter(_programs._loaded))
+    _programs._loaded[key] = broken
+    assert _equal(_call(box, y), _program(box, y, 2))
+    assert not path.exists() and key not in _programs._loaded
+
+
+def test_no_export_where_none_can_be_made_or_used(folder):
+    """No file, the traced results: with jit disabled, for arguments without a faithful key
+    (a function in a static field), for code from outside jaxba and its libraries (a user's
+    camera model: here a class of pathlib), for a program jax cannot export (a host
+    callback) and for an outline that does not match the output."""
+    y = jax.device_put(np.linspace(-1.0, 2.0, 5))
+    user = _programs.call_stored("test_box", _program, (_box(), y), (2,), _outline,
+                                 code=(pathlib.PurePath,))
+    assert _equal(user, _program(_box(), y, 2)) and not _programs._loaded
+    with jax.disable_jit():
+        assert _equal(_call(_box(), y), _program(_box(), y, 2))
+
+    class WithFunction(eqx.Module):
+        x: Float[Array, " n"]
+        f: object = eqx.field(static=True)
+
+    odd = WithFunction(y, np.sin)
+    plus_one = _programs.call_stored("test_odd", eqx.filter_jit(lambda w: w.x + 1), (odd,), (),
+                                     lambda w: np.zeros(()))
+    assert np.array_equal(plus_one, np.asarray(y) + 1)
+
+    traces = []
+
+    @eqx.filter_jit
+    def with_callback(box, y, power):
+        traces.append(1)
+        host = jax.pure_callback(np.cos, jax.ShapeDtypeStruct(y.shape, y.dtype), y)
+        return Box(box.x + host, box.scale), jnp.sum(y)
+
+    box = _box()
+    called = _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+    assert _equal(called, with_callback(box, y, 2))
+    first = len(traces)
+    for _ in range(2):  # no second try at exporting it in this process
+        _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+    assert len(traces) == first
+    wrong = _call(box, y, outline=lambda box, y: (np.zeros(()), np.zeros(())))
+    assert _equal(wrong, _program(box, y, 2))
+    assert not folder.exists() or not list(folder.iterdir())
+
+
+def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
+    """`adjust_padded` of two projects: the first call exports and stores the batch's
+    program, a later process (nothing loaded yet) reads it and exports nothing; both equal
+    the traced program's adjustments (estimates, covariance, residuals) to `EXPORT_RTOL`."""
+    problems = [
+        jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
+            tmp_path / f"p{k}", name=f"p{k}", seed=50 + k, n_images=6, n_targets=20,
+        ).project_file)).problem
+        for k in range(2)
+    ]
+    batch = _batch.pad_problems(problems)
+    stored = _batch.adjust_padded(batch, max_steps=30)
+    assert len(list(folder.iterdir())) == 1
+    _programs._loaded.clear()
+    monkeypatch.setattr(_programs, "_export", None)  # an export now would fail the test
+    loaded = _batch.adjust_padded(batch, max_steps=30)
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    traced = _batch.adjust_padded(batch, max_steps=30)
+    assert all(t.converged for t in traced)
+
+    def arrays(result):
+        return (jaxba.advanced.flatten(result.parameters), result.precision.covariance,
+                result.precision.sigma0_squared, *result.residuals)
+
+    for results in (stored, loaded):
+        for result, reference in zip(results, traced, strict=True):
+            assert _close(arrays(result), arrays(reference))
