@@ -4,8 +4,8 @@ models < problem < solvers < statistics < adjust (orchestration) < io, report, c
 practical edges, which may also use the public face `jaxba`); the closed-form
 approximations (`_approximations`) sit beside the statistics, under the block initialisation
 that uses them. A handful of shared helpers (`_lazy`, `_custom_types`, `_float64`, `_timing`,
-`_gc`, `_memory`, `_jax_setup`, `_dask`) sit below everything. Every import counts, the ones
-inside functions included.
+`_gc`, `_memory`, `_jax_setup`, `_dask`, `_programs`) sit below everything. Every import
+counts, the ones inside functions included.
 """
 
 import ast
@@ -15,7 +15,7 @@ import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxba"
 BASE = {"_lazy", "_custom_types", "_float64", "_timing", "_gc", "_memory", "_jax_setup",
-        "_dask"}
+        "_dask", "_programs"}
 LAYERS = {
     "_models": 1, "_problem": 2, "_solvers": 3, "_statistics": 4, "_approximations": 4,
     "_adjust": 5, "_io": 6, "_report": 6, "_cli": 6,

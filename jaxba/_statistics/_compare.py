@@ -24,7 +24,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.stats
 
 from .._models._cameras import PixelGrid
 from ._projection import projected, sensor_grid, unproject
@@ -199,8 +198,10 @@ def compare_calibrations(
         weighted = _block_diagonal(weights) @ g
         rho = rho - np.linalg.solve(g.T @ weighted, weighted.T @ delta.ravel())
         delta, _, _, j_rho = (np.asarray(x) for x in _differences(*args, jax.device_put(rho)))
+    import scipy.special  # here: loaded only by a comparison (its χ² survival function)
+
     return Comparison(pixels, delta, per_pixel, rho, chi2, dof, rank,
-                      float(scipy.stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan,
+                      float(scipy.special.chdtrc(dof, chi2)) if dof > 0 else math.nan,
                       fit, float(distance))
 
 
