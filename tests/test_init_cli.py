@@ -155,6 +155,20 @@ def test_init_of_a_complete_project_copies_it(lab, tmp_path):
         assert (tmp_path / "copy" / name).read_bytes() == (LAB / name).read_bytes(), name
 
 
+def test_a_camera_used_by_no_image_is_named_in_a_warning(tmp_path):
+    """A cameras file shared by several projects lists cameras that this one does not use:
+    not an error, but never dropped in silence (the API: `ProjectSpec.unused_cameras`)."""
+    shutil.copytree(LAB, tmp_path / "lab", ignore=shutil.ignore_patterns(*OUTPUTS))
+    cameras = tmp_path / "lab" / "cameras.toml"
+    cameras.write_text(cameras.read_text() + '\n[spare]\nmodel = "smac"\nc = 24.0\n')
+    assert jaxba.read_project(tmp_path / "lab" / "lab.toml").unused_cameras == ["spare"]
+    code, _, stderr = _run("init", str(tmp_path / "lab" / "lab.toml"),
+                           "--out", str(tmp_path / "copy"))
+    assert code == 0
+    assert ("jaxba: warning: cameras.toml: camera [spare] used by no image of orientation.txt:"
+            " left out of the adjustment") in stderr
+
+
 def test_python_api(lab):
     spec = jaxba.read_project(lab["project_file"])
     with pytest.raises(jaxba.ProjectError, match="18 images .* and 77 points .* have no"

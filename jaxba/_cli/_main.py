@@ -174,7 +174,14 @@ def _read_checked(args: argparse.Namespace):
             check_targets([html_path(spec, out_dir)], spec.input_files, f"project {spec.name!r}")
     except (ProjectError, OutputError) as error:
         raise _UsageError(str(error)) from None
+    _warn_unused_cameras(spec)
     return spec, out_dir, time.perf_counter() - start
+
+
+def _warn_unused_cameras(spec) -> None:
+    warning = spec.unused_camera_warning()
+    if warning:
+        _error(warning, "warning")
 
 
 def _check_matplotlib(args: argparse.Namespace) -> None:
@@ -317,6 +324,7 @@ def _init(args: argparse.Namespace) -> int:
         project_paths(spec, args.out)
     except (ProjectError, OutputError) as error:
         raise _UsageError(str(error)) from None
+    _warn_unused_cameras(spec)
     with output_lock(args.out):
         return _init_locked(args, spec)
 
