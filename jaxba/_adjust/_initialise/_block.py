@@ -26,8 +26,10 @@ from its image points, approximate cameras and whatever control, distances or EO
    (`partial_similarity`), and scaled from the distances where needed. Given EOPs and
    control coordinates then replace the computed ones.
 5. Blunders. Every image point of an initialised image and point is projected through its
-   camera (`image_residuals`, the camera's units); those whose residual, scaled for the
-   point's number of rays, exceeds `blunder_threshold` robust σ (per camera) are flagged.
+   camera (`image_residuals`, the camera's units); the field an approximate camera leaves is
+   taken out per image, and those whose residual, scaled for the point's number of rays,
+   exceeds `blunder_threshold` robust σ (per camera, and the familywise bound of its number
+   of image points) are flagged (`_blunders`).
 
 The numbers come with a log (strings, one step a line) that says what was done.
 """
@@ -41,6 +43,7 @@ from ..._approximations import Similarity, absolute_orientation, space_resection
 from ..._float64 import require_float64
 from ..._models._cameras import AbstractCamera
 from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
+from ._blunders import familywise, flag, systematic_free
 from ._frame import partial_similarity
 from ._ideal import ideal_coordinates, image_residuals
 from ._robust import (
@@ -89,6 +92,8 @@ class BlockInitialisation:
       used at all (duplicate, non-finite, image index unknown, no ray: see the log);
     - `residuals` (n_observations, 2): v = measured - computed in the camera's image units
       at the initialised EOPs and points (NaN where one of them is missing);
+    - `judged` (n_observations,): what the blunders are judged by, in σ: |v| less the field
+      an approximate camera leaves, scaled for the point's rays (`_blunders`); NaN where v is;
     - `sigma` (n_images,): the robust σ of an image coordinate of each image's camera
       (image units) that the blunders are judged by;
     - `failed_images`, `failed_points`: index -> why it could not be initialised;
@@ -104,6 +109,7 @@ class BlockInitialisation:
     blunders: np.ndarray
     unusable: np.ndarray
     residuals: np.ndarray
+    judged: np.ndarray
     sigma: np.ndarray
     failed_images: dict[int, str]
     failed_points: dict[int, str]
@@ -138,7 +144,7 @@ class _Block:
 
     def __init__(self, observations, cameras, eops, control, distances, n_points, sigma,
                  seed, min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                 pair_candidates, polish_rounds):
+                 pair_candidates, polish_rounds, camera_names):
         self.log: list[str] = []
         cameras = list(cameras)
         if not all(isinstance(camera, AbstractCamera) for camera in cameras):
@@ -172,6 +178,9 @@ class _Block:
         if not np.all((ends == np.round(ends)) & (ends >= 0) & (ends < self.n_points)):
             raise ValueError("initialise_block: distances must name points by index "
                              f"(0 .. {self.n_points - 1})")
+        if camera_names is not None and len(camera_names) != self.n_images:
+            raise ValueError(f"initialise_block: camera_names must name the camera of each of "
+                             f"the {self.n_images} images, got {len(camera_names)}")
         self.rng = np.random.default_rng(seed)
         self.min_angle = float(min_angle)
         self.blunder_threshold = float(blunder_threshold)
@@ -179,12 +188,12 @@ class _Block:
         self.min_pair_points = max(9, int(min_pair_points))
         self.pair_candidates = int(pair_candidates)
         self.polish_rounds = int(polish_rounds)
-        self._rays(sigma)
+        self._rays(sigma, camera_names)
         self._reset()
 
     # -- input ---------------------------------------------------------------------------
 
-    def _rays(self, sigma):
+    def _rays(self, sigma, camera_names):
         self.unusable = np.zeros(self.n, dtype=bool)
         bad_image = self.image >= self.n_images
         if np.any(bad_image):
@@ -207,6 +216,7 @@ class _Block:
         self.q = np.full((self.n, 2), np.nan)
         self.scale = np.full(self.n, np.nan)
         self.groups: list[tuple[AbstractCamera, np.ndarray]] = []
+        self.camera_names: list[str] = []
         by_camera: dict[int, list[int]] = {}
         for i, camera in enumerate(self.cameras):
             by_camera.setdefault(id(camera), []).append(i)
@@ -216,6 +226,8 @@ class _Block:
             camera = self.cameras[images[0]]
             rows = np.flatnonzero(np.isin(self.image, images) & ~self.unusable)
             self.groups.append((camera, rows))
+            self.camera_names.append(f"of image {images[0]}" if camera_names is None
+                                     else str(camera_names[images[0]]))
             if len(rows) == 0:
                 continue
             ideal = ideal_coordinates(camera, self.xy[rows])
@@ -223,7 +235,7 @@ class _Block:
             self.scale[rows] = ideal.scale
             failed = ~ideal.converged
             if np.any(failed):
-                self.log.append(f"camera of image {images[0]}: {int(np.sum(failed))} image "
+                self.log.append(f"camera {self.camera_names[g]}: {int(np.sum(failed))} image "
                                 "points have no ray through the camera model (outside its "
                                 "valid range?): not used")
                 self.unusable[rows[failed]] = True
@@ -304,16 +316,34 @@ class _Block:
             out[here] = np.where(w < 0, e, np.inf)
         return out
 
-    def redundancy(self, rows) -> np.ndarray:
+    def control_by_rays(self) -> np.ndarray:
+        """The points (n_points, 3): control points seen on 2 or more oriented rays
+        intersected from them (robustly), the others as they are."""
+        X = self.X.copy()
+        for p in np.flatnonzero(self.fixed):
+            rows = self.obs_of_point[p]
+            rows = rows[self.oriented[self.image[rows]]]
+            if len(rows) >= 2:
+                threshold = self.threshold(rows)
+                images = self.image[rows]
+                found = intersect(self.q[rows], self.eops[images], self.matrices[images],
+                                  np.inf if threshold is None else threshold, 0.0)
+                if found.point is not None:
+                    X[p] = found.point
+        return X
+
+    def redundancy(self, rows, by_rays=False) -> np.ndarray:
         """sqrt((2k - 3) / 2k) (n,) of image points `rows` of points with k used rays (1 for
-        fixed control points): the share of an image coordinate's σ its residual keeps when
-        the point is intersected from its k rays (the images taken as errorless)."""
+        fixed control points, unless `by_rays`: `control_by_rays`): the share of an image
+        coordinate's σ its residual keeps when the point is intersected from its k rays (the
+        images taken as errorless)."""
         rays = np.zeros(self.n_points)
         used = np.flatnonzero(self.use & self.valid)
         used = used[self.oriented[self.image[used]]]
         np.add.at(rays, self.point[used], 1)
         k = np.maximum(rays[self.point[rows]], 2)
-        return np.where(self.fixed[self.point[rows]], 1.0, np.sqrt((2 * k - 3) / (2 * k)))
+        fixed = self.fixed[self.point[rows]] & ~(by_rays & (rays[self.point[rows]] >= 2))
+        return np.where(fixed, 1.0, np.sqrt((2 * k - 3) / (2 * k)))
 
     # -- seeds ---------------------------------------------------------------------------
 
@@ -770,10 +800,12 @@ class _Block:
                                           self.X[self.known])
             self.X[full] = self.control[full]
             for p in np.flatnonzero(full):
-                self.known[p] = True
+                self.known[p] = self.fixed[p] = True
                 self.point_method[p] = "control"
                 self.point_reason.pop(p, None)
+        rays_X = self.control_by_rays()
         residuals = np.full((self.n, 2), np.nan)
+        judged = np.full(self.n, np.nan)
         rows = np.flatnonzero(self.valid)
         rows = rows[self.oriented[self.image[rows]] & self.known[self.point[rows]]]
         sigma = np.full(self.n_images, np.nan)
@@ -785,20 +817,32 @@ class _Block:
             v = image_residuals(camera, self.eops[self.image[here]], self.X[self.point[here]],
                                 self.xy[here])
             residuals[here] = v
+            # Image points are judged by their rays' agreement: a control point by its
+            # intersection (its misfit to the control is the frame's, `to_object_frame`).
+            v = image_residuals(camera, self.eops[self.image[here]], rays_X[self.point[here]],
+                                self.xy[here])
+            left = np.empty_like(v)
+            scale = self.scale[here][:, None]
+            for i in np.unique(self.image[here]):
+                mine = self.image[here] == i
+                left[mine] = scale[mine] * systematic_free(self.q[here][mine],
+                                                           v[mine] / scale[mine])
             # Residuals of points with few rays are small: judge them as if redundant.
-            norms = np.linalg.norm(v, axis=1) / self.redundancy(here)
+            norms = np.linalg.norm(left, axis=1) / self.redundancy(here, by_rays=True)
             estimate = float(np.median(norms) / RAYLEIGH_MEDIAN)
             images = self.camera_of_image == g
             floor = 0.0 if self.sigma_given is None else float(
                 np.max(self.sigma_given[images]))
             sigma[images] = max(estimate, floor)
-            blunders[here] = ~(norms <= self.blunder_threshold * max(estimate, floor))
+            judged[here] = norms / max(estimate, floor, np.finfo(float).tiny)
+            blunders[here] = flag(judged[here], self.blunder_threshold, self.point[here])
             unit = camera.image_units
             self.log.append(
-                f"camera of image {int(np.flatnonzero(images)[0])}: {len(here)} image points, "
-                f"RMS {np.sqrt(np.mean(norms**2)):.3g} {unit}, robust σ {estimate:.3g} {unit}; "
-                f"{int(np.sum(blunders[here]))} over {self.blunder_threshold:g} σ flagged as "
-                "blunders")
+                f"camera {self.camera_names[g]}: {len(here)} image points in "
+                f"{int(np.sum(images))} images, RMS {np.sqrt(np.mean(norms**2)):.3g} {unit} "
+                f"less the field of an approximate camera, robust σ {estimate:.3g} {unit}; "
+                f"{int(np.sum(blunders[here]))} over "
+                f"{familywise(len(here), self.blunder_threshold):.2g} σ flagged as blunders")
         failed_images = {}
         for i in np.flatnonzero(~self.oriented):
             reason = self.image_reason.get(i)
@@ -838,7 +882,7 @@ class _Block:
             point_method=tuple(m if self.known[p] else None
                                for p, m in enumerate(self.point_method)),
             frame=frame, similarity=similarity, blunders=blunders, unusable=self.unusable,
-            residuals=residuals, sigma=sigma, failed_images=failed_images,
+            residuals=residuals, judged=judged, sigma=sigma, failed_images=failed_images,
             failed_points=failed_points, log=tuple(self.log))
 
 
@@ -866,6 +910,7 @@ def initialise_block(
     min_pair_points: int = 12,
     pair_candidates: int = 8,
     polish_rounds: int = 3,
+    camera_names: Sequence[str] | None = None,
 ) -> BlockInitialisation:
     """Approximations of every EOP and object point of a block (module docstring).
 
@@ -887,11 +932,15 @@ def initialise_block(
       estimated robustly as the block grows;
     - `seed`: of the random samples (the result is deterministic for a seed);
     - `min_angle`: the smallest intersection angle of a point's rays (radians);
-    - `blunder_threshold`: image points off by more than this many robust σ are blunders;
+    - `blunder_threshold`: image points off by more than this many robust σ (and the
+      familywise bound of their camera's number of image points) are blunders, once the
+      field an approximate camera leaves is taken out (`_blunders`);
     - `min_resection_points`: points of known coordinates an image needs for its resection;
     - `min_pair_points`, `pair_candidates`: common points a relative orientation needs (8 at
       least), and how many of the pairs with most of them are tried;
-    - `polish_rounds`: rounds of resection and intersection of the whole block at the end.
+    - `polish_rounds`: rounds of resection and intersection of the whole block at the end;
+    - `camera_names`: per image, the name of its camera for the log (default "of image k",
+      k its camera's first image).
 
     Returns a `BlockInitialisation`: EOPs, points, how each was found, flagged blunders and the
     log. Images and points that cannot be initialised are NaN and listed with the reason.
@@ -900,7 +949,7 @@ def initialise_block(
     require_float64("initialise_block")
     block = _Block(observations, cameras, eops, control, distances, n_points, sigma, seed,
                    min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                   pair_candidates, polish_rounds)
+                   pair_candidates, polish_rounds, camera_names)
     block.log.insert(0, f"{block.n_images} images, {block.n_points} points, {block.n} image "
                         f"points ({int(np.sum(block.valid))} usable)")
     if block.seed_in_frame():

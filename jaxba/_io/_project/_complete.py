@@ -128,7 +128,8 @@ def complete_project(spec: ProjectSpec, *, seed: int = 0) -> tuple[ProjectSpec, 
     result = initialise_block(
         _observations(spec, image_ids, point_ids), _cameras(spec, image_ids),
         eops=_given_eops(spec, image_ids), control=_given_points(spec, point_ids),
-        distances=_distances(spec, point_ids), n_points=len(point_ids), seed=seed)
+        distances=_distances(spec, point_ids), n_points=len(point_ids), seed=seed,
+        camera_names=[spec.images[iid].camera for iid in image_ids])
     log = tuple(_named(line, image_ids, point_ids) for line in result.log)
     _check(spec, result, image_ids, point_ids)
 
@@ -160,7 +161,7 @@ def _nothing(n_images: int, n_points: int) -> BlockInitialisation:
         eops=np.full((n_images, 6), np.nan), points=np.full((n_points, 3), np.nan),
         image_method=(None,) * n_images, point_method=(None,) * n_points, frame="control",
         similarity=None, blunders=np.zeros(0, dtype=bool), unusable=np.zeros(0, dtype=bool),
-        residuals=np.zeros((0, 2)), sigma=np.full(n_images, np.nan), failed_images={},
+        residuals=np.zeros((0, 2)), judged=np.zeros(0), sigma=np.full(n_images, np.nan), failed_images={},
         failed_points={}, log=())
 
 
@@ -288,12 +289,8 @@ def _more(listed) -> str:
 def _suspects(spec: ProjectSpec, result: BlockInitialisation, image_ids) -> tuple:
     """The image points flagged as blunders, the largest residual first."""
     table = spec.image_points
-    norms = np.linalg.norm(result.residuals, axis=1)
-    image_row = {iid: k for k, iid in enumerate(image_ids)}
-    rows = np.flatnonzero(result.blunders)
     suspects = []
-    for k in rows:
-        s = result.sigma[image_row[table.image[k]]]
-        sigmas = float(norms[k] / s) if s > 0 else math.inf
+    for k in np.flatnonzero(result.blunders):
+        sigmas = float(result.judged[k]) if np.isfinite(result.judged[k]) else math.inf
         suspects.append(Suspect(table.image[k], table.point[k], int(table.line[k]), sigmas))
     return tuple(sorted(suspects, key=lambda s: -s.sigmas))  # the largest first
