@@ -35,8 +35,8 @@ _ANGLES = slice(3, 6)
 @dataclasses.dataclass(frozen=True)
 class Suspect:
     """An image point flagged as a blunder by the initialisation: its IDs, its line in the
-    image-points table and its residual at the approximations in robust σ of its camera (the
-    flag also weighs the point's number of rays: a few are flagged below 4 σ)."""
+    image-points table and its residual at the approximations in robust σ of its camera, the
+    field of an approximate camera taken out (`BlockInitialisation.judged`)."""
 
     image: str
     point: str
@@ -161,8 +161,8 @@ def _nothing(n_images: int, n_points: int) -> BlockInitialisation:
         eops=np.full((n_images, 6), np.nan), points=np.full((n_points, 3), np.nan),
         image_method=(None,) * n_images, point_method=(None,) * n_points, frame="control",
         similarity=None, blunders=np.zeros(0, dtype=bool), unusable=np.zeros(0, dtype=bool),
-        residuals=np.zeros((0, 2)), judged=np.zeros(0), sigma=np.full(n_images, np.nan), failed_images={},
-        failed_points={}, log=())
+        residuals=np.zeros((0, 2)), judged=np.zeros(0), sigma=np.full(n_images, np.nan),
+        failed_images={}, failed_points={}, log=())
 
 
 # --- the arrays of initialise_block ---------------------------------------------------------
