@@ -222,6 +222,31 @@ def _complete(spec, timings=None):
     return completed, completion
 
 
+def _adjust_deferred(completion, project, result, options):
+    """Adjust again with the deferred points intersected from the converged `result`
+    (`adjust_deferred`), saying what became of them; when `result` did not converge, say
+    that they were not added. Returns the project and adjustment to report."""
+    import jaxba
+    from jaxba import _report
+
+    count = _plural(len(completion.deferred), "deferred point")
+    if not result.converged:
+        _error(f"the {count} were not added: the adjustment without them did not converge",
+               "warning")
+        return project, result
+
+    def said(again, deferral):
+        for line in deferral.lines():
+            _say(f"  {line}")
+        _say(f"adjusting again with the {_plural(len(deferral.added), 'deferred point')} ...")
+        _say(_report.start_line(again))
+
+    _say(f"intersecting the {count} from the adjusted block ...")
+    again, result, _ = jaxba.adjust_deferred(completion, project, result, on_deferral=said,
+                                             **options)
+    return again, result
+
+
 def _adjust(args: argparse.Namespace) -> int:
     from jaxba._report import output_lock
 
@@ -256,10 +281,11 @@ def _adjust_locked(args, spec, out_dir, read_seconds: float) -> int:
         if completion is not None:
             project = dataclasses.replace(project, initialisation=completion.summary())
         _say(_report.start_line(project))
-        result = jaxba.adjust_project(
-            project, on_iteration=lambda it: _say(_report.iteration_line(it)),
-            solver=args.solver, timings=timings,
-        )
+        options = dict(on_iteration=lambda it: _say(_report.iteration_line(it)),
+                       solver=args.solver, timings=timings)
+        result = jaxba.adjust_project(project, **options)
+        if completion is not None and completion.deferred:
+            project, result = _adjust_deferred(completion, project, result, options)
     except (jaxba.ProjectError, jaxba.DatumError, ProblemError) as error:
         raise _UsageError(str(error)) from None
     except jaxba.NotConvergedError as error:

@@ -43,7 +43,7 @@ from ..._approximations import Similarity, absolute_orientation, space_resection
 from ..._float64 import require_float64
 from ..._models._cameras import AbstractCamera
 from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
-from ._blunders import familywise, flag, systematic_free
+from ._blunders import UNKNOWN_DISTORTION, distortion_allowance, familywise, flag
 from ._frame import partial_similarity
 from ._ideal import ideal_coordinates, image_residuals
 from ._robust import (
@@ -144,7 +144,7 @@ class _Block:
 
     def __init__(self, observations, cameras, eops, control, distances, n_points, sigma,
                  seed, min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                 pair_candidates, polish_rounds, camera_names):
+                 pair_candidates, polish_rounds, camera_names, unknown_distortion):
         self.log: list[str] = []
         cameras = list(cameras)
         if not all(isinstance(camera, AbstractCamera) for camera in cameras):
@@ -184,6 +184,7 @@ class _Block:
         self.rng = np.random.default_rng(seed)
         self.min_angle = float(min_angle)
         self.blunder_threshold = float(blunder_threshold)
+        self.unknown_distortion = float(unknown_distortion)
         self.min_resection_points = int(min_resection_points)
         self.min_pair_points = max(9, int(min_pair_points))
         self.pair_candidates = int(pair_candidates)
@@ -332,6 +333,18 @@ class _Block:
                     X[p] = found.point
         return X
 
+    def residual_vectors(self, rows, points=None) -> np.ndarray:
+        """v = q - projected (n, 2) (normalised) of image points `rows` (oriented, known) at
+        `points` (n_points, 3; default the block's); NaN behind an image."""
+        points = self.X if points is None else points
+        out = np.empty((len(rows), 2))
+        for i in np.unique(self.image[rows]):
+            here = self.image[rows] == i
+            r = rows[here]
+            computed, w = project(self.matrices[i], self.eops[i, :3], points[self.point[r]])
+            out[here] = np.where((w < 0)[:, None], self.q[r] - computed, np.nan)
+        return out
+
     def redundancy(self, rows, by_rays=False) -> np.ndarray:
         """sqrt((2k - 3) / 2k) (n,) of image points `rows` of points with k used rays (1 for
         fixed control points, unless `by_rays`: `control_by_rays`): the share of an image
@@ -398,7 +411,7 @@ class _Block:
         growable = any(
             np.sum(self.known[self.point[rows]]) >= self.min_resection_points
             for i, rows in enumerate(self.obs_of_image) if not self.oriented[i])
-        if intersected < 6 and not growable:
+        if intersected < 6 and not growable and not np.all(self.oriented):
             self.log.append(f"{len(given)} images with given EOPs and {len(resected)} resected "
                             f"on control intersect only {intersected} points: starting from a "
                             "relative orientation instead")
@@ -483,6 +496,13 @@ class _Block:
                            self.min_angle)
         if result.point is None:
             self.point_reason[p] = result.reason
+            if np.isfinite(result.angle) and result.angle == 0.0:  # the rays do not meet
+                miss = np.where(np.isfinite(result.errors), result.errors * self.scale[rows],
+                                np.inf)
+                worst = int(np.argmax(miss))
+                self.point_reason[p] = (
+                    f"its {len(rows)} rays do not meet: the ray of image {images[worst]} "
+                    f"misses by {miss[worst]:.3g} {self.units[images[worst]]}")
             return False
         self.X[p] = result.point
         self.known[p] = True
@@ -814,19 +834,11 @@ class _Block:
             here = np.intersect1d(group, rows)
             if len(here) == 0:
                 continue
-            v = image_residuals(camera, self.eops[self.image[here]], self.X[self.point[here]],
-                                self.xy[here])
-            residuals[here] = v
-            # Image points are judged by their rays' agreement: a control point by its
+            residuals[here] = image_residuals(camera, self.eops[self.image[here]],
+                                              self.X[self.point[here]], self.xy[here])
+            # Image points are judged by how their rays agree: a control point by its
             # intersection (its misfit to the control is the frame's, `to_object_frame`).
-            v = image_residuals(camera, self.eops[self.image[here]], rays_X[self.point[here]],
-                                self.xy[here])
-            left = np.empty_like(v)
-            scale = self.scale[here][:, None]
-            for i in np.unique(self.image[here]):
-                mine = self.image[here] == i
-                left[mine] = scale[mine] * systematic_free(self.q[here][mine],
-                                                           v[mine] / scale[mine])
+            left = self.residual_vectors(here, rays_X) * self.scale[here][:, None]
             # Residuals of points with few rays are small: judge them as if redundant.
             norms = np.linalg.norm(left, axis=1) / self.redundancy(here, by_rays=True)
             estimate = float(np.median(norms) / RAYLEIGH_MEDIAN)
@@ -835,14 +847,24 @@ class _Block:
                 np.max(self.sigma_given[images]))
             sigma[images] = max(estimate, floor)
             judged[here] = norms / max(estimate, floor, np.finfo(float).tiny)
-            blunders[here] = flag(judged[here], self.blunder_threshold, self.point[here])
+            # A point intersected from a bent ray is off by as much in its other images, more
+            # so the fewer they are (1 + 1 / (k - 2) for k rays).
+            allowed = distortion_allowance(self.q[here], self.unknown_distortion)
+            worst = np.zeros(self.n_points)
+            np.maximum.at(worst, self.point[here], allowed)
+            rays = np.bincount(self.point[here], minlength=self.n_points)[self.point[here]]
+            allowed = (worst[self.point[here]] * self.scale[here]
+                       * (1 + 1 / np.maximum(rays - 2, 1)))
+            blunders[here] = flag(norms, max(estimate, floor), allowed,
+                                  self.blunder_threshold, self.point[here])
             unit = camera.image_units
             self.log.append(
                 f"camera {self.camera_names[g]}: {len(here)} image points in "
-                f"{int(np.sum(images))} images, RMS {np.sqrt(np.mean(norms**2)):.3g} {unit} "
-                f"less the field of an approximate camera, robust σ {estimate:.3g} {unit}; "
+                f"{int(np.sum(images))} images, RMS {np.sqrt(np.mean(norms**2)):.3g} {unit}, "
+                f"robust σ {estimate:.3g} {unit}; "
                 f"{int(np.sum(blunders[here]))} over "
-                f"{familywise(len(here), self.blunder_threshold):.2g} σ flagged as blunders")
+                f"{familywise(len(here), self.blunder_threshold):.2g} σ (and what an unknown "
+                "distortion may leave) flagged as blunders")
         failed_images = {}
         for i in np.flatnonzero(~self.oriented):
             reason = self.image_reason.get(i)
@@ -911,6 +933,7 @@ def initialise_block(
     pair_candidates: int = 8,
     polish_rounds: int = 3,
     camera_names: Sequence[str] | None = None,
+    unknown_distortion: float = UNKNOWN_DISTORTION,
 ) -> BlockInitialisation:
     """Approximations of every EOP and object point of a block (module docstring).
 
@@ -940,7 +963,10 @@ def initialise_block(
       least), and how many of the pairs with most of them are tried;
     - `polish_rounds`: rounds of resection and intersection of the whole block at the end;
     - `camera_names`: per image, the name of its camera for the log (default "of image k",
-      k its camera's first image).
+      k its camera's first image);
+    - `unknown_distortion`: the misfit a camera's unknown distortion may leave at the edge of
+      its image points, as a fraction of their radius (`distortion_allowance`), allowed
+      before an image point is a blunder (0 for calibrated cameras).
 
     Returns a `BlockInitialisation`: EOPs, points, how each was found, flagged blunders and the
     log. Images and points that cannot be initialised are NaN and listed with the reason.
@@ -949,7 +975,7 @@ def initialise_block(
     require_float64("initialise_block")
     block = _Block(observations, cameras, eops, control, distances, n_points, sigma, seed,
                    min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                   pair_candidates, polish_rounds, camera_names)
+                   pair_candidates, polish_rounds, camera_names, unknown_distortion)
     block.log.insert(0, f"{block.n_images} images, {block.n_points} points, {block.n} image "
                         f"points ({int(np.sum(block.valid))} usable)")
     if block.seed_in_frame():
