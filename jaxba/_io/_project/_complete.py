@@ -95,7 +95,8 @@ class Completion:
     def console_lines(self) -> list[str]:
         """The log without its lines per image pair and per oriented image (failures kept),
         and a line on the deferred points."""
-        lines = [line for line in self.log if not _detail(line)]
+        lines = [line for line in self.log if not _detail(line)
+                 and not (self.deferred and line.startswith("not initialised: points"))]
         deferred = self.deferred_line()
         return lines + [deferred] if deferred else lines
 
