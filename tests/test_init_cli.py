@@ -302,3 +302,22 @@ def test_adjust_defers_weak_points_and_names_those_left_out(tmp_path):
     assert len(section["added_points"]) == deferred - 1
     assert list(section["left_out_points"]) == [victim]
     assert results["converged"]
+
+
+@pytest.mark.slow  # ~10 s CPU: one initialisation
+def test_init_writes_deferred_points_without_approximations(tmp_path):
+    """jaxba init cannot intersect the weak points before an adjustment: it writes them
+    absent from the points table (their image points kept), says so, and the written project
+    misses only them."""
+    jaxba.write_close_range_project(tmp_path / "block", seed=0, n_images=8, n_points=300,
+                                    approximations=False)
+    code, stdout, stderr = _run("init", str(tmp_path / "block" / "close_range.toml"),
+                                "--out", str(tmp_path / "completed"))
+    assert code == 0, stderr
+    count = int(re.search(r"deferred (\d+) points until", stdout).group(1))
+    assert (f"the {count} deferred points are written without approximations (absent from"
+            " ground_points.txt)") in stdout
+    written = jaxba.read_project(tmp_path / "completed" / "close_range.toml")
+    assert not written.missing_images and len(written.missing_points) == count
+    before = (tmp_path / "block" / "image_coordinates.txt").read_bytes()
+    assert (tmp_path / "completed" / "image_coordinates.txt").read_bytes() == before

@@ -359,7 +359,7 @@ def _init_locked(args: argparse.Namespace, spec) -> int:
     from jaxba._io._project import ProjectError
     from jaxba._io._project._write import write_project
 
-    completed, image_methods, point_methods = spec, None, None
+    completed, image_methods, point_methods, deferred = spec, None, None, {}
     if spec.complete:
         _say(f"{spec.path.name}: every image and point has its approximation; nothing to"
              " compute, the project is copied")
@@ -370,14 +370,20 @@ def _init_locked(args: argparse.Namespace, spec) -> int:
         except ProjectError as error:
             raise _UsageError(str(error)) from None
         image_methods, point_methods = completion.image_methods, completion.point_methods
+        deferred = completion.deferred
+        completed = completion.pending or completed  # the deferred points kept, without values
     try:
         written = write_project(completed, args.out, source=spec, image_methods=image_methods,
-                                point_methods=point_methods)
+                                point_methods=point_methods, deferred=deferred)
     except OSError as error:
         raise _UsageError(str(error)) from None
     _say("wrote")
     for path in written:
         _say(f"  {path}")
+    if deferred:
+        _say(f"the {_plural(len(deferred), 'deferred point')} are written without approximations"
+             f" (absent from {spec.file_names.get('points', 'the points table')}): jaxba adjust"
+             " intersects them from the adjusted block")
     return EXIT_OK
 
 

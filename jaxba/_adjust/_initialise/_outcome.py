@@ -29,7 +29,10 @@ def outcome(block, frame, similarity) -> BlockInitialisation:
             block.known[p] = block.fixed[p] = True
             block.point_method[p] = "control"
             block.point_reason.pop(p, None)
-    rays_X = block.control_by_rays()
+    # Control that replaced the computed points after the growth (a block moved onto it) is
+    # judged by its rays; control the block grew on, by its coordinates.
+    by_rays = similarity is not None
+    rays_X = block.control_by_rays() if by_rays else block.X
     residuals = np.full((block.n, 2), np.nan)
     judged = np.full(block.n, np.nan)
     rows = np.flatnonzero(block.valid)
@@ -46,7 +49,7 @@ def outcome(block, frame, similarity) -> BlockInitialisation:
         # intersection (its misfit to the control is the frame's, `to_object_frame`).
         left = block.residual_vectors(here, rays_X) * block.scale[here][:, None]
         # Residuals of points with few rays are small: judge them as if redundant.
-        norms = np.linalg.norm(left, axis=1) / block.redundancy(here, by_rays=True)
+        norms = np.linalg.norm(left, axis=1) / block.redundancy(here, by_rays=by_rays)
         estimate = float(np.median(norms) / RAYLEIGH_MEDIAN)
         images = block.camera_of_image == g
         floor = 0.0 if block.sigma_given is None else float(
