@@ -48,7 +48,7 @@ from ._outcome import outcome
 from ._placement import normalise_model, to_object_frame
 from ._result import BlockInitialisation
 from ._seed import seed_in_frame, seed_pair
-from ._state import Block
+from ._state import INLIER_K, Block
 
 
 def initialise_block(
@@ -69,6 +69,7 @@ def initialise_block(
     polish_rounds: int = 3,
     camera_names: Sequence[str] | None = None,
     unknown_distortion: float = UNKNOWN_DISTORTION,
+    inlier_k: float = INLIER_K,
 ) -> BlockInitialisation:
     """Approximations of every EOP and object point of a block (module docstring).
 
@@ -101,7 +102,9 @@ def initialise_block(
       k its camera's first image);
     - `unknown_distortion`: the misfit a camera's unknown distortion may leave at the edge of
       its image points, as a fraction of their radius (`distortion_allowance`), allowed
-      before an image point is a blunder (0 for calibrated cameras).
+      before an image point is a blunder (0 for calibrated cameras);
+    - `inlier_k`: the inlier cut of a ray's 2D reprojection error in robust σ (resections,
+      intersections; default 3.5, chi² with 2 dof at 99.8 %).
 
     Returns a `BlockInitialisation`: EOPs, points, how each was found, flagged blunders and the
     log. Images and points that cannot be initialised are NaN and listed with the reason.
@@ -110,7 +113,7 @@ def initialise_block(
     require_float64("initialise_block")
     block = Block(observations, cameras, eops, control, distances, n_points, sigma, seed,
                   min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                  pair_candidates, polish_rounds, camera_names, unknown_distortion)
+                  pair_candidates, polish_rounds, camera_names, unknown_distortion, inlier_k)
     block.log.insert(0, f"{block.n_images} images, {block.n_points} points, {block.n} image "
                         f"points ({int(np.sum(block.valid))} usable)")
     if seed_in_frame(block):

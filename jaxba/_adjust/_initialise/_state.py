@@ -32,7 +32,8 @@ class Block:
 
     def __init__(self, observations, cameras, eops, control, distances, n_points, sigma,
                  seed, min_angle, blunder_threshold, min_resection_points, min_pair_points,
-                 pair_candidates, polish_rounds, camera_names, unknown_distortion):
+                 pair_candidates, polish_rounds, camera_names, unknown_distortion,
+                 inlier_k):
         self.log: list[str] = []
         cameras = list(cameras)
         if not all(isinstance(camera, AbstractCamera) for camera in cameras):
@@ -73,6 +74,7 @@ class Block:
         self.min_angle = float(min_angle)
         self.blunder_threshold = float(blunder_threshold)
         self.unknown_distortion = float(unknown_distortion)
+        self.inlier_k = float(inlier_k)
         self.min_resection_points = int(min_resection_points)
         self.min_pair_points = max(9, int(min_pair_points))
         self.pair_candidates = int(pair_candidates)
@@ -178,7 +180,7 @@ class Block:
 
     def threshold(self, rows):
         sigma = self.sigma_normalised(rows)
-        return None if sigma is None else INLIER_K * sigma
+        return None if sigma is None else self.inlier_k * sigma
 
     def in_units(self, rows, value) -> str:
         """A normalised length `value` at image points `rows` in their image units."""
