@@ -28,6 +28,7 @@ from ..._statistics._adjustment import Adjustment
 from ._adjust import adjust_project
 from ._build import Project, build_project
 from ._complete import LISTED, Completion, _distances, _named, _observations, without_points
+from ._spec import ProjectSpec
 
 DEFERRED_MIN_ANGLE = np.radians(0.1)
 """The smallest intersection angle of a deferred point's rays in the adjusted block: with
@@ -79,7 +80,7 @@ def _adjusted_cameras(project: Project, result: Adjustment, image_ids) -> list:
 
 
 def intersect_deferred(completion: Completion, project: Project,
-                       result: Adjustment) -> tuple:
+                       result: Adjustment) -> tuple[ProjectSpec, Deferral]:
     """The deferred points of `completion` intersected from the adjusted `project`'s
     `result` (module docstring). Returns the spec to adjust next (`completion.pending` with
     the points intersected, the others left out) and the `Deferral`."""
