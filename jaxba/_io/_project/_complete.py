@@ -161,18 +161,18 @@ def complete_project(spec: ProjectSpec, *, seed: int = 0) -> tuple[ProjectSpec, 
         return spec, Completion(
             spec, nothing, tuple(image_ids), tuple(point_ids), (), (),
             dict.fromkeys(image_ids, "given"), dict.fromkeys(point_ids, "given"), (), ())
-    observations = _observations(spec, image_ids, point_ids)
+    observations = block_observations(spec, image_ids, point_ids)
     result = initialise_block(
         observations, _cameras(spec, image_ids),
         eops=_given_eops(spec, image_ids), control=_given_points(spec, point_ids),
-        distances=_distances(spec, point_ids), n_points=len(point_ids), seed=seed,
+        distances=block_distances(spec, point_ids), n_points=len(point_ids), seed=seed,
         camera_names=[spec.images[iid].camera for iid in image_ids])
-    log = tuple(_named(line, image_ids, point_ids) for line in result.log)
+    log = tuple(named(line, image_ids, point_ids) for line in result.log)
     # A point on 2 or more initialised images that could not be intersected waits for the
     # adjusted block.
     image, point = observations[:, 0].astype(int), observations[:, 1].astype(int)
     rays = np.bincount(point[result.initialised_images[image]], minlength=len(point_ids))
-    deferred = {point_ids[k]: _named(reason, image_ids, point_ids)
+    deferred = {point_ids[k]: named(reason, image_ids, point_ids)
                 for k, reason in result.failed_points.items()
                 if rays[k] >= 2 and spec.points[point_ids[k]].xyz is None}
     _check(spec, result, image_ids, point_ids, deferred)
@@ -232,7 +232,7 @@ def _nothing(n_images: int, n_points: int) -> BlockInitialisation:
 # --- the arrays of initialise_block ---------------------------------------------------------
 
 
-def _observations(spec: ProjectSpec, image_ids, point_ids) -> np.ndarray:
+def block_observations(spec: ProjectSpec, image_ids, point_ids) -> np.ndarray:
     """(n, 4) image index, point index, x, y in the camera model's units; the table's rows."""
     table = spec.image_points
     image_row = {iid: k for k, iid in enumerate(image_ids)}
@@ -281,7 +281,8 @@ def _given_points(spec: ProjectSpec, point_ids) -> np.ndarray:
     return xyz
 
 
-def _distances(spec: ProjectSpec, point_ids) -> np.ndarray | None:
+def block_distances(spec: ProjectSpec, point_ids) -> np.ndarray | None:
+    """(m, 3) point index a, point index b, length of the distances; None without any."""
     if not spec.distances:
         return None
     point_row = {pid: k for k, pid in enumerate(point_ids)}
@@ -292,7 +293,7 @@ def _distances(spec: ProjectSpec, point_ids) -> np.ndarray | None:
 # --- the outcome ----------------------------------------------------------------------------
 
 
-def _named(text: str, image_ids, point_ids) -> str:
+def named(text: str, image_ids, point_ids) -> str:
     """The initialisation's text with image and point IDs for its indices (an index out of
     range is left as it is)."""
     def name(names, index: str) -> str:
@@ -327,7 +328,7 @@ def _check(spec: ProjectSpec, result: BlockInitialisation, image_ids, point_ids,
                   if getattr(rows[i], value) is None and k in reasons and i not in deferred]
         if failed:
             problems.append(f"{len(failed)} {kind}{'s' * (len(failed) != 1)}: " + "; ".join(
-                f"{i!r} ({file}:{rows[i].line}): {_named(reasons[k], image_ids, point_ids)}"
+                f"{i!r} ({file}:{rows[i].line}): {named(reasons[k], image_ids, point_ids)}"
                 for k, i in failed[:LISTED]) + _more(failed))
     if problems:
         raise ProjectError(
@@ -343,7 +344,7 @@ def _check(spec: ProjectSpec, result: BlockInitialisation, image_ids, point_ids,
             f" {names.get('points')}, 7 coordinates (6 with distances), or an image with its"
             " EOPs"
             " (the initialisation's log: " + "; ".join(
-                _named(line, image_ids, point_ids) for line in result.log
+                named(line, image_ids, point_ids) for line in result.log
                 if line.startswith("frame")) + ")")
 
 

@@ -27,7 +27,14 @@ from ..._models._cameras import CAMERA_MODELS
 from ..._statistics._adjustment import Adjustment
 from ._adjust import adjust_project
 from ._build import Project, build_project
-from ._complete import LISTED, Completion, _distances, _named, _observations, without_points
+from ._complete import (
+    LISTED,
+    Completion,
+    block_distances,
+    block_observations,
+    named,
+    without_points,
+)
 from ._spec import ProjectSpec
 
 DEFERRED_MIN_ANGLE = np.radians(0.1)
@@ -94,9 +101,9 @@ def intersect_deferred(completion: Completion, project: Project,
     control = np.array([adjusted[point_row[pid]] if pid in point_row else np.full(3, np.nan)
                         for pid in point_ids]).reshape(-1, 3)
     again = initialise_block(
-        _observations(pending, image_ids, point_ids),
+        block_observations(pending, image_ids, point_ids),
         _adjusted_cameras(project, result, image_ids), eops=eops, control=control,
-        distances=_distances(pending, point_ids), n_points=len(point_ids),
+        distances=block_distances(pending, point_ids), n_points=len(point_ids),
         min_angle=DEFERRED_MIN_ANGLE, polish_rounds=0, unknown_distortion=0.0,
         inlier_k=familywise(len(pending.image_points), INLIER_K),
         camera_names=[pending.images[iid].camera for iid in image_ids])
@@ -105,7 +112,7 @@ def intersect_deferred(completion: Completion, project: Project,
     for pid, reason in completion.deferred.items():
         k = row[pid]
         if k in again.failed_points:
-            left_out[pid] = _named(again.failed_points[k], image_ids, point_ids)
+            left_out[pid] = named(again.failed_points[k], image_ids, point_ids)
         else:
             added[pid] = reason
             points[pid] = dataclasses.replace(points[pid], xyz=tuple(again.points[k].tolist()))
