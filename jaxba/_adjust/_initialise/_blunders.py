@@ -47,6 +47,19 @@ def distortion_allowance(q: np.ndarray, unknown_distortion: float) -> np.ndarray
     return unknown_distortion * edge * (radius / edge) ** 3
 
 
+def point_allowance(q: np.ndarray, points: np.ndarray, unknown_distortion: float) -> np.ndarray:
+    """What an unknown distortion may leave (n,) (normalised units) at one camera's image
+    points of normalised coordinates q (n, 2) of `points` (n,): the largest
+    `distortion_allowance` of the point's k rays (a point intersected from a bent ray is off
+    in its other images too), times 1 + 1 / (k - 2) (the more so the fewer rays hold it)."""
+    allowed = distortion_allowance(q, unknown_distortion)
+    index, inverse = np.unique(points, return_inverse=True)
+    worst = np.zeros(len(index))
+    np.maximum.at(worst, inverse, allowed)
+    rays = np.bincount(inverse, minlength=len(index))
+    return worst[inverse] * (1 + 1 / np.maximum(rays[inverse] - 2, 1))
+
+
 def familywise(count: int, threshold: float) -> float:
     """The cut in σ of the norm of one of `count` 2D residuals: `threshold`, raised to the
     familywise bound sqrt(2 ln(count / FAMILYWISE_ALPHA))."""

@@ -152,8 +152,8 @@ def resect_image(block, i, known):
     rms = np.sqrt(np.mean(fit.errors[fit.inliers] ** 2))
     new = triangulate(block, block.point[block.obs_of_image[i]])
     block.log.append(f"image {i}: resection on {count} points ({int(np.sum(fit.inliers))}"
-                    f" inliers, RMS {block.in_units(rows, rms)}); {new} new points "
-                    "intersected")
+                     f" inliers, RMS {block.in_units(rows, rms)}); {new} new points "
+                     "intersected")
 
 
 def connect(block, i) -> bool:

@@ -5,25 +5,27 @@ images and points left out could not be initialised, and the log's summary.
 
 import numpy as np
 
-from ._blunders import distortion_allowance, familywise, flag
+from ._blunders import familywise, flag, point_allowance
 from ._ideal import image_residuals
 from ._result import BlockInitialisation
 from ._robust import RAYLEIGH_MEDIAN
 
 
 def outcome(block, frame, similarity) -> BlockInitialisation:
+    """The `BlockInitialisation` of `block` in `frame` ("control" or "model"), moved onto
+    the object frame by `similarity` (None: grown in it, or left in the model's)."""
     if frame != "model":
         given = np.all(np.isfinite(block.given), axis=1)
         for i in np.flatnonzero(given):
             if block.oriented[i] and block.image_method[i] != "given":
                 off = np.linalg.norm(block.eops[i, :3] - block.given[i, :3])
                 block.log.append(f"image {i}: its given EOPs replace the computed ones "
-                                f"(station off by {off:.3g} object units)")
+                                 f"(station off by {off:.3g} object units)")
             block.orient(i, block.given[i], "given")
         partial = np.isfinite(block.control)
         full = np.all(partial, axis=1)
         block.X[block.known] = np.where(partial[block.known], block.control[block.known],
-                                      block.X[block.known])
+                                        block.X[block.known])
         block.X[full] = block.control[full]
         for p in np.flatnonzero(full):
             block.known[p] = block.fixed[p] = True
@@ -56,14 +58,8 @@ def outcome(block, frame, similarity) -> BlockInitialisation:
             np.max(block.sigma_given[images]))
         sigma[images] = max(estimate, floor)
         judged[here] = norms / max(estimate, floor, np.finfo(float).tiny)
-        # A point intersected from a bent ray is off by as much in its other images, more
-        # so the fewer they are (1 + 1 / (k - 2) for k rays).
-        allowed = distortion_allowance(block.q[here], block.unknown_distortion)
-        worst = np.zeros(block.n_points)
-        np.maximum.at(worst, block.point[here], allowed)
-        rays = np.bincount(block.point[here], minlength=block.n_points)[block.point[here]]
-        allowed = (worst[block.point[here]] * block.scale[here]
-                   * (1 + 1 / np.maximum(rays - 2, 1)))
+        allowed = block.scale[here] * point_allowance(block.q[here], block.point[here],
+                                                      block.unknown_distortion)
         blunders[here] = flag(norms, max(estimate, floor), allowed,
                               block.blunder_threshold, block.point[here])
         unit = camera.image_units
@@ -98,8 +94,8 @@ def outcome(block, frame, similarity) -> BlockInitialisation:
             reason = block.point_reason.get(p, "its rays do not meet")
         failed_points[int(p)] = reason
     block.log.append(f"initialised {int(np.sum(block.oriented))} of {block.n_images} images "
-                    f"and {int(np.sum(block.known))} of {block.n_points} points; "
-                    f"{int(np.sum(blunders))} blunders flagged")
+                     f"and {int(np.sum(block.known))} of {block.n_points} points; "
+                     f"{int(np.sum(blunders))} blunders flagged")
     if failed_images:
         block.log.append(f"not initialised: images {sorted(failed_images)}")
     if failed_points:

@@ -42,7 +42,7 @@ def to_object_frame(block) -> tuple[str, Similarity | None]:
         r = opk_to_matrix(block.given[i, 3:]).T @ block.matrices[i]  # M_G = M_M Rᵀ
         similarity = _similarity(block.given[i, :3] - scale * r @ block.eops[i, :3], r, scale)
         block.log.append(f"frame: rotated and shifted onto the given EOPs of image {i}, "
-                        f"scale {scale:.6g} from {source}")
+                         f"scale {scale:.6g} from {source}")
     if similarity is None and np.sum(np.isfinite(ground)) + from_distances >= 7:
         similarity = _partial(block, model, ground, scale if from_distances else None,
                                    source)
@@ -51,11 +51,11 @@ def to_object_frame(block) -> tuple[str, Similarity | None]:
         return "control", similarity
     if source == "nothing":
         block.log.append("frame: no control, EOPs or distances: the model's (first image "
-                        "at the origin, M = I, base 1)")
+                         "at the origin, M = I, base 1)")
         return "model", None
     similarity = _similarity(np.zeros(3), np.eye(3), scale)
     block.log.append(f"frame: model scaled by {scale:.6g} from {source}; its origin and axes "
-                    "stay the first image's")
+                     "stay the first image's")
     _apply(block, similarity)
     return "model", similarity
 
@@ -76,12 +76,12 @@ def _partial(block, model, ground, fixed, source) -> Similarity | None:
     t, r, s, rms = solutions[0]
     count = int(np.sum(np.isfinite(ground)))
     block.log.append(f"frame: similarity onto {count} control coordinates"
-                    + (f" with the scale {s:.6g} from {source}" if fixed else
+                     + (f" with the scale {s:.6g} from {source}" if fixed else
                        f", scale {s:.6g}") + f", RMS {rms:.3g} (object units)")
     if len(solutions) > 1:
         block.log.append(f"frame: WARNING the control fits {len(solutions)} distinct "
-                        "rotations equally well (a minimal datum): the first was taken; "
-                        "more control coordinates or given EOPs would decide")
+                         "rotations equally well (a minimal datum): the first was taken; "
+                         "more control coordinates or given EOPs would decide")
     return _similarity(t, r, s)
 
 
@@ -102,14 +102,14 @@ def _absolute(block, model, ground, labels) -> Similarity | None:
         if np.sum(full) > 3 and misfit[worst] > 5 * spread and misfit[worst] > 0:
             index = np.flatnonzero(keep)[worst]
             block.log.append(f"absolute orientation: {labels[index]} is off by "
-                            f"{misfit[worst]:.3g} (object units): left out")
+                             f"{misfit[worst]:.3g} (object units): left out")
             keep[index] = False
             continue
         break
     rms = np.sqrt(np.nanmean(similarity.residuals**2))
     block.log.append(f"frame: absolute orientation onto {int(np.sum(full))} full and "
-                    f"{int(np.sum(~full))} partial control points / camera stations, "
-                    f"scale {similarity.scale:.6g}, RMS {rms:.3g} (object units)")
+                     f"{int(np.sum(~full))} partial control points / camera stations, "
+                     f"scale {similarity.scale:.6g}, RMS {rms:.3g} (object units)")
     return similarity
 
 

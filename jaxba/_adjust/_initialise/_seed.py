@@ -29,7 +29,7 @@ def seed_in_frame(block) -> bool:
                              threshold=block.threshold(rows), min_inliers=4)
             except ValueError as error:
                 block.log.append(f"image {i}: no resection on its {count} control points "
-                                f"({error})")
+                                 f"({error})")
                 continue
             block.orient(i, fit.eop, "control resection")
             block.use[rows[~fit.inliers]] = False
@@ -42,8 +42,8 @@ def seed_in_frame(block) -> bool:
                 block.sigma_hat = robust_sigma(np.concatenate(pooled))
             rms = np.sqrt(np.mean(fit.errors[fit.inliers] ** 2))
             block.log.append(f"image {i}: resection on {count} control points "
-                            f"({int(np.sum(fit.inliers))} inliers, RMS "
-                            f"{block.in_units(rows, rms)})")
+                             f"({int(np.sum(fit.inliers))} inliers, RMS "
+                             f"{block.in_units(rows, rms)})")
     if np.sum(block.oriented) < 2:
         return False
     block.X[full] = block.control[full]
@@ -62,12 +62,12 @@ def seed_in_frame(block) -> bool:
         for i, rows in enumerate(block.obs_of_image) if not block.oriented[i])
     if intersected < 6 and not growable and not np.all(block.oriented):
         block.log.append(f"{len(given)} images with given EOPs and {len(resected)} resected "
-                        f"on control intersect only {intersected} points: starting from a "
-                        "relative orientation instead")
+                         f"on control intersect only {intersected} points: starting from a "
+                         "relative orientation instead")
         return False
     block.log.append(f"frame: the object frame of the control and given EOPs "
-                    f"({len(given)} images given, {len(resected)} resected on control); "
-                    f"{intersected} points intersected")
+                     f"({len(given)} images given, {len(resected)} resected on control); "
+                     f"{intersected} points intersected")
     return True
 
 
@@ -78,7 +78,7 @@ def seed_pair(block) -> bool:
              if i < j and c >= block.min_pair_points]
     if not pairs:
         block.log.append(f"no image pair has {block.min_pair_points} or more common points: "
-                        "no relative orientation")
+                         "no relative orientation")
         return False
     pairs.sort(key=lambda t: (-t[0], t[1], t[2]))
     sigma = None
@@ -94,11 +94,11 @@ def seed_pair(block) -> bool:
             continue
         inliers, angle, score = int(np.sum(pair.inliers)), pair.median_angle, pair.score
         block.log.append(f"pair {i}-{j}: {inliers} of {count} common points fit its relative "
-                        f"orientation, median intersection angle {np.degrees(angle):.1f}°, "
-                        f"σ {block.in_units(ri, pair.sigma)}")
+                         f"orientation, median intersection angle {np.degrees(angle):.1f}°, "
+                         f"σ {block.in_units(ri, pair.sigma)}")
         if angle < block.min_angle:
             block.log.append(f"pair {i}-{j}: its rays meet at less than "
-                            f"{np.degrees(block.min_angle):.1f}° (too short a base): not used")
+                             f"{np.degrees(block.min_angle):.1f}° (too short a base): not used")
             continue
         if best is None or score > best[0]:
             best = (score, i, j, pair, ri, rj)
@@ -112,5 +112,5 @@ def seed_pair(block) -> bool:
         block.sigma_hat = pair.sigma
     intersected = triangulate(block, np.unique(block.point[ri[pair.inliers]]))
     block.log.append(f"frame: the model of pair {i}-{j} (image {i} at the origin, M = I, "
-                    f"base 1); {intersected} points intersected")
+                     f"base 1); {intersected} points intersected")
     return True
