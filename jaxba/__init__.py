@@ -75,6 +75,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._io._project._adjust": ("adjust_project",),
     "._io._project._build": ("Project", "build_project"),
     "._io._project._complete": ("Completion", "complete_project"),
+    "._io._project._deferred": ("Deferral", "adjust_deferred"),
     "._io._project._write": ("write_project",),
     "._statistics._reliability": ("Reliability", "reliability"),
     "._report": ("OutputError", "html_report", "read_observations", "write_reports"),

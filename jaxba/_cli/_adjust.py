@@ -13,12 +13,13 @@ from ._common import (
     EXIT_OK,
     UsageError,
     common_options,
+    plural,
     print_error,
     raise_if_interrupted,
     say,
     setup_jax,
 )
-from ._init import complete
+from ._init import complete, warn_unused_cameras
 
 
 def add_adjust(subparsers) -> None:
@@ -83,6 +84,31 @@ def _write_uncertainty(project, result, out_dir, args) -> dict[pathlib.Path, str
     return files
 
 
+def _adjust_deferred(completion, project, result, options):
+    """Adjust again with the deferred points intersected from the converged `result`
+    (`adjust_deferred`), saying what became of them; when `result` did not converge, say
+    that they were not added. Returns the project and adjustment to report."""
+    import jaxba
+    from jaxba import _report
+
+    count = plural(len(completion.deferred), "deferred point")
+    if not result.converged:
+        print_error(f"the {count} were not added: the adjustment without them did not converge",
+                    "warning")
+        return project, result
+
+    def said(again, deferral):
+        for line in deferral.lines():
+            say(f"  {line}")
+        say(f"adjusting again with the {plural(len(deferral.added), 'deferred point')} ...")
+        say(_report.start_line(again))
+
+    say(f"intersecting the {count} from the adjusted block ...")
+    again, result, _ = jaxba.adjust_deferred(completion, project, result, on_deferral=said,
+                                             **options)
+    return again, result
+
+
 def _read_checked(args: argparse.Namespace):
     """Read the project and check the output folder, without jax: bad input is reported
     within a fraction of a second. Returns the spec, the output folder and the seconds."""
@@ -98,6 +124,7 @@ def _read_checked(args: argparse.Namespace):
             check_targets([html_path(spec, out_dir)], spec.input_files, f"project {spec.name!r}")
     except (ProjectError, OutputError) as error:
         raise UsageError(str(error)) from None
+    warn_unused_cameras(spec)
     return spec, out_dir, time.perf_counter() - start
 
 
@@ -148,10 +175,11 @@ def _run_locked(args, spec, out_dir, read_seconds: float) -> int:
         if completion is not None:
             project = dataclasses.replace(project, initialisation=completion.summary())
         say(_report.start_line(project))
-        result = jaxba.adjust_project(
-            project, on_iteration=lambda it: say(_report.iteration_line(it)),
-            solver=args.solver, timings=timings,
-        )
+        options = dict(on_iteration=lambda it: say(_report.iteration_line(it)),
+                       solver=args.solver, timings=timings)
+        result = jaxba.adjust_project(project, **options)
+        if completion is not None and completion.deferred:
+            project, result = _adjust_deferred(completion, project, result, options)
     except (jaxba.ProjectError, jaxba.DatumError, ProblemError) as error:
         raise UsageError(str(error)) from None
     except jaxba.NotConvergedError as error:

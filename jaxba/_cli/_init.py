@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
         project_paths(spec, args.out)
     except (ProjectError, OutputError) as error:
         raise UsageError(str(error)) from None
+    warn_unused_cameras(spec)
     with output_lock(args.out):
         return _run_locked(args, spec)
 
@@ -45,7 +46,7 @@ def _run_locked(args: argparse.Namespace, spec) -> int:
     from jaxba._io._project import ProjectError
     from jaxba._io._project._write import write_project
 
-    completed, image_methods, point_methods = spec, None, None
+    completed, image_methods, point_methods, deferred = spec, None, None, {}
     if spec.complete:
         say(f"{spec.path.name}: every image and point has its approximation; nothing to"
             " compute, the project is copied")
@@ -56,14 +57,20 @@ def _run_locked(args: argparse.Namespace, spec) -> int:
         except ProjectError as error:
             raise UsageError(str(error)) from None
         image_methods, point_methods = completion.image_methods, completion.point_methods
+        deferred = completion.deferred
+        completed = completion.pending or completed  # the deferred points kept, without values
     try:
         written = write_project(completed, args.out, source=spec, image_methods=image_methods,
-                                point_methods=point_methods)
+                                point_methods=point_methods, deferred=deferred)
     except OSError as error:
         raise UsageError(str(error)) from None
     say("wrote")
     for path in written:
         say(f"  {path}")
+    if deferred:
+        say(f"the {plural(len(deferred), 'deferred point')} are written without approximations"
+            f" (absent from {spec.file_names.get('points', 'the points table')}): jaxba adjust"
+            " intersects them from the adjusted block")
     return EXIT_OK
 
 
@@ -86,3 +93,10 @@ def complete(spec, timings=None):
     if suspects:
         print_error(suspects, "warning")
     return completed, completion
+
+
+def warn_unused_cameras(spec) -> None:
+    """A warning naming the cameras of cameras.toml that no image uses (they are left out)."""
+    warning = spec.unused_camera_warning()
+    if warning:
+        print_error(warning, "warning")

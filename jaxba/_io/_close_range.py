@@ -157,15 +157,17 @@ def write_close_range_project(
     n_sparse=2,
     sparse_points=15,
     datum="dependent",
+    approximations=True,
 ) -> SyntheticTruth:
     """Write a convergent close-range block with the faults of real ones (module docstring)
     into `directory`: `{name}.toml`, `cameras.toml`, `orientation.txt`,
     `image_coordinates.txt`, `ground_points.txt` (docs/project-files.md).
 
     `n_points` wall points plus `weak_fraction` of them far behind it; `datum`:
-    "dependent" or "free" (no control, no distances). The images "img01".. are those
-    that measure a point; wall points seen by fewer than 3 are dropped. Returns the truth
-    (`SyntheticTruth`; angles in degrees)."""
+    "dependent" or "free" (no control, no distances); `approximations` False: none (every
+    EOP `-`, the points table empty: the block from nothing, the same block otherwise). The
+    images "img01".. are those that measure a point; wall points seen by fewer than 3 are
+    dropped. Returns the truth (`SyntheticTruth`; angles in degrees)."""
     if datum not in ("dependent", "free"):
         raise ValueError(f"datum must be 'dependent' or 'free', got {datum!r}")
     if n_sparse >= n_images or n_images < 3:
@@ -216,7 +218,8 @@ def write_close_range_project(
         eop = eop + rng.normal(0.0, 1.0, 6) * sigma6
         approx_eops.append(eop)
         rows.append([image_ids[k], "C1", *(f"{v:.9f}" for v in eop[:3]),
-                     *(f"{v:.8f}" for v in eop[3:])])
+                     *(f"{v:.8f}" for v in eop[3:])] if approximations
+                    else [image_ids[k], "C1", *["-"] * 6])
     write_table(directory / "orientation.txt",
                 "image_id camera_id X0 Y0 Z0 (m) omega phi kappa (deg)", rows)
 
@@ -227,7 +230,8 @@ def write_close_range_project(
         if p in views:
             approx[p] = _intersect(points[p], stations[views[p]], matrices[views[p]],
                                    earlier[views[p]])
-    rows = [[str(p + 1), *(f"{v:.9f}" for v in approx[p]), "-", "-", "-"] for p in used]
+    rows = [[str(p + 1), *(f"{v:.9f}" for v in approx[p]), "-", "-", "-"]
+            for p in used if approximations]
     write_table(directory / "ground_points.txt", "point_id X Y Z (m) sX sY sZ (tie points)",
                 rows)
 

@@ -173,6 +173,31 @@ def _datum_section(project: Project) -> list[str]:
     return []
 
 
+def _initialisation_section(project: Project) -> list[str]:
+    """What the initialisation computed, deferred and left out (`Completion.summary()`,
+    `Deferral.summary()`); none when the files held every approximation."""
+    section = project.initialisation
+    if section is None:
+        return []
+    lines = ["initialisation: approximations computed for"
+             f" {len(section['computed_images'])} images and"
+             f" {len(section['computed_points'])} points"]
+    deferred = section.get("deferred_points", {})
+    if deferred:
+        lines.append(f"  deferred until the block was adjusted: {len(deferred)} points")
+        for pid, reason in deferred.items():
+            lines.append(f"    {pid}: {reason}")
+    added = section.get("added_points", [])
+    if added:
+        lines.append(f"  intersected from the adjusted block and adjusted: {len(added)} points")
+    left_out = section.get("left_out_points", {})
+    if left_out:
+        lines.append(f"  left out, with their image points: {len(left_out)} points")
+        for pid, reason in left_out.items():
+            lines.append(f"    {pid}: {reason}")
+    return lines
+
+
 def _camera_section(project: Project, cid: str, camera: ParameterTable) -> list[str]:
     spec = project.spec.cameras[cid]
     model = project.camera_rows[cid][0]
@@ -386,6 +411,8 @@ def out_text(project: Project, result: Adjustment) -> str:
     w weighted.
     """
     lines = _header(project, result)
+    initialisation = _initialisation_section(project)
+    lines += ["", *initialisation] if initialisation else []
     datum = _datum_section(project)
     lines += ["", *datum] if datum else []
     no_sigma = no_sigma_lines(project, result)

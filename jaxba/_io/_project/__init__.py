@@ -10,6 +10,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._adjust": ("adjust_project",),
     "._build": ("Project", "build_project"),
     "._complete": ("Completion", "complete_project"),
+    "._deferred": ("Deferral", "adjust_deferred"),
     "._errors": ("ProjectError",),
     "._readers": ("read_project",),
     "._spec": ("AdjustmentSettings", "ProjectSpec"),

@@ -255,3 +255,21 @@ class ProjectSpec:
     def complete(self) -> bool:
         """Whether every image and point has an approximation."""
         return not (self.missing_images or self.missing_points)
+
+    @property
+    def unused_cameras(self) -> list[str]:
+        """The cameras of cameras.toml that no image uses: left out of the adjustment (a
+        cameras file shared by several projects lists them; `unused_camera_warning`)."""
+        used = {image.camera for image in self.images.values()}
+        return [cid for cid in self.cameras if cid not in used]
+
+    def unused_camera_warning(self) -> str | None:
+        """One line naming the `unused_cameras` and the files, or None when there are none."""
+        unused = self.unused_cameras
+        if not unused:
+            return None
+        cameras = self.file_names.get("cameras", "cameras.toml")
+        images = self.file_names.get("images", "the images table")
+        named = ", ".join(f"[{cid}]" for cid in unused)
+        return (f"{cameras}: camera{'s' * (len(unused) > 1)} {named} used by no image of "
+                f"{images}: left out of the adjustment (not adjusted, not reported)")

@@ -51,45 +51,50 @@ def project_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
 def project_texts(
     spec: ProjectSpec, paths: dict[str, pathlib.Path], *, source: ProjectSpec | None = None,
     image_methods: dict[str, str] | None = None, point_methods: dict[str, str] | None = None,
+    deferred=(),
 ) -> dict[pathlib.Path, str | bytes]:
     """The contents of `paths` (`project_paths`) for the completed `spec`.
 
     `source`: the spec as read (its `-` rows and absent points are those written with the
     values of `spec`; default `spec` itself: copies); `image_methods`, `point_methods`: ID ->
-    how its approximation was found (`Completion`), said in a comment.
+    how its approximation was found (`Completion`), said in a comment; `deferred`: points
+    left without approximations (absent from the points table, `Completion.deferred`).
     """
     source = spec if source is None else source
+    computed = [p for p in source.missing_points if p not in set(deferred)]
     texts: dict[pathlib.Path, str | bytes] = {
         paths["project"]: _project_toml(spec, paths, len(source.missing_images),
-                                        len(source.missing_points)),
+                                        len(computed)),
     }
     for key, path in paths.items():
         if key != "project":
             texts[path] = spec.files[key].read_bytes()
     if source.missing_images:
         texts[paths["images"]] = _images_text(spec, source.missing_images, image_methods or {})
-    if source.missing_points:
-        texts[paths["points"]] = _points_text(spec, source.missing_points, point_methods or {})
+    if computed:
+        texts[paths["points"]] = _points_text(spec, computed, point_methods or {})
     return texts
 
 
 def write_project(
     spec: ProjectSpec, out_dir, *, source: ProjectSpec | None = None,
     image_methods: dict[str, str] | None = None, point_methods: dict[str, str] | None = None,
+    deferred=(),
 ) -> list[pathlib.Path]:
     """Write the complete project `spec` into `out_dir` (created if needed): its TOML file
     and every table (module docstring), never over an input (`OutputError`), all files
-    together. `source`, `image_methods`, `point_methods`: as `project_texts`. The written
-    project is read back: returns its paths, the TOML file first.
+    together. `source`, `image_methods`, `point_methods`, `deferred`: as `project_texts`
+    (the `deferred` points may miss their approximations). The written project is read
+    back: returns its paths, the TOML file first.
 
     Raises `ProjectError` if `spec` still misses approximations (`complete_project` first).
     """
-    if not spec.complete:
+    if spec.missing_images or set(spec.missing_points) - set(deferred):
         raise ProjectError(f"{spec.path.name}: approximations are missing; complete_project"
                            " computes them before the project is written")
     paths = project_paths(spec, out_dir)
     texts = project_texts(spec, paths, source=source, image_methods=image_methods,
-                          point_methods=point_methods)
+                          point_methods=point_methods, deferred=deferred)
     pathlib.Path(out_dir).mkdir(parents=True, exist_ok=True)
     replace_files(texts)
     from ._readers import read_project
