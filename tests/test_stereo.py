@@ -157,3 +157,18 @@ def test_exported_stereo_yaml_equals_opencv_stereo_calibrate(scene, rig, tmp_pat
     assert k2[0, 0] == pytest.approx(result.cameras["right"]["fx"].value, rel=1e-12)
     assert stored.getNode("D1").mat().ravel()[0] == pytest.approx(
         result.cameras["left"]["k1"].value, rel=1e-12)
+
+
+def test_projection_uncertainty_of_a_rig(rig):
+    """A rig's reference camera is mapped in both frames; the other camera only with the
+    intrinsics (frame "camera"): in the default frame it is named in a note, not mapped
+    through its frame's pose alone."""
+    from jaxba._report._uncertainty import camera_uncertainties
+
+    project, result = rig
+    maps, notes = camera_uncertainties(project, result)
+    assert [m.camera_id for m in maps] == ["left"]
+    assert len(notes) == 1 and "'right'" in notes[0] and "mount" in notes[0]
+    maps, notes = camera_uncertainties(project, result, frame="camera")
+    assert [m.camera_id for m in maps] == ["left", "right"] and not notes
+    assert all(np.all(np.isfinite(m.uncertainty.sigma_worst)) for m in maps)

@@ -79,8 +79,12 @@ def camera_uncertainties(project: Project, result: Adjustment, *, distance: floa
                          " (and pixel_size) in cameras.toml")
             continue
         sensor = tuple(int(v) for v in spec.sensor)
-        uncertainty = projection_uncertainty(result, cid, sensor_grid(sensor), distance,
-                                             frame=frame, grid=grid)
+        try:
+            uncertainty = projection_uncertainty(result, cid, sensor_grid(sensor), distance,
+                                                 frame=frame, grid=grid)
+        except ValueError as error:  # a mounted camera in the default frame
+            notes.append(f"{error}: not mapped")
+            continue
         observed, observed_distances = _observed(project, result, cid, grid)
         near = observed_distances.min() if observed_distances.size else 1.0
         far = observed_distances.max() if observed_distances.size else 1.0

@@ -181,6 +181,11 @@ def _frame_map(result, ref: CameraRef, positions) -> tuple[np.ndarray, np.ndarra
                               & np.all(np.asarray(group.mask()), axis=1))
         if rows.size == 0:
             continue
+        if group.mount is not None and np.any(np.asarray(group.mount)[rows] != 0):
+            raise ValueError(
+                f"camera {ref.camera_id!r} is mounted in a rig or on a platform: its view of the"
+                " world is not carried through the mount yet (frame='camera', the intrinsics"
+                " only, is available)")
         images, points = np.asarray(group.image)[rows], np.asarray(group.point)[rows]
         a, b_pose, b_point = (np.asarray(x) for x in _frame_fit_blocks(
             ref.model, ref.constants, group.pose, jax.device_put(iop),
