@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba._report._console import summary_lines
 from jaxba._report._json import results_json
 from jaxba._report._text import out_text
 
@@ -65,6 +66,8 @@ def test_dependent_datum_with_distances_fixes_six_eops(with_distances):
     data = json.loads(results_json(project, dependent))
     assert data["datum"]["image"] == "img03" and data["datum"]["scale"] == "distances"
     assert data["datum"]["description"] == " ".join(datum_lines[0][1:])  # as in NAME.out
+    console = [line for line in summary_lines(project, dependent) if line.startswith("datum:")]
+    assert console == [f"datum: {data['datum']['description']}"]  # the console says the same
     assert all(data["images"]["img03"][name]["status"] == "fixed" for name in EOPS)
 
 

@@ -6,11 +6,12 @@ import math
 from .._io._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
-from .._statistics._summary import datum_description, outlier_summary, variance_test
+from .._statistics._summary import outlier_summary, variance_test
 from ._collect import (
     CONSTANT,
     FIXED,
     camera_tables,
+    datum_text,
     describe,
     group_statistics,
     project_ids,
@@ -65,7 +66,7 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
     test = variance_test(result)
     if test is not None:
         lines.append(f"  {test.text()}")
-    lines.append(f"datum: {datum_description(result.problem)}")
+    lines.append(f"datum: {datum_text(project, result)}")  # as NAME.out and results.json
     found_outliers = outlier_summary(result, project_ids(project),
                                      group_statistics(project, result))
     if found_outliers is not None:
