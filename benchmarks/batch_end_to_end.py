@@ -11,7 +11,9 @@ fresh process with OPENBLAS_NUM_THREADS=1 and a warm persistent compilation cach
 `jaxba batch` of the same projects fills it; its time is printed as "cold"):
 
 - `jaxba batch P1.toml ... PN.toml --out DIR` with its default reports (per project
-  NAME.out, NAME.res, NAME.sigma, results.json, observations.csv; summary.csv and .json);
+  NAME.out, NAME.res, NAME.sigma, results.json, observations.csv; summary.csv and .json) and
+  its default worker processes (one per CPU, at most one per 100 projects), and the same
+  with `--jobs 1` (everything in one process);
 - a Python loop that reads each project's image_coordinates.txt and target_points.txt with
   NumPy and calls `cv2.calibrateCameraExtended` (1 thread; CALIB_FIX_K3 |
   CALIB_ZERO_TANGENT_DIST, Zhang's initialisation), writing
@@ -124,10 +126,12 @@ def main():
         home = pathlib.Path(tmp) / "home"
         paths = [str(p) for p in write_projects(root / "projects", args.n)]
         cold, _ = timed([jaxba_cli, "batch", *paths, "--out", str(root / "cold")], home)
-        batch, opencv = [], []
+        batch, alone, opencv = [], [], []
         for r in range(args.repeat):
             out = root / f"batch{r}"
             batch.append(timed([jaxba_cli, "batch", *paths, "--out", str(out)], home)[0])
+            alone.append(timed([jaxba_cli, "batch", *paths, "--out", str(root / f"one{r}"),
+                                "--jobs", "1"], home)[0])
             estimates = pathlib.Path(tmp) / "opencv.npy"
             seconds, _ = timed([sys.executable, "-c", OPENCV_LOOP, *paths], home,
                                stdin=f"{estimates}\n")
@@ -143,7 +147,9 @@ def main():
     print("| command | wall s | projects/s |")
     print("|---|---|---|")
     print(f"| jaxba batch (cold cache) | {cold:.1f} | {args.n / cold:.1f} |")
-    print(f"| jaxba batch | {min(batch):.1f} | {args.n / min(batch):.1f} |")
+    print(f"| jaxba batch (default: a worker process per CPU) | {min(batch):.1f} |"
+          f" {args.n / min(batch):.1f} |")
+    print(f"| jaxba batch --jobs 1 (one process) | {min(alone):.1f} | {args.n / min(alone):.1f} |")
     print(f"| OpenCV loop (calibrateCameraExtended, 1 thread, reads the files) |"
           f" {min(opencv):.1f} | {args.n / min(opencv):.1f} |")
     print(f"throughput ratio jaxba / OpenCV: {min(opencv) / min(batch):.2f}")

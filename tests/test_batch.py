@@ -16,6 +16,7 @@ from jaxba._adjust import _batch
 from jaxba._adjust._batch import adjust_batch, pad_problems
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
 from jaxba._cli._main import main
+from jaxba._io._project import _batch_run
 from jaxba._io._project._batch_run import run_batch
 from jaxba._models._cameras import CAMERA_MODELS
 from jaxba._statistics._summary import variance_test
@@ -199,6 +200,41 @@ def test_summary_names_parameters_by_model_and_tests_the_variance_factor(
                 assert row[f"{camera_id}.{model}.{name}"] == pytest.approx(
                     value, rel=BATCH_RTOL, abs=1e-12)
         assert not [key for key in row if key.startswith("C1.") and key.count(".") < 2]
+
+
+@pytest.mark.slow  # two worker processes, each starting jax
+def test_worker_processes_give_the_rows_and_reports_of_one_process(projects, tmp_path,
+                                                                   monkeypatch):
+    """`jobs=2`: two worker processes each adjust a share from end to end (a project that
+    cannot be read and one with a datum defect fail alone, in their share); the rows equal
+    those of one process (to rounding: the chunks differ), every report is written, every
+    project is said finished once and each worker's lines reach the caller."""
+    root, paths, _ = projects
+    broken = root / "broken_share.toml"
+    broken.write_text("[project\nname = 'x'\n")
+    defect = jaxba.write_synthetic_project(root / "free_share", name="free_share", seed=3,
+                                           n_images=6, n_targets=20, datum="none",
+                                           n_distances=0)
+    batch = [*paths, defect.project_file, broken]
+    alone = run_batch(batch, tmp_path / "alone")
+    monkeypatch.setattr(_batch_run, "SHARE", 1)
+    lines, finished = [], []
+    shared = run_batch(batch, tmp_path / "shared", jobs=2, progress=lines.append,
+                       advance=lambda: finished.append(1))
+    assert "adjusting on 2 worker processes" in lines
+    assert sum(line.startswith("solving") for line in lines) == 2
+    assert len(finished) == len(batch)
+    assert [r["status"] for r in shared] == [r["status"] for r in alone] == [
+        "ok", "ok", "ok", "failed", "failed"]
+    assert shared[3]["reason"] == alone[3]["reason"] and "datum" in shared[3]["reason"]
+    for a, b in zip(alone[:3], shared[:3]):
+        assert a.keys() == b.keys() and b["mode"] == "batch"
+        for key, value in a.items():
+            if isinstance(value, float) and key != "variance_test.alpha":
+                assert b[key] == pytest.approx(value, rel=BATCH_RTOL, abs=1e-12), key
+        folder = tmp_path / "shared" / a["name"]
+        assert (folder / "results.json").is_file() and (folder / f"{a['name']}.out").is_file()
+    assert json.loads((tmp_path / "shared" / "summary.json").read_text())[0]["name"] == "p0"
 
 
 def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):

@@ -2,6 +2,7 @@
 on a Dask cluster, with a summary."""
 
 import argparse
+import os
 import pathlib
 
 from ._common import EXIT_NOT_CONVERGED, EXIT_OK, UsageError, common_options, say, setup_jax
@@ -32,6 +33,11 @@ def add_batch(subparsers) -> None:
         help="solve on Dask: a scheduler's address (tcp://host:8786), or local:N for N worker"
              " processes on this machine (local: one per CPU); default: in this process")
     parser.add_argument(
+        "--jobs", type=int, default=None, metavar="N",
+        help="worker processes on this machine, each adjusting a share of the projects from"
+             " end to end, reports included (default: one per CPU, at most one per 100"
+             " projects; 1: all in this process; not with --scheduler)")
+    parser.add_argument(
         "--chunk", type=int, default=None, metavar="N",
         help="projects per vmapped solve, one Dask task (default 10); the results do not"
              " depend on where the solves run, only (to rounding) on N")
@@ -49,6 +55,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk {args.chunk}: must be at least 1")
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: must be at least 1")
+    if args.jobs is not None and args.scheduler is not None:
+        raise UsageError("--jobs and --scheduler: give one (--scheduler local:N starts N Dask"
+                         " workers)")
     try:
         if args.scheduler is not None:  # before anything is read: Dask installed?
             check_scheduler(args.scheduler)
@@ -72,9 +83,17 @@ def run(args: argparse.Namespace) -> int:
                 rows = run_batch(args.projects, args.out, progress=progress.say,
                                  advance=progress.advance, entries=entries,
                                  scheduler=args.scheduler, chunk_size=args.chunk,
-                                 resume=args.resume)
+                                 resume=args.resume, jobs=args.jobs or _cpus())
             except SchedulerError as error:
                 raise UsageError(str(error)) from None
     ok = sum(row["status"] == "ok" for row in rows)
     say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED
+
+
+def _cpus() -> int:
+    """The CPUs this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1

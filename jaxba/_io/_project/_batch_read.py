@@ -28,6 +28,7 @@ class BatchEntry:
     result: object = None
     out_dir: pathlib.Path | None = None
     previous: dict | None = None  # resumed: its results.json
+    row: dict | None = None  # its summary row, once adjusted
 
 
 def summary_paths(out_dir) -> dict[str, pathlib.Path]:

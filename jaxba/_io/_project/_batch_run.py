@@ -11,7 +11,9 @@ alone with `adjust_project` (those are sequential re-adjustments); its summary r
 
 The chunks run on an executor (`jaxba._dask`): in this process, one after the other, or on
 the workers of a Dask cluster, all at once; everything else (grouping, failures, reports,
-summary) is the same code for both. Reports are written here as each chunk's results come
+summary) is the same code for both. With `jobs` the whole pipeline after reading (build,
+solve, reports) runs on worker processes of this machine, each on a share of the projects
+(`_batch_processes`). Reports are written here as each chunk's results come
 back, by writer threads while the next chunks are solved. A chunk whose task raised (a
 worker that kept dying under it, a bug) is tried again one project at a time, so that only
 the project at fault fails, with the exception as its reason.
@@ -35,11 +37,15 @@ from ..._models._cameras import CAMERA_MODELS
 from ..._report._atomic import replace_files
 from ..._statistics._summary import variance_test
 from . import ProjectError, build_project
+from ._batch_processes import run_on_processes
 from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
 from ._batch_solve import Chunk, Outcome, solve_chunk
 
 CHUNK = 10  # projects per vmapped solve (one Dask task), by default
 WRITERS = 2  # threads writing reports while the chunks are solved
+# Projects per worker process at least: a worker costs ~5 CPU s of its own (imports, the
+# chunk program traced), a Zhang-size project ~30 ms; fewer are faster in one process.
+SHARE = 100
 
 
 def _needs_single(project) -> bool:
@@ -58,6 +64,7 @@ def run_batch(
     scheduler=None,
     chunk_size: int | None = None,
     resume: bool = False,
+    jobs: int = 1,
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
@@ -81,6 +88,9 @@ def run_batch(
     default `CHUNK`): chunks are the same wherever they run, and so are the results (to
     rounding, they depend on the chunk length). `resume`: a project whose reports all
     exist is not adjusted again; its row is read from its results.json (mode "resumed").
+    `jobs`: worker processes of this machine that each adjust a share of the projects
+    from end to end, reports included (`_batch_processes`; at most one per `SHARE` projects,
+    so that a worker's start-up is paid for; not with a `scheduler`); 1: all in this process.
 
     `progress` receives one line per stage and per project; `advance()` is called once per
     project when it is finished (failed, skipped, or adjusted and its reports written).
@@ -92,35 +102,60 @@ def run_batch(
     entries = read_batch(paths, out_dir) if entries is None else entries
     if chunk_size is not None and chunk_size < 1:
         raise ValueError(f"chunk_size {chunk_size}: must be at least 1")
+    if jobs < 1:
+        raise ValueError(f"jobs {jobs}: must be at least 1")
     if scheduler is not None:
         check_scheduler(scheduler)
     for entry in entries:
         if resume and entry.status == "pending":
             _resume(entry)
-        if entry.status == "pending":
-            try:
-                entry.project = build_project(entry.spec)
-            except (ProjectError, ValueError, OSError) as error:
-                entry.status, entry.reason = "failed", str(error)
         if entry.status == "failed":
             say(f"failed  {entry.path}: {entry.reason}")
             finished()
         elif entry.mode == "resumed":
             say(f"skipped {entry.path}: its reports are in {entry.out_dir}")
             finished()
-    ready = [e for e in entries if e.status == "pending"]
-    say(f"read {len(entries)} projects ({len(ready)} to adjust) in"
+    pending = [e for e in entries if e.status == "pending"]
+    say(f"read {len(entries)} projects ({len(pending)} to adjust) in"
         f" {time.perf_counter() - started:.1f} s")
+    processes = min(jobs, len(pending) // SHARE)
+    if scheduler is None and processes > 1:
+        run_on_processes(pending, processes, chunk_size, say, finished, adjust_entries)
+    else:
+        adjust_entries(pending, say, finished, chunk_size, scheduler)
+    rows = [entry.row if entry.row is not None else _summary_row(entry)
+            for entry in entries]
+    _write_summary(rows, out_dir)
+    say(f"wrote {out_dir / 'summary.csv'} and summary.json"
+        f" ({time.perf_counter() - started:.1f} s in all)")
+    return rows
+
+
+def adjust_entries(
+    entries: list[BatchEntry],
+    say: Callable[[str], None],
+    finished: Callable[[], None],
+    chunk_size: int | None = None,
+    scheduler=None,
+) -> None:
+    """Build, solve and report the pending `entries` here (their solves on `scheduler`'s
+    executor): each entry's status, reason, mode and summary `row` filled in; a project
+    that cannot be built fails alone."""
+    for entry in entries:
+        try:
+            entry.project = build_project(entry.spec)
+        except (ProjectError, ValueError, OSError) as error:
+            entry.status, entry.reason = "failed", str(error)
+            say(f"failed  {entry.path}: {entry.reason}")
+            finished()
+    ready = [e for e in entries if e.status == "pending"]
     if ready:
         with executor(scheduler) as run:
             if scheduler is not None:
                 say(f"solving on {run.description}")
             _solve(run, _chunks(ready, chunk_size or CHUNK), say, finished, len(ready))
-    rows = [_summary_row(entry) for entry in entries]
-    _write_summary(rows, out_dir)
-    say(f"wrote {out_dir / 'summary.csv'} and summary.json"
-        f" ({time.perf_counter() - started:.1f} s in all)")
-    return rows
+    for entry in entries:
+        entry.row = _summary_row(entry)
 
 
 def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], Chunk]]:

@@ -1,0 +1,121 @@
+"""`jaxba batch` on several worker processes of this machine: each adjusts a share of the
+projects from end to end (build, solve, statistics, reports), so that every core works on
+the whole per-project pipeline, reports included, and not only on the compiled solve.
+
+The projects are read and every output checked once, here (`read_batch`); the pending ones
+are dealt out to `jobs` processes in contiguous shares (projects of one kind usually sit
+together, so each share pads and compiles few shapes; the programs are shared through the
+persistent compilation cache). A worker sends its progress lines and one message per
+finished project back through a queue, and returns what became of each of its projects
+(status, reason, mode and summary row), from which the caller writes the summary.
+Processes are started with "spawn": a forked copy of a process that runs jax's threads is
+not safe.
+"""
+
+import concurrent.futures
+import dataclasses
+import multiprocessing
+import queue as queue_module
+from collections.abc import Callable
+
+from ._batch_read import BatchEntry
+
+_queue = None  # a worker's channel to the parent (set by `_start_worker`)
+
+
+@dataclasses.dataclass(frozen=True)
+class Share:
+    """The projects one worker adjusts, and how (`run_batch`'s `chunk_size`)."""
+
+    entries: list[BatchEntry]
+    chunk_size: int | None
+
+
+def shares(entries: list[BatchEntry], jobs: int) -> list[list[BatchEntry]]:
+    """`entries` cut into at most `jobs` contiguous shares of nearly equal length."""
+    jobs = max(1, min(jobs, len(entries)))
+    size, extra = divmod(len(entries), jobs)
+    out, start = [], 0
+    for k in range(jobs):
+        stop = start + size + (k < extra)
+        out.append(entries[start:stop])
+        start = stop
+    return [share for share in out if share]
+
+
+def run_on_processes(
+    entries: list[BatchEntry],
+    jobs: int,
+    chunk_size: int | None,
+    say: Callable[[str], None],
+    finished: Callable[[], None],
+    adjust_entries: Callable,
+) -> None:
+    """Adjust the pending `entries` on `jobs` worker processes (`adjust_entries`, the
+    in-process pipeline, runs in each); fills in each entry's status, reason, mode and
+    `row` (its summary row). A worker that dies (killed, out of memory) fails its projects
+    that were not finished, with that reason; the others go on."""
+    context = multiprocessing.get_context("spawn")
+    channel = context.Queue()
+    parts = shares(entries, jobs)
+    say(f"adjusting on {len(parts)} worker processes")
+    with concurrent.futures.ProcessPoolExecutor(
+            len(parts), mp_context=context, initializer=_start_worker,
+            initargs=(channel,)) as pool:
+        futures = {pool.submit(_adjust_share, Share(_portable(part), chunk_size),
+                               adjust_entries): part for part in parts}
+        pending = set(futures)
+        while pending:
+            _relay(channel, say, finished, timeout=0.1)
+            done = {future for future in pending if future.done()}
+            for future in done:
+                _record(futures[future], future)
+            pending -= done
+        _relay(channel, say, finished, timeout=0.0)
+
+
+def _portable(part: list[BatchEntry]) -> list[BatchEntry]:
+    """The entries as a worker needs them: what was read, nothing built."""
+    return [dataclasses.replace(entry, project=None, result=None) for entry in part]
+
+
+def _relay(channel, say, finished, timeout: float) -> None:
+    """Pass the workers' messages on, waiting at most `timeout` s for the first one."""
+    try:
+        message = channel.get(timeout=timeout) if timeout else channel.get_nowait()
+        while True:
+            kind, text = message
+            if kind == "say":
+                say(text)
+            else:
+                finished()
+            message = channel.get_nowait()
+    except queue_module.Empty:
+        return
+
+
+def _record(part: list[BatchEntry], future: concurrent.futures.Future) -> None:
+    try:
+        outcomes = future.result()
+    except concurrent.futures.process.BrokenProcessPool as error:
+        outcomes = [("failed", f"its worker process ended unexpectedly ({error})", "", None)
+                    for _ in part]
+    for entry, (status, reason, mode, row) in zip(part, outcomes):
+        entry.status, entry.reason, entry.mode, entry.row = status, reason, mode, row
+
+
+def _start_worker(channel) -> None:
+    """A worker's start: jax set up as the command line does, the channel kept."""
+    global _queue
+    from ..._jax_setup import setup_jax
+
+    setup_jax()
+    _queue = channel
+
+
+def _adjust_share(share: Share, adjust_entries: Callable) -> list[tuple]:
+    """In a worker: adjust the share's projects and return (status, reason, mode, summary
+    row) of each, in order."""
+    adjust_entries(share.entries, lambda line: _queue.put(("say", line)),
+                   lambda: _queue.put(("finished", "")), share.chunk_size)
+    return [(entry.status, entry.reason, entry.mode, entry.row) for entry in share.entries]
