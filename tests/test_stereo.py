@@ -160,15 +160,57 @@ def test_exported_stereo_yaml_equals_opencv_stereo_calibrate(scene, rig, tmp_pat
 
 
 def test_projection_uncertainty_of_a_rig(rig):
-    """A rig's reference camera is mapped in both frames; the other camera only with the
-    intrinsics (frame "camera"): in the default frame it is named in a note, not mapped
-    through its frame's pose alone."""
+    """Both cameras of the rig are mapped in both frames. In the default frame the right
+    camera's view of the world moves with its frame's pose and its pose in the rig: the
+    motion T that `_frame_map` gives linearly equals T fitted by nonlinear least squares to
+    the camera-frame points of a perturbed solution (frames, mount and points moved)."""
+    import jax
+    from scipy.optimize import least_squares
+
+    from jaxba._problem._parameters import flatten, unflatten
     from jaxba._report._uncertainty import camera_uncertainties
+    from jaxba._statistics._projection import (
+        _camera,
+        _frame_map,
+        _moved,
+        camera_frame,
+        camera_ref,
+        camera_rows,
+    )
 
     project, result = rig
-    maps, notes = camera_uncertainties(project, result)
-    assert [m.camera_id for m in maps] == ["left"]
-    assert len(notes) == 1 and "'right'" in notes[0] and "mount" in notes[0]
-    maps, notes = camera_uncertainties(project, result, frame="camera")
-    assert [m.camera_id for m in maps] == ["left", "right"] and not notes
-    assert all(np.all(np.isfinite(m.uncertainty.sigma_worst)) for m in maps)
+    for frame in ("object", "camera"):
+        maps, notes = camera_uncertainties(project, result, frame=frame)
+        assert [m.camera_id for m in maps] == ["left", "right"] and not notes
+        assert all(np.all(np.isfinite(m.uncertainty.sigma_worst)) for m in maps)
+    params, ref = result.parameters, camera_ref(result, "right")
+    flat = flatten(params)
+    mapping, cols = _frame_map(result, ref, unflatten(params, np.arange(flat.size)))
+    iop = np.asarray(params.cameras[ref.model][ref.row])
+    delta = np.zeros(flat.size)
+    delta[cols[iop.size:]] = 1e-6 * np.random.default_rng(0).standard_normal(cols.size - iop.size)
+    linear = mapping[iop.size:] @ delta[cols]
+    moved = unflatten(params, flat + delta)
+    camera = _camera(ref.model, ref.constants, jax.device_put(iop))
+    (k,) = ref.groups
+    group = result.problem.groups[k]
+    rows = np.flatnonzero(np.asarray(group.camera) == ref.row)
+    measured, sigma = np.asarray(group.measured)[rows], np.asarray(group.stddev)[rows]
+    assert group.mount is not None and np.all(np.asarray(group.mount)[rows] == 1)
+
+    def in_camera(parameters):
+        points = np.asarray(parameters.points)[np.asarray(group.point)[rows]]
+        return jax.vmap(lambda e, x: camera_frame(group.pose, e).to_camera(x))(
+            camera_rows(parameters, group, rows), points)
+
+    before, after = in_camera(params), in_camera(moved)
+    image = jax.jit(jax.vmap(lambda p, m: camera.image_point(p, m, 0.0)))
+    target = np.asarray(image(after, measured))
+
+    def misfit(motion):
+        turned = jax.vmap(lambda p: _moved(p, motion, True))(before)
+        return ((np.asarray(image(turned, measured)) - target) / sigma).ravel()
+
+    fitted = least_squares(misfit, np.zeros(6), xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    assert np.max(np.abs(linear)) > 1e-8  # the perturbation moves the camera's view
+    np.testing.assert_allclose(fitted, linear, rtol=0, atol=1e-3 * np.max(np.abs(linear)))

@@ -13,11 +13,12 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
-from .._models._poses import POSE_MODELS
 from .._statistics._adjustment import Adjustment
 from .._statistics._projection import (
     ProjectionUncertainty,
+    camera_frame,
     camera_ref,
+    camera_rows,
     projection_uncertainty,
     sensor_grid,
 )
@@ -55,11 +56,10 @@ def _observed(project: Project, result: Adjustment, camera_id: str, grid):
         measured = np.asarray(group.measured)[rows]
         pixels.append(measured if grid is None else np.asarray(grid.image_to_pixel(measured)))
         stations = np.asarray(jax.vmap(
-            lambda e, pose=group.pose: POSE_MODELS[pose].from_parameters(e).station())(
-                jax.device_put(np.asarray(result.parameters.images))))
+            lambda e, pose=group.pose: camera_frame(pose, e).station())(
+                jax.device_put(camera_rows(result.parameters, group, rows))))
         points = np.asarray(result.parameters.points)[np.asarray(group.point)[rows]]
-        distances.append(np.linalg.norm(
-            points - stations[np.asarray(group.image)[rows]], axis=1))
+        distances.append(np.linalg.norm(points - stations, axis=1))
     if not pixels:
         return np.zeros((0, 2)), np.zeros(0)
     return np.concatenate(pixels), np.concatenate(distances)
@@ -79,12 +79,8 @@ def camera_uncertainties(project: Project, result: Adjustment, *, distance: floa
                          " (and pixel_size) in cameras.toml")
             continue
         sensor = tuple(int(v) for v in spec.sensor)
-        try:
-            uncertainty = projection_uncertainty(result, cid, sensor_grid(sensor), distance,
-                                                 frame=frame, grid=grid)
-        except ValueError as error:  # a mounted camera in the default frame
-            notes.append(f"{error}: not mapped")
-            continue
+        uncertainty = projection_uncertainty(result, cid, sensor_grid(sensor), distance,
+                                             frame=frame, grid=grid)
         observed, observed_distances = _observed(project, result, cid, grid)
         near = observed_distances.min() if observed_distances.size else 1.0
         far = observed_distances.max() if observed_distances.size else 1.0

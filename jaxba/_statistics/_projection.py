@@ -31,7 +31,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._models._cameras import CAMERA_MODELS, PixelGrid
-from .._models._poses import POSE_MODELS
+from .._models._poses import POSE_MODELS, ComposedPose
 from .._problem._observations import ImagePoints
 from .._problem._parameters import flatten, unflatten
 
@@ -150,15 +150,38 @@ def _pixel_jacobians(model, constants, iop, pixels, distance):
     return jax.vmap(one)(pixels, distance)
 
 
+def camera_frame(pose: str, eop: Float[Array, " k"]):
+    """A camera's frame (`to_camera`, `station`) from its row of pose parameters (the pose
+    model `pose`): (6,) an image's pose, or (12,) a mounted camera's frame pose then its
+    pose in the rig or on the platform (`ComposedPose`)."""
+    poses = POSE_MODELS[pose]
+    if eop.shape[0] == 12:
+        return ComposedPose(poses.from_parameters(eop[:6]), poses.from_parameters(eop[6:]))
+    return poses.from_parameters(eop)
+
+
+def camera_rows(params, group: ImagePoints, rows: np.ndarray) -> np.ndarray:
+    """(n, 6) or (n, 12): the pose parameters of each of `rows` of `group` (`camera_frame`):
+    its image's, then its mount's where the group has mounts."""
+    eops = np.asarray(params.images)[np.asarray(group.image)[rows]]
+    if group.mount is None:
+        return eops
+    return np.concatenate([eops, np.asarray(params.mounts)[np.asarray(group.mount)[rows]]],
+                          axis=1)
+
+
 @eqx.filter_jit
 def _frame_fit_blocks(model, constants, pose, iop, eops, points, measured, sigma):
-    """Per observation of the camera: AᵀWA (6, 6), AᵀW B_pose (6, 6), AᵀW B_point (6, 3)
-    of the image point u = image_point(T ∘ M (X - X0), measured) (module docstring)."""
+    """Per observation of the camera: AᵀWA (6, 6), AᵀW B_pose (6, k), AᵀW B_point (6, 3)
+    of the image point u = image_point(T ∘ p, measured), p the point in the camera frame
+    (module docstring). `eops` (n, k): each row's image pose (k = 6), or a mounted camera's
+    frame pose then mount (k = 12: its camera frame is the frame's followed by the mount's,
+    `ComposedPose`)."""
     camera = _camera(model, constants, iop)
 
     def one(eop, point, m, s):
         def u(motion, eop_, point_):
-            p = POSE_MODELS[pose].from_parameters(eop_).to_camera(point_)
+            p = camera_frame(pose, eop_).to_camera(point_)
             return camera.image_point(_moved(p, motion, True), m, 0.0)
 
         a, b_pose, b_point = jax.jacfwd(u, argnums=(0, 1, 2))(jnp.zeros(6), eop, point)
@@ -170,30 +193,30 @@ def _frame_fit_blocks(model, constants, pose, iop, eops, points, measured, sigma
 
 def _frame_map(result, ref: CameraRef, positions) -> tuple[np.ndarray, np.ndarray]:
     """(L, cols): z = (Δiop, T) = L Δθ over the unknowns at `flatten` positions `cols`
-    (the camera's parameters, its images' poses, the points they observe; points left out
-    where the adjustment eliminated them and holds no cross-covariances)."""
+    (the camera's parameters, its images' poses (a mounted camera's: its frames' and its
+    mount's), the points they observe; points left out where the adjustment eliminated them
+    and holds no cross-covariances)."""
     params, problem = result.parameters, result.problem
     iop = np.asarray(params.cameras[ref.model][ref.row])
-    normal, by_pose, by_point = np.zeros((6, 6)), {}, {}
+    normal, by_pose, by_mount, by_point = np.zeros((6, 6)), {}, {}, {}
     for k in ref.groups:
         group = problem.groups[k]
         rows = np.flatnonzero((np.asarray(group.camera) == ref.row)
                               & np.all(np.asarray(group.mask()), axis=1))
         if rows.size == 0:
             continue
-        if group.mount is not None and np.any(np.asarray(group.mount)[rows] != 0):
-            raise ValueError(
-                f"camera {ref.camera_id!r} is mounted in a rig or on a platform: its view of the"
-                " world is not carried through the mount yet (frame='camera', the intrinsics"
-                " only, is available)")
         images, points = np.asarray(group.image)[rows], np.asarray(group.point)[rows]
+        eops = camera_rows(params, group, rows)
+        mounts = None if group.mount is None else np.asarray(group.mount)[rows]
         a, b_pose, b_point = (np.asarray(x) for x in _frame_fit_blocks(
-            ref.model, ref.constants, group.pose, jax.device_put(iop),
-            jax.device_put(np.asarray(params.images)[images]),
+            ref.model, ref.constants, group.pose, jax.device_put(iop), jax.device_put(eops),
             jax.device_put(np.asarray(params.points)[points]),
             np.asarray(group.measured)[rows], np.asarray(group.stddev)[rows]))
         normal += a.sum(axis=0)
-        for index, blocks, store in ((images, b_pose, by_pose), (points, b_point, by_point)):
+        parts = [(images, b_pose[:, :, :6], by_pose), (points, b_point, by_point)]
+        if mounts is not None:
+            parts.append((mounts, b_pose[:, :, 6:], by_mount))
+        for index, blocks, store in parts:
             for j in np.unique(index):
                 store[j] = store.get(j, 0.0) + blocks[index == j].sum(axis=0)
     if not by_pose:
@@ -201,6 +224,7 @@ def _frame_map(result, ref: CameraRef, positions) -> tuple[np.ndarray, np.ndarra
                          " (use frame='camera')")
     with_points = result.precision.covariance is not None
     pieces = [(np.asarray(positions.images[j]), m) for j, m in sorted(by_pose.items())]
+    pieces += [(np.asarray(positions.mounts[j]), m) for j, m in sorted(by_mount.items())]
     if with_points:
         pieces += [(np.asarray(positions.points[j]), m) for j, m in sorted(by_point.items())]
     cols = np.concatenate([np.asarray(positions.cameras[ref.model][ref.row])]
