@@ -79,6 +79,14 @@ def write_project(out: pathlib.Path, seed: int, *, camera: dict = TRUTH,
                       + " " + " ".join(f"{v:.2f}" for v in opk))
         noisy = uv + rng.normal(scale=noise_px, size=uv.shape)
         observed += [f"i{k} {j + 1} {float(u)!r} {float(v)!r}" for j, (u, v) in enumerate(noisy)]
+    return write_pixel_project(out, name, images, observed, noise_px)
+
+
+def write_pixel_project(out: pathlib.Path, name: str, images: list[str], observed: list[str],
+                        image_sigma: float) -> pathlib.Path:
+    """orientation.txt (`images` rows), image_points.txt (`observed` rows) and NAME.toml of
+    a project in pixels in `out`, beside the caller's cameras.toml and points.txt. Returns
+    the project file."""
     (out / "orientation.txt").write_text("\n".join(images) + "\n")
     (out / "image_points.txt").write_text("\n".join(observed) + "\n")
     project_file = out / f"{name}.toml"
@@ -86,7 +94,7 @@ def write_project(out: pathlib.Path, seed: int, *, camera: dict = TRUTH,
         "[project]", f"name = {json.dumps(name)}", 'image_units = "pixel"', "",
         "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
         'image_points = "image_points.txt"', 'points = "points.txt"', "",
-        "[adjustment]", f"image_sigma = {noise_px!r}", "max_iterations = 50",
+        "[adjustment]", f"image_sigma = {image_sigma!r}", "max_iterations = 50",
     ]) + "\n")
     return project_file
 
@@ -97,4 +105,5 @@ def adjusted(project_file: pathlib.Path):
     return project, jaxba.adjust_project(project)
 
 
-__all__ = ["SENSOR", "TRUTH", "adjusted", "board", "project", "write_project"]
+__all__ = ["SENSOR", "TRUTH", "adjusted", "board", "project", "write_pixel_project",
+           "write_project"]

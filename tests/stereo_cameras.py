@@ -7,6 +7,7 @@ import json
 import pathlib
 
 import numpy as np
+from board_scene import write_pixel_project
 
 from jaxba._io._synthetic import opk_from_rotation
 
@@ -60,13 +61,4 @@ def write_project(cv2, out: pathlib.Path, found: dict[int, np.ndarray], numbers,
         opk = np.degrees(opk_from_rotation(flip @ rotation))
         rows.append(f"i{n} C1 " + " ".join(repr(float(v)) for v in (*station, *opk)))
         observed += [f"i{n} {j + 1} {u!r} {v!r}" for j, (u, v) in enumerate(found[n].tolist())]
-    (out / "orientation.txt").write_text("\n".join(rows) + "\n")
-    (out / "image_points.txt").write_text("\n".join(observed) + "\n")
-    project_file = out / f"{name}.toml"
-    project_file.write_text("\n".join([
-        "[project]", f"name = {json.dumps(name)}", 'image_units = "pixel"', "",
-        "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
-        'image_points = "image_points.txt"', 'points = "points.txt"', "",
-        "[adjustment]", "image_sigma = 0.3", "max_iterations = 50",
-    ]) + "\n")
-    return project_file
+    return write_pixel_project(out, name, rows, observed, 0.3)
