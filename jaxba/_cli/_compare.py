@@ -8,7 +8,7 @@ import json
 import math
 import pathlib
 
-from ._common import EXIT_BAD_INPUT, EXIT_OK, common_options, print_error, say
+from ._common import EXIT_OK, UsageError, common_options, say
 
 ALPHA = 0.05  # the level of the verdict printed
 
@@ -82,8 +82,7 @@ def _compare(args: argparse.Namespace) -> int:
         check_targets(files, [args.a, args.b], "the comparison")
         comparison = compare_calibrations(a, b, distance=args.distance, fit=args.fit)
     except ValueError as error:
-        print_error(str(error))
-        return EXIT_BAD_INPUT
+        raise UsageError(str(error)) from None
     summary = _summary(comparison, a, b)
     where = "at infinity" if math.isinf(args.distance) else f"at distance {args.distance:g}"
     figure = plot_sensor_map(

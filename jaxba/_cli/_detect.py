@@ -14,7 +14,7 @@ import os
 import pathlib
 import re
 
-from ._common import EXIT_BAD_INPUT, EXIT_OK, common_options, print_error, say
+from ._common import EXIT_BAD_INPUT, EXIT_OK, UsageError, common_options, print_error, say
 
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 _LISTED_LEFT_OUT = 10  # images left out named on the console (all are in detections.csv)
@@ -28,10 +28,6 @@ BOARD_HELP = (
     " such as 5X5_100, marker ids from N); SPACING, SQUARE and MARKER a number with an"
     " optional unit (mm, cm, m, in), e.g. chessboard:9x6:25mm"
 )
-
-
-class _DetectUsageError(ValueError):
-    """Bad input: printed as `jaxba: error: ...`, exit code 2."""
 
 
 def add_detect(subparsers) -> None:
@@ -85,19 +81,19 @@ def _cameras(specs: list[str]) -> dict[str, list[pathlib.Path]]:
     for spec in specs:
         name, equals, pattern = spec.partition("=")
         if not equals or not pattern:
-            raise _DetectUsageError(f"--camera {spec}: expected NAME=GLOB, e.g."
-                                    " left='img/left*.jpg'")
+            raise UsageError(f"--camera {spec}: expected NAME=GLOB, e.g."
+                             " left='img/left*.jpg'")
         if not _NAME.match(name):
-            raise _DetectUsageError(f"--camera {spec}: the name {name!r} may only have letters,"
-                                    " digits, '_' and '-'")
+            raise UsageError(f"--camera {spec}: the name {name!r} may only have letters,"
+                             " digits, '_' and '-'")
         if name in cameras:
-            raise _DetectUsageError(f"--camera {spec}: camera {name} is given twice")
+            raise UsageError(f"--camera {spec}: camera {name} is given twice")
         pattern = os.path.expanduser(pattern)
         if glob.has_magic(pattern):
             files = [pathlib.Path(f) for f in glob.glob(pattern, recursive=True)
                      if not os.path.isdir(f)]
             if not files:
-                raise _DetectUsageError(f"--camera {spec}: {pattern} matches no file")
+                raise UsageError(f"--camera {spec}: {pattern} matches no file")
         else:
             files = [pathlib.Path(pattern)]
         cameras[name] = sorted(files, key=_natural)
@@ -122,21 +118,21 @@ def _checked(args: argparse.Namespace):
         if board.kind == "charuco":
             charuco_board(board)  # imports OpenCV, checks the dictionary
     except (BoardError, OpenCVMissingError) as error:
-        raise _DetectUsageError(str(error)) from None
+        raise UsageError(str(error)) from None
     if args.jobs is not None and args.jobs < 1:
-        raise _DetectUsageError(f"--jobs {args.jobs}: must be at least 1")
+        raise UsageError(f"--jobs {args.jobs}: must be at least 1")
     cameras = _cameras(args.camera)
     if args.rig is not None:
         if not _NAME.match(args.rig):
-            raise _DetectUsageError(f"--rig {args.rig}: the name may only have letters, digits,"
-                                    " '_' and '-'")
+            raise UsageError(f"--rig {args.rig}: the name may only have letters, digits,"
+                             " '_' and '-'")
         if len(cameras) < 2:
-            raise _DetectUsageError(f"--rig {args.rig}: a rig needs two --camera or more")
+            raise UsageError(f"--rig {args.rig}: a rig needs two --camera or more")
         if args.rig in cameras:
-            raise _DetectUsageError(f"--rig {args.rig}: a camera has that name")
+            raise UsageError(f"--rig {args.rig}: a camera has that name")
     if not _NAME.match(args.name):
-        raise _DetectUsageError(f"--name {args.name}: may only have letters, digits, '_' and"
-                                " '-'")
+        raise UsageError(f"--name {args.name}: may only have letters, digits, '_' and"
+                         " '-'")
     _check_out(args.out)
     return board, cameras
 
@@ -146,12 +142,11 @@ def run_detect(args: argparse.Namespace) -> int:
     from jaxba._io._detect import OpenCVMissingError, import_cv2
     from jaxba._report import output_lock
 
+    board, cameras = _checked(args)
     try:
-        board, cameras = _checked(args)
         import_cv2()
-    except (_DetectUsageError, OpenCVMissingError) as error:
-        print_error(str(error))
-        return EXIT_BAD_INPUT
+    except OpenCVMissingError as error:
+        raise UsageError(str(error)) from None
     with output_lock(args.out):
         return _detect_locked(args, board, cameras)
 

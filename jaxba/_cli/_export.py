@@ -21,7 +21,7 @@ import json
 import math
 import pathlib
 
-from ._common import common_options, print_error, say
+from ._common import UsageError, common_options, print_error, say
 
 _RESULTS, _OBSERVATIONS, _MANIFEST = "results.json", "observations.csv", "export.json"
 _COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt")
@@ -35,11 +35,6 @@ _DESCRIPTION = (
     " written, 2 bad input (or an output folder that cannot be used), 3 internal error, 130"
     " interrupted."
 )
-
-
-class ExportError(Exception):
-    """Bad input to `jaxba export`: `run_export` raises it as an `OutputError`, which `main`
-    reports as `jaxba: error: ...` with exit code 2."""
 
 
 def add_export(subparsers) -> None:
@@ -71,16 +66,16 @@ def add_export(subparsers) -> None:
 def _read_results(out_dir: pathlib.Path) -> dict:
     path = out_dir / _RESULTS
     if not out_dir.is_dir():
-        raise ExportError(f"{out_dir}: no such folder (the output folder of jaxba adjust)")
+        raise UsageError(f"{out_dir}: no such folder (the output folder of jaxba adjust)")
     if not path.is_file():
-        raise ExportError(f"{path}: no such file; OUT_DIR is the folder where jaxba adjust"
-                          " wrote its reports")
+        raise UsageError(f"{path}: no such file; OUT_DIR is the folder where jaxba adjust"
+                         " wrote its reports")
     try:
         results = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ExportError(f"{path}: cannot be read as JSON: {error}") from None
+        raise UsageError(f"{path}: cannot be read as JSON: {error}") from None
     if not isinstance(results, dict) or not isinstance(results.get("cameras"), dict):
-        raise ExportError(f"{path}: not a results.json of jaxba (no \"cameras\")")
+        raise UsageError(f"{path}: not a results.json of jaxba (no \"cameras\")")
     return results
 
 
@@ -90,10 +85,10 @@ def _destination(args: argparse.Namespace) -> pathlib.Path:
 
     to = args.to if args.to is not None else args.out_dir / "export" / args.format
     if to.exists() and not to.is_dir():
-        raise ExportError(f"{to}: not a folder (--to)")
+        raise UsageError(f"{to}: not a folder (--to)")
     if to.is_dir() and any(to.iterdir()) and not (to / _MANIFEST).is_file():
-        raise ExportError(f"{to}: the folder holds files that jaxba export did not write (no"
-                          f" {_MANIFEST}); choose a new or empty folder (--to)")
+        raise UsageError(f"{to}: the folder holds files that jaxba export did not write (no"
+                         f" {_MANIFEST}); choose a new or empty folder (--to)")
     check_folder(to)
     return to
 
@@ -103,8 +98,8 @@ def _selected(cameras: dict, names: list[str] | None, where: pathlib.Path) -> li
         return list(cameras)
     unknown = [name for name in names if name not in cameras]
     if unknown:
-        raise ExportError(f"--camera {unknown[0]}: {where} has no such camera; its cameras:"
-                          f" {', '.join(cameras)}")
+        raise UsageError(f"--camera {unknown[0]}: {where} has no such camera; its cameras:"
+                         f" {', '.join(cameras)}")
     return list(dict.fromkeys(names))
 
 
@@ -112,7 +107,7 @@ def _file_name(*ids: str) -> str:
     """CAMERA.yml (or RIG_REF_CAMERA.yml) from IDs; refused where an ID is not a file name."""
     for name in ids:
         if not name or "/" in name or "\\" in name or name in (".", ".."):
-            raise ExportError(f"{name!r}: cannot name a file; rename the camera or rig")
+            raise UsageError(f"{name!r}: cannot name a file; rename the camera or rig")
     return "_".join(ids) + ".yml"
 
 
@@ -155,7 +150,7 @@ def _opencv_files(results: dict, exported: dict) -> tuple[dict[str, str], dict]:
     for pair in stereo_pairs(results, exported):
         name = _file_name(pair.rig, pair.reference, pair.camera)
         if name in files:
-            raise ExportError(f"{name}: both a camera's and a rig's file; rename one of them")
+            raise UsageError(f"{name}: both a camera's and a rig's file; rename one of them")
         cameras = [(c.id, c.model, c.values, c.image_size)
                    for c in (exported[pair.reference], exported[pair.camera])]
         files[name] = stereo_yaml_text(cameras, {"R": pair.r, "T": pair.t, "E": pair.e,
@@ -172,12 +167,12 @@ def _colmap_files(args, results: dict, cameras: dict, exported: dict) -> dict[st
 
     path = args.out_dir / _OBSERVATIONS
     if not path.is_file():
-        raise ExportError(f"{path}: no such file; a COLMAP export takes the image points from"
-                          " observations.csv beside results.json")
+        raise UsageError(f"{path}: no such file; a COLMAP export takes the image points from"
+                         " observations.csv beside results.json")
     try:
         observations = read_observations(path)
     except (OSError, ValueError, KeyError) as error:
-        raise ExportError(f"{path}: cannot be read: {error}") from None
+        raise UsageError(f"{path}: cannot be read: {error}") from None
     return colmap_model_texts(colmap_model(results, observations, cameras, exported))
 
 
@@ -203,16 +198,7 @@ def _manifest(args, exported: dict, files: list[str], rigs: dict) -> str:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    """Export (module docstring); 0 when written. Bad input raises `OutputError`."""
-    from jaxba._report import OutputError
-
-    try:
-        return _export(args)
-    except ExportError as error:
-        raise OutputError(str(error)) from None
-
-
-def _export(args: argparse.Namespace) -> int:
+    """Export (module docstring); 0 when written. Bad input raises `UsageError`."""
     from jaxba._jax_setup import setup_jax
     from jaxba._report import check_targets, output_lock, replace_files
 
@@ -235,10 +221,10 @@ def _export(args: argparse.Namespace) -> int:
         else:
             texts, rigs = _colmap_files(args, results, cameras, exported), {}
     except (KeyError, TypeError, AttributeError) as error:
-        raise ExportError(f"{where}: not a results.json of jaxba: {error!r} is missing or"
-                          " malformed") from None
+        raise UsageError(f"{where}: not a results.json of jaxba: {error!r} is missing or"
+                         " malformed") from None
     except ValueError as error:
-        raise ExportError(f"{where}: {error}") from None
+        raise UsageError(f"{where}: {error}") from None
     texts[_MANIFEST] = _manifest(args, exported, sorted(texts), rigs)
     paths = {to / name: text for name, text in texts.items()}
     with output_lock(to):
