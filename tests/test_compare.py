@@ -90,6 +90,16 @@ def test_fitted_rotation_absorbs_a_moved_principal_point(calibrations):
     assert jaxba.compare(first, turned, fit="none").p_value < ALPHA
 
 
+def test_cli_uncertainty_distance_checked_before_the_run(calibrations, tmp_path, capsys):
+    """A distance that is not positive is bad usage, said before anything is adjusted or
+    written."""
+    (file_a, _, _), _, _ = calibrations
+    out = tmp_path / "out"
+    assert main(["adjust", str(file_a), "--out", str(out), "--uncertainty", "-5"]) == 2
+    assert "--uncertainty -5.0: the distance must be > 0" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_cli_uncertainty_and_compare(calibrations, tmp_path, capsys):
     """`adjust --uncertainty` writes the map the API gives; `compare` reads results.json,
     writes its files and agrees with `jaxba.compare`."""

@@ -65,25 +65,6 @@ def add_adjust(subparsers) -> None:
     parser.set_defaults(run=run)
 
 
-def _write_uncertainty(project, result, out_dir, args) -> dict[pathlib.Path, str | bytes]:
-    """uncertainty_CAMERA.csv and its figures (`jaxba._report._uncertainty`) in `out_dir`,
-    never over an input file; returns them by path."""
-    from jaxba._report import check_targets, replace_files
-    from jaxba._report._uncertainty import camera_uncertainties, uncertainty_files
-
-    if not args.uncertainty > 0:
-        raise UsageError(f"--uncertainty {args.uncertainty}: the distance must be > 0")
-    maps, notes = camera_uncertainties(project, result, distance=args.uncertainty,
-                                       frame=args.uncertainty_frame)
-    for note in notes:
-        print_error(note, "warning")
-    files = uncertainty_files(maps, out_dir, frame=args.uncertainty_frame,
-                              distance=args.uncertainty)
-    check_targets(files, project.spec.input_files, f"project {project.spec.name!r}")
-    replace_files(files)
-    return files
-
-
 def _adjust_deferred(completion, project, result, options):
     """Adjust again with the deferred points intersected from the converged `result`
     (`adjust_deferred`), saying what became of them; when `result` did not converge, say
@@ -144,6 +125,8 @@ def _check_matplotlib(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     from jaxba._report import output_lock
 
+    if args.uncertainty is not None and not args.uncertainty > 0:
+        raise UsageError(f"--uncertainty {args.uncertainty}: the distance must be > 0")
     spec, out_dir, read_seconds = _read_checked(args)
     _check_matplotlib(args)
     with output_lock(out_dir):
@@ -191,7 +174,10 @@ def _run_locked(args, spec, out_dir, read_seconds: float) -> int:
             written = _report.write_reports(project, result, out_dir)
             uncertainty = {}
             if args.uncertainty is not None:
-                uncertainty = _write_uncertainty(project, result, out_dir, args)
+                uncertainty = _report.write_uncertainty(
+                    project, result, out_dir, distance=args.uncertainty,
+                    frame=args.uncertainty_frame,
+                    warn=lambda message: print_error(message, "warning"))
                 written += list(uncertainty)
             if args.plots or args.report:
                 written += _report.write_figures(

@@ -19,5 +19,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._paths": ("OBSERVATIONS_FILE", "OutputError", "check_folder", "check_outputs",
                 "check_targets", "html_path", "report_paths"),
     "._text": ("out_text", "res_text", "sigma_text"),
+    "._uncertainty": ("write_uncertainty",),
     "._write": ("write_reports",),
 })

@@ -7,6 +7,7 @@ overlaid) and σ along the ray of the sensor's centre against distance
 import dataclasses
 import math
 import pathlib
+from collections.abc import Callable
 
 import jax
 import numpy as np
@@ -22,6 +23,8 @@ from .._statistics._projection import (
     projection_uncertainty,
     sensor_grid,
 )
+from ._atomic import replace_files
+from ._paths import check_targets
 
 COLUMNS = ("u", "v", "sigma_worst", "sigma_rms", "cov_uu", "cov_uv", "cov_vv")
 
@@ -121,4 +124,18 @@ def uncertainty_files(maps: list[CameraUncertainty], out_dir, *, frame: str,
             m.distances, m.along_ray.sigma_worst, m.along_ray.sigma_rms,
             observed=m.observed_distances,
             title=f"camera {m.camera_id}: σ along the centre pixel's ray, {frame} frame"))
+    return files
+
+
+def write_uncertainty(project: Project, result: Adjustment, out_dir, *, distance: float,
+                      frame: str, warn: Callable[[str], None]) -> dict[pathlib.Path, str | bytes]:
+    """uncertainty_CAMERA.csv and its figures of every camera with a sensor in `out_dir`
+    (`camera_uncertainties`, `uncertainty_files`), never over an input file, replaced
+    together; `warn` hears why a camera is left out. Returns the files by path."""
+    maps, notes = camera_uncertainties(project, result, distance=distance, frame=frame)
+    for note in notes:
+        warn(note)
+    files = uncertainty_files(maps, out_dir, frame=frame, distance=distance)
+    check_targets(files, project.spec.input_files, f"project {project.spec.name!r}")
+    replace_files(files)
     return files
