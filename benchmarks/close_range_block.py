@@ -52,11 +52,11 @@ def _best_seconds(function, *args, repeat: int) -> tuple[float, float]:
 
 def main() -> None:
     from jaxba._solvers._schur._bundle import (
-        _solve_schur,
         bundle_normal_equations,
         bundle_structure,
         solve_bundle_damped,
     )
+    from jaxba._solvers._schur._descent import _solve_schur
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

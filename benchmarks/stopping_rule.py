@@ -29,12 +29,14 @@ from blocks import write_block  # noqa: E402
 
 import jaxba  # noqa: E402
 from jaxba._solvers._schur._bundle import (  # noqa: E402
-    _make_schur_solver,
     _reduced_vector,
     bundle_normal_equations,
-    bundle_residuals,
     bundle_structure,
     solve_bundle_damped,
+)
+from jaxba._solvers._schur._descent import (  # noqa: E402
+    _make_schur_solver,
+    bundle_residuals,
     solve_schur,
 )
 from jaxba._solvers._steps import _init, _NoAux, _step  # noqa: E402

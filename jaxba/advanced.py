@@ -12,7 +12,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "jaxba._problem._observations": ("collinearity_residual",),
     "jaxba._problem._parameters": ("flatten", "unflatten"),
     "jaxba._solvers._levenberg_marquardt": ("NormalLevenbergMarquardt",),
-    "jaxba._solvers._schur._bundle": ("solve_schur",),
+    "jaxba._solvers._schur._descent": ("solve_schur",),
     "jaxba._statistics._covariance": ("SchurCovariance",),
     "jaxba._statistics._schur_datum": ("check_datum_schur",),
     "jaxba._statistics._schur_precision": ("BundleCofactors", "schur_cofactors", "schur_precision"),

@@ -12,9 +12,9 @@ from jaxba._problem._observations import ParameterObservations
 from jaxba._solvers._schur._bundle import (
     _to_parameters,
     bundle_normal_equations,
-    bundle_predicted_reduction,
     solve_bundle_damped,
 )
+from jaxba._solvers._schur._descent import bundle_predicted_reduction
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions

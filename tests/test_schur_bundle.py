@@ -21,9 +21,9 @@ from jaxba._problem._parameters import flatten
 from jaxba._solvers._schur._bundle import (
     bundle_normal_equations,
     bundle_structure,
-    solve_schur,
     zero_normal_equations,
 )
+from jaxba._solvers._schur._descent import solve_schur
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._statistics._backends import DenseBackend
 from jaxba._statistics._schur_precision import schur_cofactors

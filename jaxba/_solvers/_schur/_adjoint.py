@@ -3,7 +3,7 @@
 The implicit function theorem at the optimum x̂(θ) of ½‖e(x, θ)‖², g(x̂, θ) = ∇ₓ ½‖e‖² = 0,
 gives dx̂/dθ = -H⁻¹ ∂g/∂θ with H = ∂g/∂x the full Hessian (JᵀJ plus the residuals'
 curvature Σ e_k ∇²e_k). `schur_adjusted` solves forward with the Schur backend's
-Levenberg-Marquardt (`_bundle._make_schur_solver`, as `solve_schur`) and hands x̂ to
+Levenberg-Marquardt (`_descent._make_schur_solver`, as `solve_schur`) and hands x̂ to
 optimistix's `implicit_jvp` (what `optx.ImplicitAdjoint` runs; called directly so that the
 linear solver can carry a preconditioner built at x̂, which an adjoint's solver, made before
 the solve and given no options, cannot). Its linear systems H v = w (one per tangent, or per
@@ -50,13 +50,12 @@ from ._bundle import (
     _add_at_columns,
     _at_columns,
     _free_masks,
-    _make_schur_solver,
     _reduced_vector,
     _schur_complement,
     _to_parameters,
     bundle_normal_equations,
-    bundle_residuals,
 )
+from ._descent import _make_schur_solver, bundle_residuals
 from ._normal import _matvec, _small_inverse
 
 # ‖r‖_N⁻¹ ≤ CG_RTOL ‖b‖_N⁻¹: the adjoint's solution to ~1e-10 of its size in N's metric,
