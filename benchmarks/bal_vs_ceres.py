@@ -1,4 +1,4 @@
-"""jaxba's BAL solve (a BundleProblem, `solve_schur`) against Ceres on BAL problems, side by side.
+"""jaxba's BAL solve (a BundleProblem, Schur backend) against Ceres on BAL problems, side by side.
 
     python benchmarks/bal_vs_ceres.py [PROBLEM ...] [--threads 1 2] [--json OUT.json]
 
@@ -87,7 +87,7 @@ def run_jaxba(path, work) -> dict:
         env=environment,
     ).stdout
     results = json.loads(output.strip().splitlines()[-1])
-    results["solver"] = "jaxba solve_schur (BundleProblem)"
+    results["solver"] = "jaxba solve, Schur backend (BundleProblem)"
     return results
 
 

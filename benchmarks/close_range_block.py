@@ -6,7 +6,7 @@ The block (60 images, ~26,000 points each seen by ~3.4 images, ~181,000 image co
 ~79,000 unknowns, c xp yp K1 K2 free, dependent relative orientation) is written by
 `blocks.write_block(..., "close-range")` and read like any project. Prints the problem size,
 the seconds of one normal-equation build (once per accepted iterate) and of one damped solve
-(every trial step), best of `repeat`, then the compile and solve seconds of `solve_schur`
+(every trial step), best of `repeat`, then the compile and solve seconds of `solve` (Schur)
 (JSON on the last line); CPU seconds count all threads of the process, a measure of the work
 that a loaded machine does not inflate.
 """
@@ -56,7 +56,8 @@ def main() -> None:
         bundle_structure,
         solve_bundle_damped,
     )
-    from jaxba._solvers._schur._descent import _solve_schur
+    from jaxba._solvers._schur._descent import Schur
+    from jaxba._solvers._solve import lower_solve
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -83,10 +84,11 @@ def main() -> None:
     settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
                     step_tolerance=STEP_TOLERANCE, function_tolerance=0.0)
     start = time.perf_counter()
-    compiled = _solve_schur.lower(problem, structure, **settings).compile()
+    lowered, arguments = lower_solve(problem, Schur(structure), **settings)
+    compiled = lowered.compile()
     compile_seconds = time.perf_counter() - start
     start, start_cpu = time.perf_counter(), time.process_time()
-    solution = jax.block_until_ready(compiled(problem, structure, **settings))
+    solution = jax.block_until_ready(compiled(*arguments))
     solve_seconds, solve_cpu = time.perf_counter() - start, time.process_time() - start_cpu
     print(json.dumps({
         "n_images": int(problem.initial.images.shape[0]),

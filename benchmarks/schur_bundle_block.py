@@ -1,4 +1,4 @@
-"""A large synthetic self-calibrating block for `solve_schur`, built in memory (no files).
+"""A large synthetic self-calibrating block for the Schur backend, built in memory (no files).
 
     python benchmarks/schur_bundle_block.py [--images 200] [--points 3000] [--dense-fraction 0.83]
 
@@ -116,7 +116,8 @@ def synthetic_block(
 
 def main() -> None:
     from jaxba._solvers._schur._bundle import bundle_structure
-    from jaxba._solvers._schur._descent import _solve_schur
+    from jaxba._solvers._schur._descent import Schur
+    from jaxba._solvers._solve import lower_solve
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -135,11 +136,12 @@ def main() -> None:
     settings = dict(max_steps=args.max_steps, rtol=1e-10, atol=1e-10,
                     step_tolerance=STEP_TOLERANCE)
     start, cpu = time.perf_counter(), time.process_time()
-    compiled = _solve_schur.lower(problem, structure, **settings).compile()
+    lowered, arguments = lower_solve(problem, Schur(structure), **settings)
+    compiled = lowered.compile()
     compile_seconds, compile_cpu = time.perf_counter() - start, time.process_time() - cpu
     initial_cost = 0.5 * sum(float(jnp.sum(r**2)) for r in problem.residuals(problem.initial))
     start, cpu = time.perf_counter(), time.process_time()
-    solution = jax.block_until_ready(compiled(problem, structure, **settings))
+    solution = jax.block_until_ready(compiled(*arguments))
     solve_seconds, solve_cpu = time.perf_counter() - start, time.process_time() - cpu
     results = {
         "n_images": args.images,

@@ -7,7 +7,7 @@
    its relative change, the Gauss-Newton decrement gᵀN⁻¹g and the two sides of the bound
    the rule rests on, √(gᵀN⁻¹g)/σ̂0 against max_i |Δ_i|/σ̂_i of the Gauss-Newton step Δ
    (σ̂_i from `schur_cofactors` at the last iterate).
-2. Steps of `solve_schur` on block A and of the dense `solve` on configs/zhang for each τ
+2. Steps of the Schur backend on block A and of the dense backend on configs/zhang for each τ
    (with the Gauss-Newton end game), and for Zhang the largest distance of an intrinsic from
    the optimum (a solve run to rtol = atol = 1e-14, τ = 0) in units of its σ̂.
 """
@@ -28,18 +28,15 @@ import numpy as np  # noqa: E402
 from blocks import write_block  # noqa: E402
 
 import jaxba  # noqa: E402
+from jaxba._solvers._backend import Tolerances  # noqa: E402
 from jaxba._solvers._schur._bundle import (  # noqa: E402
     _reduced_vector,
     bundle_normal_equations,
     bundle_structure,
     solve_bundle_damped,
 )
-from jaxba._solvers._schur._descent import (  # noqa: E402
-    _make_schur_solver,
-    bundle_residuals,
-    solve_schur,
-)
-from jaxba._solvers._steps import _init, _NoAux, _step  # noqa: E402
+from jaxba._solvers._schur._descent import Schur  # noqa: E402
+from jaxba._solvers._steps import _init, _step  # noqa: E402
 from jaxba._statistics._schur_precision import schur_cofactors  # noqa: E402
 
 ZHANG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "zhang" / "zhang.toml"
@@ -47,13 +44,13 @@ ZHANG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "zhang" / "zha
 
 def damped_iterates(problem, structure, max_steps: int) -> list:
     """The accepted iterates of the Schur LM with the statistical test off, stepped here."""
-    solver = _make_schur_solver(problem, structure, rtol=1e-8, atol=1e-8, step_tolerance=0.0)
-    fn = _NoAux(bundle_residuals)
-    state, _, _ = _init(fn, solver, problem.initial, problem)
+    fn, solver, _, arguments = Schur(structure).least_squares(
+        problem, Tolerances(rtol=1e-8, atol=1e-8, step=0.0, function=0.0))
+    state, *_ = _init(fn, solver, problem.initial, arguments)
     y, iterates = problem.initial, []
     for _ in range(max_steps):
         accepted = int(state.num_accepted_steps)
-        y, state, _, terminate, _ = _step(fn, solver, y, problem, state)
+        y, state, _, terminate, *_ = _step(fn, solver, y, arguments, state)
         if int(state.num_accepted_steps) > accepted:
             iterates.append((y, float(state.cost)))
         if bool(terminate):
@@ -118,8 +115,8 @@ def main() -> None:
     print("| τ | block A steps | block A final cost | Zhang steps | Zhang max |x - x̂|/σ̂ |")
     print("|---|---|---|---|---|")
     for tau in args.tolerances:
-        solution = solve_schur(problem, rtol=1e-8, atol=1e-8, step_tolerance=tau,
-                               structure=structure, on_step=lambda info: None)
+        solution = jaxba.solve(problem, Schur(structure), rtol=1e-8, atol=1e-8,
+                               step_tolerance=tau, on_step=lambda info: None)
         steps, error = zhang[tau]
         print(f"| {tau:g} | {int(solution.steps)} | {float(solution.cost):.10f} | {steps} |"
               f" {error:.1e} |", flush=True)

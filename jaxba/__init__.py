@@ -38,7 +38,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
         "AbstractRayRefraction", "CameraModelError", "FlatPort", "RefractedCamera",
     ),
     "._statistics._datum": ("DatumError", "check_datum"),
-    "._solvers._dense": ("solve",),
+    "._solvers._solve": ("solve",),
     "._statistics._differentiable": (
         "adjusted", "camera_positions", "covariance", "iop_trace_gradient", "sensitivity",
     ),

@@ -14,12 +14,8 @@ import jaxba
 import jaxba._solvers._schur._choice
 from jaxba._problem._observations import ParameterObservations
 from jaxba._solvers._schur._bundle import bundle_structure
-from jaxba._statistics._differentiable import (
-    adjusted,
-    choose_backend,
-    iop_trace_gradient,
-    sensitivity,
-)
+from jaxba._statistics._differentiable import adjusted, iop_trace_gradient, sensitivity
+from jaxba.advanced import choose_backend
 
 GRAD_RTOL = 1e-5  # d IOP / d observation against central differences, relative
 OBS_STEP = 1e-3  # mm (≈ σ): truncation ~1e-7; smaller steps drown in the re-solves' tolerance
@@ -248,14 +244,14 @@ def test_schur_adjoint_forms_no_dense_matrix(small_block, gradients):
 def test_backend_choice(small_block, monkeypatch):
     """"auto" chooses as `adjust` does where the problem's values are concrete, the dense path
     (which batches) where they are traced."""
-    assert choose_backend(small_block) == "dense"  # 299 unknowns
+    assert choose_backend(small_block).name == "dense"  # 299 unknowns
     monkeypatch.setattr(jaxba._solvers._schur._choice, "SCHUR_MIN_UNKNOWNS", 100)
-    assert choose_backend(small_block) == "schur"
-    assert choose_backend(small_block, "dense") == "dense"
+    assert choose_backend(small_block).name == "schur"
+    assert choose_backend(small_block, "dense").name == "dense"
     chosen = []
 
     def choose(problem):
-        chosen.append(choose_backend(problem))
+        chosen.append(choose_backend(problem).name)
         return problem.initial.images
 
     jax.eval_shape(choose, small_block)

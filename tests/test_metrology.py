@@ -309,7 +309,7 @@ def test_block_adjusted_as_smac_is_biased(metrology_block, tmp_path):
 def test_block_on_the_schur_backend_agrees(metrology_block):
     """The constant r0 reaches the Schur backend's Jacobian blocks too."""
     _, project, dense = metrology_block
-    schur = jaxba.advanced.solve_schur(project.problem)
+    schur = jaxba.solve(project.problem, "schur")
     assert schur.converged
     np.testing.assert_allclose(schur.parameters.cameras["metrology"],
                                dense.parameters.cameras["metrology"], rtol=1e-7, atol=1e-12)

@@ -18,6 +18,7 @@ import optimistix as optx
 import pytest
 from helpers import jacfwd_jacobian, schur_damped_step
 
+from jaxba import solve
 from jaxba._io._bal import BalProblem, bal_bundle
 from jaxba._models._cameras import BalCamera
 from jaxba._models._poses import RodriguesPose
@@ -25,9 +26,9 @@ from jaxba._problem._bundle import free_indices, params_from_free
 from jaxba._problem._parameters import flatten
 from jaxba._solvers._cholesky import cholesky_solve
 from jaxba._solvers._schur._bundle import bundle_structure
-from jaxba._solvers._schur._descent import solve_schur
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._solvers._schur._pairs import same_point_pairs
+from jaxba.advanced import Schur
 
 N_CAMERAS, N_POINTS = 5, 60
 NOISE_PX = 0.5
@@ -119,7 +120,8 @@ def scene():
 @pytest.fixture(scope="module")
 def tight_solution(scene):
     problem, _ = scene
-    return solve_schur(problem, rtol=1e-13, atol=1e-13, function_tolerance=0.0, max_steps=200)
+    return solve(problem, Schur(), rtol=1e-13, atol=1e-13, function_tolerance=0.0,
+                 max_steps=200)
 
 
 # --- structure ----------------------------------------------------------------------------
@@ -246,7 +248,8 @@ def test_final_cost_matches_dense_levenberg_marquardt(scene, tight_solution):
 
 def test_function_tolerance_stops_as_converged(scene, tight_solution):
     problem, _ = scene
-    loose = solve_schur(problem, rtol=0.0, atol=1e-12, function_tolerance=1e-6, max_steps=200)
+    loose = solve(problem, Schur(), rtol=0.0, atol=1e-12, function_tolerance=1e-6,
+                  max_steps=200)
     assert bool(loose.converged)
     assert int(loose.steps) < int(tight_solution.steps)
     assert float(loose.cost) == pytest.approx(float(tight_solution.cost), rel=1e-6)

@@ -23,7 +23,6 @@ from jaxba._solvers._schur._bundle import (
     bundle_structure,
     zero_normal_equations,
 )
-from jaxba._solvers._schur._descent import solve_schur
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._statistics._backends import DenseBackend
 from jaxba._statistics._schur_precision import schur_cofactors
@@ -52,9 +51,9 @@ def block(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def plain_solution(block):
-    """`solve_schur(block)` with its defaults (50 steps, the statistical step test), solved
+    """`solve(block, "schur")` with its defaults (50 steps, the statistical step test), solved
     once for the tests that read it."""
-    return solve_schur(block)
+    return jaxba.solve(block, "schur")
 
 
 def _with_control_and_robust(problem):
@@ -140,8 +139,8 @@ def test_solve_schur_matches_dense_solve(block, plain_solution, variant):
     # to 1e-8.
     max_steps = 50 if variant == "plain" else 200
     schur = (plain_solution if variant == "plain"
-             else solve_schur(problem, max_steps=max_steps, step_tolerance=0.0))
-    dense = jaxba.solve(problem, rtol=1e-10, atol=1e-10, step_tolerance=0.0,
+             else jaxba.solve(problem, "schur", max_steps=max_steps, step_tolerance=0.0))
+    dense = jaxba.solve(problem, "dense", rtol=1e-10, atol=1e-10, step_tolerance=0.0,
                         max_steps=max_steps + 200)
     assert isinstance(schur, jaxba.Solution)
     assert bool(dense.converged)
@@ -159,7 +158,7 @@ def test_stepwise_solve_reports_every_step_and_equals_the_compiled_loop(block, p
     from jaxba._solvers._progress import StepRecorder
 
     recorder = StepRecorder(redundancy=100)
-    stepwise = solve_schur(block, on_step=recorder)
+    stepwise = jaxba.solve(block, "schur", on_step=recorder)
     whole = plain_solution
     assert len(recorder.iterations) >= 2
     assert recorder.iterations[0].cost > float(stepwise.cost)
@@ -230,7 +229,7 @@ def _benchmark_block():
 def test_synthetic_nadir_block_reaches_sigma0_one():
     """40 images x 600 points (~40k residuals): σ̂0 ≈ 1 (the simulated noise)."""
     problem = _benchmark_block()(40, 600, dense_fraction=0.83, seed=1)
-    solution = jax.block_until_ready(solve_schur(problem))
+    solution = jax.block_until_ready(jaxba.solve(problem, "schur"))
     n = sum(int(np.sum(np.asarray(g.mask()))) for g in problem.groups)
     sigma0 = np.sqrt(2 * float(solution.cost) / (n - problem.n_unknowns()))
     assert bool(solution.converged)

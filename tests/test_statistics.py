@@ -308,7 +308,8 @@ def test_monte_carlo_precision_and_variance_factor(tmp_path):
 
     def solve_one(measured):
         problem = eqx.tree_at(lambda p: p.groups[0].measured, base, measured)
-        return jaxba.solve(problem, plan, max_steps=60, rtol=1e-10, atol=1e-10)
+        return jaxba.solve(problem, jaxba.advanced.Dense(plan), max_steps=60, rtol=1e-10,
+                           atol=1e-10)
 
     solutions = jax.vmap(solve_one)(group.measured + noise)
     assert bool(jnp.all(solutions.converged))

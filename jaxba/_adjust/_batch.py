@@ -48,9 +48,10 @@ from .._problem._linearisation import (
 from .._problem._observations import AbstractObservationGroup
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from .._programs import call_stored
-from .._solvers._dense import solve
+from .._solvers._dense import Dense, cofactors, equilibrated
 from .._solvers._progress import Iteration
 from .._solvers._solution import Solution
+from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
 from .._statistics._datum import DatumError, check_columns, check_datum
@@ -345,7 +346,7 @@ def _solve_batch(problem, plan, max_steps, rtol, atol, chunk_size) -> Solution:
 
     def one(arrays):
         problem, plan = eqx.combine(arrays, static)
-        return solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+        return solve(problem, Dense(plan), max_steps=max_steps, rtol=rtol, atol=atol)
 
     if chunk_size is None:
         return jax.vmap(one)(arrays)
@@ -370,14 +371,6 @@ class BatchStatistics(eqx.Module):
     suspect: Bool[Array, " n_batch"]
 
 
-def _equilibrated(normal, real) -> tuple[Array, Array]:
-    """D N D with D = 1/‖column‖ (0 for a padded or unobserved unknown), the padded
-    unknowns' (zero) block replaced by I so that they drop out; and D."""
-    norms = jnp.sqrt(jnp.diag(normal))
-    scale = jnp.where(real & (norms > 0), 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
-    return normal * scale[:, None] * scale[None, :] + jnp.diag(jnp.where(real, 0.0, 1.0)), scale
-
-
 def _datum_suspect(problem: BundleProblem, plan: LinearisationPlan, n_free, rtol: float):
     """False where the datum is surely defined at the approximations: N = JᵀJ finite, every
     real column observed, and the equilibrated N's eigenvalues λ = s² (s the singular values
@@ -388,7 +381,7 @@ def _datum_suspect(problem: BundleProblem, plan: LinearisationPlan, n_free, rtol
     real = jnp.arange(plan.n_free) < n_free
     finite = jnp.all(jnp.isfinite(normal))
     observed = jnp.all(jnp.where(real, jnp.diag(normal) > 0, True))
-    scaled = _equilibrated(jnp.where(finite, normal, 1.0), real)[0]
+    scaled = equilibrated(jnp.where(finite, normal, 1.0), real)[0]
     eigenvalues = jnp.linalg.eigvalsh(jnp.where(finite, scaled, jnp.eye(plan.n_free)))
     regular = eigenvalues[0] > (4 * rtol**2 + 1e-12) * eigenvalues[-1]
     return ~(finite & observed & regular)
@@ -425,10 +418,7 @@ def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPl
 def _statistics_one(problem: BundleProblem, plan: LinearisationPlan, params: Parameters,
                     n_free, datum_rtol: float) -> BatchStatistics:
     real = jnp.arange(plan.n_free) < n_free
-    scaled, scale = _equilibrated(normal_equations(problem, params, plan)[0], real)
-    inverse = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(scaled),
-                                         jnp.eye(plan.n_free))
-    cofactor = scale[:, None] * inverse * scale[None, :]
+    cofactor = cofactors(normal_equations(problem, params, plan)[0], real)
     whitened = jnp.concatenate([jnp.ravel(e) for e in problem.whitened(params)])
     initial = 0.5 * sum(jnp.sum(e**2) for e in problem.whitened(problem.initial))
     return BatchStatistics(initial, cofactor, _leverages(problem, params, plan, cofactor),
@@ -464,7 +454,7 @@ def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, ch
     """Solve and statistics of every problem of a padded batch: one compiled program."""
 
     def one(problem, plan, n):
-        solution = solve(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
+        solution = solve(problem, Dense(plan), max_steps=max_steps, rtol=rtol, atol=atol)
         return solution, _statistics_one(problem, plan, solution.parameters, n, datum_rtol)
 
     return _each(one, problem, plan, n_free, chunk_size)

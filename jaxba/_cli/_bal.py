@@ -2,8 +2,9 @@
 report it.
 
 Plain Python around the jitted core: reads the file, builds the bundle and its Schur split,
-solves with `solve_schur` (with progress one compiled step at a time, without it as one
-compiled program), times compilation and solve separately, and writes `results.json`.
+solves with `solve` on the Schur backend (with progress one compiled step at a time,
+without it as one compiled program), times compilation and solve separately, and writes
+`results.json`.
 """
 
 import json
@@ -25,7 +26,8 @@ from .._problem._bundle import BundleProblem
 from .._report._atomic import replace_files
 from .._solvers._progress import Iteration, StepRecorder
 from .._solvers._schur._bundle import bundle_structure
-from .._solvers._schur._descent import solve_schur
+from .._solvers._schur._descent import Schur
+from .._solvers._solve import solve
 from .._timing import CompileLog
 
 
@@ -52,8 +54,8 @@ def run_bal(
     """Solve the BAL problem in `path` (plain, .bz2 or .gz) and write `out_dir/results.json`.
 
     The file becomes a BundleProblem (`bal_bundle`: "bal" cameras, "rodrigues" poses, σ = 1
-    pixel) solved by `solve_schur`, the Levenberg-Marquardt of `jaxba adjust`'s Schur
-    backend, all parameters free, no robust loss and no datum check (BAL's gauge freedom is
+    pixel) solved by `solve` on the Schur backend (as `jaxba adjust` solves a block), all
+    parameters free, no robust loss and no datum check (BAL's gauge freedom is
     left to the damping); stops when an accepted step changes the cost by less than
     `function_tolerance` (relative, as Ceres), on optimistix's rtol/atol test, or after
     `max_steps` steps (trial steps, rejected ones included, as Ceres counts iterations).
@@ -90,9 +92,9 @@ def run_bal(
     with CompileLog() as compiles:
         start = time.perf_counter()
         initial_cost = float(_cost(problem))
-        solution = solve_schur(
-            problem, max_steps=max_steps, rtol=rtol, atol=atol,
-            step_tolerance=0.0, function_tolerance=function_tolerance, structure=structure,
+        solution = solve(
+            problem, Schur(structure), max_steps=max_steps, rtol=rtol, atol=atol,
+            step_tolerance=0.0, function_tolerance=function_tolerance,
             on_step=None if on_iteration is None else recorder)
         final_cost = float(solution.cost)  # ½|e|² at the final (accepted) iterate
         wall = time.perf_counter() - start

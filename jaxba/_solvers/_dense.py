@@ -1,18 +1,16 @@
-"""The Dense backend's solve: Levenberg-Marquardt on the normal equations of all free unknowns."""
+"""The Dense backend: Levenberg-Marquardt on the normal equations of all free unknowns."""
 
-from collections.abc import Callable
+from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
-import optimistix as optx
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from .._problem._bundle import BundleProblem, params_from_scaled
 from .._problem._linearisation import LinearisationPlan, linearisation_plan, normal_equations
+from ._backend import Backend, LeastSquares, Tolerances
 from ._levenberg_marquardt import UNBATCHED_BLOCK, NormalLevenbergMarquardt
-from ._solution import Solution
-from ._steps import StepInfo, least_squares_stepwise
-from ._trust_region import STEP_TOLERANCE
 
 
 def _residual_fn(z, args):
@@ -31,72 +29,64 @@ def column_scale(problem: BundleProblem, plan: LinearisationPlan) -> Float[Array
     return 1.0 / jnp.where(norms > 0, norms, 1.0)
 
 
-def solve(
-    problem: BundleProblem,
-    plan: LinearisationPlan | None = None,
-    *,
-    max_steps: int = 50,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
-    step_tolerance: float = STEP_TOLERANCE,
-    on_step: Callable[[StepInfo], None] | None = None,
-) -> Solution:
-    """Levenberg-Marquardt on the Jacobi-scaled free unknowns (`NormalLevenbergMarquardt`).
+class Dense(Backend):
+    """All free unknowns in one dense normal matrix (calibrations, batches, vmap): the loop
+    runs on the Jacobi-scaled unknowns z (`column_scale`), x_free = x_free,0 + scale ⊙ z,
+    each damped step a blocked Cholesky of N + λI (`NormalLevenbergMarquardt`).
 
-    Converged at an accepted iterate from which the Gauss-Newton step would move every
-    unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ², `jaxba._solvers._trust_region`,
-    with its Gauss-Newton steps; 0: both off), or where optimistix's Cauchy test passes
-    (step and residual change within `rtol`, `atol`, elementwise, in the scaled unknowns),
-    or when every step from it is rejected down to the trust region's minimum radius.
-    No datum check, no statistics. Without `on_step` the whole solve is one compiled
-    `optx.least_squares` (pure: it can be `jax.vmap`ped over problems of one structure, as
-    Monte Carlo and batches do, and differentiated); with `on_step` the same solver runs one
-    compiled step at a time and `on_step(StepInfo)` hears every step (`least_squares_stepwise`:
-    not under jit or vmap). `plan` = `linearisation_plan(problem)`, computed here when not
-    given (it must be given under `jax.vmap` or `jax.jit`, where the problem's index arrays
-    are traced).
-    """
-    if plan is None:
-        plan = linearisation_plan(problem)
-    settings = dict(max_steps=max_steps, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
-    if on_step is None:
-        return _solve(problem, plan, **settings)
-    solver, args, z0 = _normal_solver(problem, plan, rtol=rtol, atol=atol,
-                                      step_tolerance=step_tolerance, block_size=UNBATCHED_BLOCK)
-    solution = least_squares_stepwise(
-        _residual_fn, solver, z0, args, has_aux=True, max_steps=max_steps, on_step=on_step)
-    return _normal_solution(args, solution)
+    `plan`: `linearisation_plan(problem)`, filled in by `ready` where not given; it must be
+    given under `jax.vmap` / `jax.jit`, where the problem's index arrays are traced.
+    `block_size`: the Cholesky's block (None: tuned for vmapped batches)."""
 
+    plan: LinearisationPlan | None = None
+    block_size: int | None = eqx.field(static=True, default=None)
 
-def _make_normal_solver(problem, plan, *, rtol, atol, step_tolerance, block_size=None):
-    """The dense-backend solver, the residual function's args and the start z = 0."""
-    scale = column_scale(problem, plan)
-    solver = NormalLevenbergMarquardt(
-        problem, plan, scale, rtol, atol, step_tolerance=step_tolerance, block_size=block_size)
-    return solver, (problem, plan.free_index, scale), jnp.zeros_like(scale)
+    name: ClassVar[str] = "dense"
+    tolerance: ClassVar[float] = 1e-8
+    top_level: ClassVar[bool] = False
+    compiled_setup: ClassVar[bool] = True
+
+    def ready(self, problem):
+        return self if self.plan is not None else Dense(linearisation_plan(problem),
+                                                        self.block_size)
+
+    def for_steps(self):
+        return Dense(self.plan, UNBATCHED_BLOCK)
+
+    def least_squares(self, problem: BundleProblem, tolerances: Tolerances) -> LeastSquares:
+        """The column scale is held constant under differentiation (`stop_gradient`): the
+        optimum does not depend on it, so its derivative would only cancel."""
+        plan = self.plan
+        scale = jax.lax.stop_gradient(column_scale(problem, plan))
+        solver = NormalLevenbergMarquardt(
+            problem, plan, scale, tolerances.rtol, tolerances.atol,
+            step_tolerance=tolerances.step, function_tolerance=tolerances.function,
+            block_size=self.block_size)
+        return LeastSquares(_residual_fn, solver, jnp.zeros_like(scale),
+                            (problem, plan.free_index, scale))
+
+    def parameters(self, problem, args, value):
+        _, index, scale = args
+        return params_from_scaled(problem, value, index, scale)
 
 
-def _make_normal_solution(args, solution: optx.Solution) -> Solution:
-    problem, index, scale = args
-    params = params_from_scaled(problem, solution.value, index, scale)
-    return Solution(
-        parameters=params,
-        converged=solution.result == optx.RESULTS.successful,
-        steps=solution.stats["num_steps"],
-        accepted_steps=solution.state.num_accepted_steps,
-        cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
-        result=solution.result,
-    )
+def equilibrated(normal: Float[Array, "n n"], real: Bool[Array, " n"] | None = None
+                 ) -> tuple[Float[Array, "n n"], Float[Array, " n"]]:
+    """(D N D, D) with D = 1/‖column‖ (0 for an unknown that is not `real`, padding in a
+    batch, or unobserved), those unknowns' (zero) block replaced by I so that they drop
+    out. `real`: default all."""
+    real = jnp.ones(normal.shape[0], bool) if real is None else real
+    norms = jnp.sqrt(jnp.diag(normal))
+    scale = jnp.where(real & (norms > 0), 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
+    return normal * scale[:, None] * scale[None, :] + jnp.diag(jnp.where(real, 0.0, 1.0)), scale
 
 
-_normal_solver = eqx.filter_jit(_make_normal_solver)
-_normal_solution = eqx.filter_jit(_make_normal_solution)
-
-
-@eqx.filter_jit
-def _solve(problem, plan, *, max_steps, rtol, atol, step_tolerance) -> Solution:
-    solver, args, z0 = _make_normal_solver(
-        problem, plan, rtol=rtol, atol=atol, step_tolerance=step_tolerance)
-    solution = optx.least_squares(
-        _residual_fn, solver, z0, args=args, has_aux=True, max_steps=max_steps, throw=False)
-    return _make_normal_solution(args, solution)
+def cofactors(normal: Float[Array, "n n"], real: Bool[Array, " n"] | None = None
+              ) -> Float[Array, "n n"]:
+    """Q = N⁻¹ of the normal matrix N = JᵀJ (n x n) by Cholesky of the equilibrated
+    D N D (`equilibrated`): Q = D (D N D)⁻¹ D, 0 on the unknowns that are not `real`. A jax
+    function: inside a batch's program, vmapped, and differentiable."""
+    scaled, scale = equilibrated(normal, real)
+    inverse = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(scaled),
+                                         jnp.eye(normal.shape[0], dtype=normal.dtype))
+    return scale[:, None] * inverse * scale[None, :]

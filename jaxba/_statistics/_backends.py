@@ -24,13 +24,13 @@ from jaxtyping import Array
 from .._problem._bundle import BundleProblem
 from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters
-from .._solvers._dense import solve
+from .._solvers._dense import Dense
 from .._solvers._schur._bundle import bundle_structure
-from .._solvers._schur._choice import use_schur
-from .._solvers._schur._descent import solve_schur
+from .._solvers._schur._descent import Schur
 from .._solvers._solution import Solution
+from .._solvers._solve import choose_backend, solve
 from ._adjustment import Adjustment
-from ._covariance import Precision, precision
+from ._covariance import Precision, equilibrated_jacobian, precision, scaled_cofactor
 from ._datum import check_datum, whitened_residuals
 from ._free_network import (
     free_network_precision,
@@ -95,10 +95,11 @@ class DenseBackend(Backend):
         inner constraints (as the Schur backend: adjusted as stiff observations, the
         constraints left Levenberg-Marquardt crawling on weak blocks)."""
         if inner_constraint_group(self.problem) is None:
-            return solve(self.problem, max_steps=max_steps, rtol=rtol, atol=atol,
+            return solve(self.problem, Dense(), max_steps=max_steps, rtol=rtol, atol=atol,
                          on_step=on_step)
         minimal = minimal_constraints(self.problem, self.problem.initial)
-        solution = solve(minimal, max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step)
+        solution = solve(minimal, Dense(), max_steps=max_steps, rtol=rtol, atol=atol,
+                         on_step=on_step)
         inner = to_inner_datum(self.problem, solution.parameters)
         return eqx.tree_at(lambda s: s.parameters, solution, inner)
 
@@ -107,12 +108,9 @@ class DenseBackend(Backend):
 
     def redundancy_numbers(self, params):
         """1 - diag(J N⁻¹ Jᵀ), from the column-scaled dense Jacobian."""
-        import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
-
         jacobian, whitened = (np.asarray(a) for a in dense_jacobian(self.problem, params))
-        scaled = jacobian / np.linalg.norm(jacobian, axis=0)
-        factor = scipy.linalg.cho_factor(scaled.T @ scaled)
-        leverage = np.sum(scaled * scipy.linalg.cho_solve(factor, scaled.T).T, axis=1)
+        scaled = equilibrated_jacobian(jacobian)[0]
+        leverage = np.sum((scaled @ scaled_cofactor(scaled)) * scaled, axis=1)
         return 1.0 - leverage, whitened
 
 
@@ -136,12 +134,12 @@ class SchurBackend(Backend):
     def solve(self, *, max_steps, rtol, atol, on_step=None):
         if self.problem.gauge and not self.free_network:  # the datum after the solve
             problem, gauge = released(self.problem)
-            solution = solve_schur(problem, max_steps=max_steps, rtol=rtol, atol=atol,
-                                   on_step=on_step, gauge=gauge)
+            solution = solve(problem, Schur(gauge=gauge), max_steps=max_steps, rtol=rtol,
+                             atol=atol, on_step=on_step)
             moved = to_gauge_datum(self.problem, solution.parameters)
             return eqx.tree_at(lambda s: s.parameters, solution, moved)
-        solution = solve_schur(self.solved, max_steps=max_steps, rtol=rtol, atol=atol,
-                               on_step=on_step, structure=self.structure)
+        solution = solve(self.solved, Schur(self.structure), max_steps=max_steps, rtol=rtol,
+                         atol=atol, on_step=on_step)
         if not self.free_network:
             return solution
         inner = to_inner_datum(self.problem, solution.parameters)
@@ -172,9 +170,9 @@ BACKENDS: dict[str, type[Backend]] = {"dense": DenseBackend, "schur": SchurBacke
 
 
 def backend_for(problem: BundleProblem, solver: str = "auto") -> Backend:
-    """The backend for `problem`: `solver` "dense", "schur", or "auto" (`use_schur`: the
-    Schur split for large bundles). `ValueError` for another name."""
-    return BACKENDS["schur" if use_schur(problem, solver) else "dense"](problem)
+    """The backend for `problem`: `solver` "dense", "schur", or "auto" (`choose_backend`:
+    the Schur split for large bundles). `ValueError` for another name."""
+    return BACKENDS[choose_backend(problem, solver).name](problem)
 
 
 def adjusted_redundancy_numbers(result: Adjustment) -> tuple[np.ndarray, np.ndarray]:

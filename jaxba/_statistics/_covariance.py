@@ -134,24 +134,34 @@ def _inner_constraint_cofactor(observations: np.ndarray, constraints: np.ndarray
     return np.linalg.solve(bordered, np.eye(n + d)[:, :n])[:n]
 
 
-def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0) -> Precision:
-    """Dense covariance of the free unknowns at `params` (up to a few thousand unknowns)."""
+def equilibrated_jacobian(jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J D, D) with D = 1/‖column‖ of the whitened Jacobian J (n_obs, n_free): N⁻¹ =
+    D (D N D)⁻¹ D, factorised with unit columns."""
+    column_scale = 1.0 / np.maximum(np.linalg.norm(jacobian, axis=0), np.finfo(float).tiny)
+    return jacobian * column_scale, column_scale
+
+
+def scaled_cofactor(scaled: np.ndarray) -> np.ndarray:
+    """(AᵀA)⁻¹ by Cholesky of the equilibrated Jacobian A = J D (`equilibrated_jacobian`):
+    the dense cofactor matrix of a problem with a datum, NumPy (one problem, outside jax)."""
     import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
 
+    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled.T @ scaled),
+                                  np.eye(scaled.shape[1]))
+
+
+def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0) -> Precision:
+    """Dense covariance of the free unknowns at `params` (up to a few thousand unknowns)."""
     jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
     n_observations, n_unknowns = jacobian.shape
     redundancy = n_observations - n_unknowns
     sigma0_squared = sigma0**2 * float(whitened @ whitened) / redundancy
-    # Equilibrate columns before factorising; N⁻¹ = D (D N D)⁻¹ D.
-    column_scale = 1.0 / np.maximum(np.linalg.norm(jacobian, axis=0), np.finfo(float).tiny)
-    scaled = jacobian * column_scale
+    scaled, column_scale = equilibrated_jacobian(jacobian)
     constraint = _constraint_rows(problem)
     if constraint.any():
         cofactor = _inner_constraint_cofactor(scaled[~constraint], scaled[constraint])
     else:
-        cofactor = scipy.linalg.cho_solve(
-            scipy.linalg.cho_factor(scaled.T @ scaled), np.eye(n_unknowns)
-        )
+        cofactor = scaled_cofactor(scaled)
     # Cxx = σ̂0² (σ0² JᵀJ)⁻¹
     covariance = (sigma0_squared / sigma0**2) * (
         column_scale[:, None] * cofactor * column_scale[None, :]

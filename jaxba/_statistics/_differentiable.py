@@ -33,14 +33,14 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from .._models._cameras import CAMERA_MODELS
-from .._problem._bundle import BundleProblem, free_indices, params_from_free, params_from_scaled
+from .._problem._bundle import BundleProblem, free_indices, params_from_free
 from .._problem._linearisation import LinearisationPlan, linearisation_plan
 from .._problem._parameters import Parameters, flatten, unflatten
-from .._solvers._dense import _residual_fn, column_scale
-from .._solvers._levenberg_marquardt import NormalLevenbergMarquardt
-from .._solvers._schur._adjoint import _stop_gradient, schur_adjusted
+from .._solvers._dense import Dense, cofactors
+from .._solvers._schur._adjoint import schur_adjusted
 from .._solvers._schur._bundle import BundleStructure, bundle_structure
-from .._solvers._schur._choice import SOLVERS, use_schur
+from .._solvers._schur._descent import Schur
+from .._solvers._solve import choose_backend, solve
 
 
 def adjusted(
@@ -55,18 +55,18 @@ def adjusted(
 ) -> Parameters:
     """The adjusted Parameters x̂(θ), differentiable w.r.t. every array of `problem`.
 
-    Levenberg-Marquardt as in `solve` (or `solve_schur`), with an implicit adjoint.
-    Tolerances default tighter than `solve`'s, since a derivative is only as good as the
-    optimality of x̂. `backend`: "dense" (dense QR on the Hessian of the scaled unknowns;
-    vmappable), "schur" (the Schur backend's solve, CG preconditioned through the Schur
-    split: `jaxba._solvers._schur._adjoint`) or "auto" (`use_schur`, as `adjust` chooses, where the
-    problem's arrays are concrete: outside `jax.jit` / `jax.vmap`, `jax.grad` and friends
-    included; "dense" under a transformation that traces them). `plan` =
+    Levenberg-Marquardt as in `solve`, with an implicit adjoint. Tolerances default
+    tighter than `solve`'s, since a derivative is only as good as the optimality of x̂.
+    `backend`: "dense" (dense QR on the Hessian of the scaled unknowns; vmappable),
+    "schur" (the Schur backend's solve, CG preconditioned through the Schur split:
+    `jaxba._solvers._schur._adjoint`) or "auto" (`choose_backend`: as `adjust` chooses
+    where the problem's values are known, outside `jax.jit` / `jax.vmap`, `jax.grad` and
+    friends included; "dense" under a transformation that traces them). `plan` =
     `linearisation_plan(problem)` (static structure as arrays, so it can vmap) for the dense
     path, `structure` = `bundle_structure(problem)` for the Schur path (not vmappable);
     each computed here when not given.
     """
-    if choose_backend(problem, backend) == "schur":
+    if isinstance(choose_backend(problem, backend), Schur):
         structure = bundle_structure(problem) if structure is None else structure
         return schur_adjusted(problem, structure, max_steps=max_steps, rtol=rtol, atol=atol)[0]
     if plan is None:
@@ -74,30 +74,11 @@ def adjusted(
     return _adjusted(problem, plan, max_steps=max_steps, rtol=rtol, atol=atol)
 
 
-def choose_backend(problem: BundleProblem, backend: str = "auto") -> str:
-    """"dense" or "schur" for `adjusted` (its docstring): `backend` where it is one of them,
-    for "auto" `use_schur` on the problem's values, "dense" where they are traced (jit,
-    vmap: no NumPy count of the observations there, and a batch needs the dense path)."""
-    if backend not in SOLVERS:
-        raise ValueError(f"backend must be one of {', '.join(SOLVERS)}, not {backend!r}")
-    if backend != "auto":
-        return backend
-    try:  # the values under jax.grad, a tracer's error under jit / vmap
-        return "schur" if use_schur(_stop_gradient(problem)) else "dense"
-    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
-        return "dense"
-
-
 @eqx.filter_jit
 def _adjusted(problem, plan, *, max_steps, rtol, atol) -> Parameters:
-    scale = jax.lax.stop_gradient(column_scale(problem, plan))
-    solver = NormalLevenbergMarquardt(problem, plan, scale, rtol, atol)
-    solution = optx.least_squares(
-        _residual_fn, solver, jnp.zeros_like(scale), args=(problem, plan.free_index, scale),
-        has_aux=True, max_steps=max_steps, throw=False,
-        adjoint=optx.ImplicitAdjoint(linear_solver=lx.QR()),
-    )
-    return params_from_scaled(problem, solution.value, plan.free_index, scale)
+    adjoint = optx.ImplicitAdjoint(linear_solver=lx.QR())
+    return solve(problem, Dense(plan), max_steps=max_steps, rtol=rtol, atol=atol,
+                 adjoint=adjoint).parameters
 
 
 def covariance(
@@ -112,7 +93,7 @@ def covariance(
     J is the whitened Jacobian at `params`: for network design, `params` holds the planned
     (true) geometry and σ0 the a priori variance factor; for a posteriori precision pass
     σ̂0. Differentiable w.r.t. `params` (second derivatives of the model) and the σ in
-    `problem`. Dense Cholesky on the column-equilibrated normal matrix.
+    `problem`. Dense Cholesky on the column-equilibrated normal matrix (`cofactors`).
     """
     at = eqx.tree_at(lambda p: p.initial, problem, params)
 
@@ -122,11 +103,7 @@ def covariance(
 
     x_free = ravel_pytree(params)[0][free_index]
     jacobian = jax.jacfwd(whitened)(x_free)
-    column_scale = 1.0 / jnp.linalg.norm(jacobian, axis=0)
-    scaled = jacobian * column_scale
-    factor = jax.scipy.linalg.cho_factor(scaled.T @ scaled)
-    inverse = jax.scipy.linalg.cho_solve(factor, jnp.eye(x_free.shape[0]))
-    return sigma0**2 * column_scale[:, None] * inverse * column_scale[None, :]
+    return sigma0**2 * cofactors(jacobian.T @ jacobian)
 
 
 def camera_positions(problem: BundleProblem, model: str, row: int = 0):
@@ -163,8 +140,9 @@ def sensitivity(
     `adjusted` (on a block "auto" takes the Schur backend).
     """
     model = model if model is not None else problem.groups[group].model
-    backend = choose_backend(problem, backend)
-    split = ({"structure": bundle_structure(problem)} if backend == "schur"
+    schur = isinstance(choose_backend(problem, backend), Schur)
+    backend = "schur" if schur else "dense"
+    split = ({"structure": bundle_structure(problem)} if schur
              else {"plan": linearisation_plan(problem)})
 
     def iops(measured):

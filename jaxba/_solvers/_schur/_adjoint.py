@@ -3,7 +3,7 @@
 The implicit function theorem at the optimum x̂(θ) of ½‖e(x, θ)‖², g(x̂, θ) = ∇ₓ ½‖e‖² = 0,
 gives dx̂/dθ = -H⁻¹ ∂g/∂θ with H = ∂g/∂x the full Hessian (JᵀJ plus the residuals'
 curvature Σ e_k ∇²e_k). `schur_adjusted` solves forward with the Schur backend's
-Levenberg-Marquardt (`_descent._make_schur_solver`, as `solve_schur`) and hands x̂ to
+Levenberg-Marquardt (`solve` with the `Schur` backend) and hands x̂ to
 optimistix's `implicit_jvp` (what `optx.ImplicitAdjoint` runs; called directly so that the
 linear solver can carry a preconditioner built at x̂, which an adjoint's solver, made before
 the solve and given no options, cannot). Its linear systems H v = w (one per tangent, or per
@@ -44,6 +44,7 @@ from optimistix.internal import implicit_jvp
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
+from .._solve import solve
 from .._trust_region import STEP_TOLERANCE
 from ._bundle import (
     BundleStructure,
@@ -55,7 +56,7 @@ from ._bundle import (
     _to_parameters,
     bundle_normal_equations,
 )
-from ._descent import _make_schur_solver, bundle_residuals
+from ._descent import Schur, bundle_residuals
 from ._normal import _matvec, _small_inverse
 
 # ‖r‖_N⁻¹ ≤ CG_RTOL ‖b‖_N⁻¹: the adjoint's solution to ~1e-10 of its size in N's metric,
@@ -145,9 +146,9 @@ class SchurPreconditionedCG(lx.AbstractLinearSolver):
 
     def compute(self, state, vector, options):
         del options
-        operator, solve = state, self.preconditioner.solve
+        operator, precondition = state, self.preconditioner.solve
         zero = jax.tree.map(jnp.zeros_like, vector)
-        z = solve(vector)
+        z = precondition(vector)
         gamma = _tree_dot(vector, z)
         tolerance = self.rtol**2 * gamma
 
@@ -161,7 +162,7 @@ class SchurPreconditionedCG(lx.AbstractLinearSolver):
             alpha = gamma / _tree_dot(p, hp)
             x = jax.tree.map(lambda a, b: a + alpha * b, x, p)
             r = jax.tree.map(lambda a, b: a - alpha * b, r, hp)
-            z = solve(r)
+            z = precondition(r)
             gamma_next = _tree_dot(r, z)
             p = jax.tree.map(lambda a, b: a + (gamma_next / gamma) * b, z, p)
             return x, r, p, gamma_next, step + 1
@@ -218,18 +219,16 @@ def schur_adjusted(
     """x̂(θ) of `problem` (`structure = bundle_structure(problem)`), differentiable w.r.t.
     every array of `problem` (module docstring); also the solve's result and step count.
 
-    The solve is `solve_schur`'s Levenberg-Marquardt (`rtol`, `atol`: its Cauchy test,
-    `step_tolerance`: its statistical test); the adjoint's CG stops at `cg_rtol` in N's
+    The solve is `solve`'s Levenberg-Marquardt on the `Schur` backend (`rtol`, `atol`: its
+    Cauchy test, `step_tolerance`: its statistical test); the adjoint's CG stops at `cg_rtol` in N's
     metric and fails after `cg_max_steps` iterations (an error under differentiation).
     """
     fixed = _stop_gradient(problem)
-    solver = _make_schur_solver(fixed, structure, rtol=rtol, atol=atol,
-                                step_tolerance=step_tolerance, function_tolerance=0.0)
-    solution = optx.least_squares(bundle_residuals, solver, fixed.initial, args=fixed,
-                                  max_steps=max_steps, throw=False)
-    optimum = solution.value
+    solution = solve(fixed, Schur(structure), max_steps=max_steps, rtol=rtol, atol=atol,
+                     step_tolerance=step_tolerance)
+    optimum = solution.parameters
     linear_solver = SchurPreconditionedCG(
         gauss_newton_factor(fixed, structure, optimum), cg_rtol, cg_max_steps)
     optimum, _ = implicit_jvp(_primal, _optimality, (optimum, problem), HESSIAN_TAGS,
                                    linear_solver)
-    return problem.with_free(optimum), solution.result, solution.stats["num_steps"]
+    return problem.with_free(optimum), solution.result, solution.steps

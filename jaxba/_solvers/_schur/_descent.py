@@ -1,22 +1,18 @@
-"""The Schur backend's Levenberg-Marquardt: the damped step of a `BundleProblem` by the Schur
-complement of its normal equations (`_bundle.py`), the model's predicted reduction, and
-the solve."""
+"""The Schur backend: the damped step of a `BundleProblem` by the Schur complement of its
+normal equations (`_bundle.py`) and the model's predicted reduction, inside jaxba's
+Levenberg-Marquardt (`jaxba._solvers._solve.solve` runs it)."""
 
-from collections.abc import Callable
+from typing import ClassVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
-from jaxtyping import Array, Int, Scalar
+from jaxtyping import Array, Scalar
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
-from .._compiled import solver_jit
-from .._solution import Solution
-from .._steps import StepInfo, least_squares_stepwise
+from .._backend import Backend, LeastSquares, Tolerances
 from .._trust_region import (
-    STEP_TOLERANCE,
     AbstractNormalDescent,
     LevenbergMarquardt,
     normal_equations_result,
@@ -111,87 +107,42 @@ class BundleSchurDescent(
 
 
 def bundle_residuals(y: Parameters, problem: BundleProblem) -> tuple[Array, ...]:
-    """`fn(y, args)` for `optx.least_squares`: the residuals the solver minimises."""
+    """The residuals the solver minimises at the full Parameters tree `y`."""
     return problem.residuals(problem.with_free(y))
 
 
-def _make_schur_solver(problem, structure, *, rtol, atol, step_tolerance, function_tolerance,
-                       gauge=None):
-    return LevenbergMarquardt(
-        rtol, atol, BundleSchurDescent(problem, structure, gauge=gauge),
-        step_tolerance=step_tolerance, function_tolerance=function_tolerance)
+def _residual_fn(y: Parameters, problem: BundleProblem):
+    return bundle_residuals(y, problem), None
 
 
-def _make_schur_solution(problem, solution: optx.Solution) -> Solution:
-    return Solution(
-        parameters=problem.with_free(solution.value),
-        converged=solution.result == optx.RESULTS.successful,
-        steps=solution.stats["num_steps"],
-        accepted_steps=solution.state.num_accepted_steps,
-        cost=solution.state.cost,  # ½Σẽ² at the final (accepted) iterate
-        result=solution.result,
-    )
+class Schur(Backend):
+    """The object points eliminated (`BundleSchurDescent`): blocks of any size, no dense
+    Jacobian; the loop runs on the full Parameters tree (fixed unknowns step 0).
 
+    `structure`: `bundle_structure(problem)`, filled in by `ready` where not given (NumPy
+    from the problem's indices: not vmappable). `gauge`: booleans like `problem.free`, True
+    on free unknowns of a minimal datum that only the Gauss-Newton steps hold
+    (`BundleSchurDescent.gauge`; the solution is then in no particular datum); None: none."""
 
-_schur_solution = eqx.filter_jit(_make_schur_solution)
+    structure: BundleStructure | None = None
+    gauge: Parameters | None = None
 
+    name: ClassVar[str] = "schur"
+    tolerance: ClassVar[float] = 1e-10
+    top_level: ClassVar[bool] = True
+    compiled_setup: ClassVar[bool] = False
 
-@solver_jit
-def _solve_schur(problem, structure, *, max_steps, **settings):
-    solver = _make_schur_solver(problem, structure, **settings)
-    solution = optx.least_squares(
-        bundle_residuals, solver, problem.initial, args=problem, max_steps=max_steps, throw=False
-    )
-    return _make_schur_solution(problem, solution)
+    def ready(self, problem):
+        if self.structure is not None:
+            return self
+        return Schur(bundle_structure(problem), self.gauge)
 
+    def least_squares(self, problem: BundleProblem, tolerances: Tolerances) -> LeastSquares:
+        solver = LevenbergMarquardt(
+            tolerances.rtol, tolerances.atol,
+            BundleSchurDescent(problem, self.structure, gauge=self.gauge),
+            step_tolerance=tolerances.step, function_tolerance=tolerances.function)
+        return LeastSquares(_residual_fn, solver, problem.initial, problem)
 
-def solve_schur(
-    problem: BundleProblem,
-    free_index: Int[Array, " n_free"] | None = None,
-    *,
-    max_steps: int = 50,
-    rtol: float = 1e-10,
-    atol: float = 1e-10,
-    step_tolerance: float = STEP_TOLERANCE,
-    function_tolerance: float = 0.0,
-    structure: BundleStructure | None = None,
-    on_step: Callable[[StepInfo], None] | None = None,
-    gauge: Parameters | None = None,
-) -> Solution:
-    """Levenberg-Marquardt on `problem` with the points eliminated (Schur complement).
-    Converged as `solve`: at an accepted iterate from which the Gauss-Newton step would move
-    every unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ²,
-    `jaxba._solvers._trust_region`, with its Gauss-Newton steps; 0: both off), where an
-    accepted step lowered the cost by at most `function_tolerance` of it (0: off; BAL's
-    gauge-free problems, whose N is singular, stop this way as Ceres does), or where
-    optimistix's Cauchy test (`rtol`, `atol`) passes.
-
-    Same return type as `jaxba.solve` (`Solution`: parameters, converged, steps, cost ½Σẽ²,
-    result). `free_index` is accepted for signature compatibility with `solve` and not
-    used: the free unknowns are `problem.free`. Not vmappable (the split is computed in
-    NumPy from the problem's indices; pass `structure=bundle_structure(problem)` to reuse
-    it). As for `solve`: without `on_step` one compiled `optx.least_squares`; with it, one
-    compiled step at a time, `on_step(StepInfo)` hearing every step.
-    Memory O(n_obs m + n_r²), no dense Jacobian; n_r = IOPs + 6 n_images + 3 ×
-    distance points. `gauge`: booleans like `problem.free`, True on free unknowns of a
-    minimal datum that only the Gauss-Newton steps hold (`BundleSchurDescent.gauge`; the
-    solution is then in no particular datum); None: none.
-    """
-    del free_index
-    if structure is None:
-        structure = bundle_structure(problem)
-    # The tolerances as arrays, traced: solves that differ only in them share one compiled
-    # program. step_tolerance stays static: whether it is 0 decides what is compiled.
-    # device_put: jnp.asarray compiled a program to stage a Python float.
-    settings = dict(rtol=jax.device_put(rtol), atol=jax.device_put(atol),
-                    step_tolerance=step_tolerance,
-                    function_tolerance=jax.device_put(function_tolerance))
-    if gauge is not None:
-        settings["gauge"] = gauge
-    if on_step is None:
-        return _solve_schur(problem, structure, max_steps=max_steps, **settings)
-    solver = _make_schur_solver(problem, structure, **settings)
-    solution = least_squares_stepwise(
-        bundle_residuals, solver, problem.initial, problem, max_steps=max_steps,
-        on_step=on_step)
-    return _schur_solution(problem, solution)
+    def parameters(self, problem, args, value):
+        return problem.with_free(value)
