@@ -13,10 +13,9 @@ import pathlib
 from ..._gc import paused_gc
 from ._cameras import read_cameras
 from ._errors import ProjectError
-from ._rigs import read_frames, read_rigs
+from ._rigs import FRAME_COLUMNS, read_frames, read_rigs
 from ._spec import AdjustmentSettings, InputFile, ProjectSpec
 from ._tables import (
-    FRAME_COLUMNS,
     check_consistency,
     missing_points,
     read_distances,

@@ -14,6 +14,7 @@ from ._spec import CameraSpec, ImageSpec, MountSpec, RigSpec
 from ._toml import check_keys, check_not_weighted, prior_table, toml_float
 
 MOUNT_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+FRAME_COLUMNS = ("image_id", "frame_id")
 _RIG_KEYS = ("reference",)
 _MOUNT_KEYS = (*MOUNT_NAMES, "free", "sigma")
 

@@ -37,7 +37,6 @@ IMAGE_COLUMNS = (
 POINT_COLUMNS = ("point_id", "X", "Y", "Z", "sX", "sY", "sZ")
 IMAGE_POINT_COLUMNS = ("image_id", "point_id", "x", "y", "sx", "sy")
 DISTANCE_COLUMNS = ("point_a", "point_b", "distance", "sigma")
-FRAME_COLUMNS = ("image_id", "frame_id")
 _EOP = range(2, 8)  # the columns X0 .. kappa of IMAGE_COLUMNS; their σ follow
 
 
@@ -56,14 +55,15 @@ def read_images(
         np.fromiter((token == "-" for token in table.column(k)), dtype=bool, count=len(table))
         for k in _EOP]).reshape(-1, 6)
     given, none = ~missing.any(axis=1), missing.all(axis=1)
+    mixed = ~given & ~none
     eop = np.column_stack([table.numbers(k, where=given) for k in _EOP]).reshape(-1, 6)
     odd = np.argmax(missing != missing[:, :1], axis=1)  # the first column off X0's pattern
     for k in range(6):
-        table.fail(~given & ~none & (odd == k), lambda r: (
+        table.fail(mixed & (odd == k), lambda r: (
             "'-' (no approximation) must stand in all six EOP columns X0 .. kappa or in none;"
             " give the six values, or '-' in all six to have them computed"), 2 + k)
     for k in range(6):
-        table.fail(none & ~np.isnan(sigma[:, k]), lambda r, k=k: (
+        table.fail(none & ~np.isnan(sigma[:, k]), lambda r: (
             f"the EOPs are '-' (no approximation), but this column makes "
             f"{IMAGE_COLUMNS[2 + k]} {'fixed' if sigma[r, k] == 0 else 'weighted'}: a fixed or"
             " weighted EOP needs its value"), 8 + k)
