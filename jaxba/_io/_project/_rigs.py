@@ -2,7 +2,7 @@
 rig, and the frames table, `image_id frame_id`; validated against the cameras and images.
 A camera's `[ID.mount]` on a GNSS/INS platform (lever arm and boresight) is read here too.
 
-Plain Python: `_readers.py` loads the TOML document and splits the frames table into rows,
+Plain Python: `_readers.py` loads the TOML document and the frames table (`TextTable`),
 this module checks what they say. Angles stay in degrees, as in the files.
 """
 
@@ -11,8 +11,10 @@ from typing import Any
 
 from ._errors import ProjectError
 from ._spec import CameraSpec, ImageSpec, MountSpec, RigSpec
+from ._toml import check_keys, check_not_weighted, prior_table, toml_float
 
 MOUNT_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+FRAME_COLUMNS = ("image_id", "frame_id")
 _RIG_KEYS = ("reference",)
 _MOUNT_KEYS = (*MOUNT_NAMES, "free", "sigma")
 
@@ -55,28 +57,22 @@ def read_rigs(document: dict, file: str, cameras: Mapping[str, CameraSpec]
 
 
 def _read_mount(camera: str, table: dict, where: str) -> MountSpec:
-    for key in table:
-        if key not in _MOUNT_KEYS:
-            raise ProjectError(f"{where}: unknown key {key!r}; allowed keys: "
-                               f"{', '.join(_MOUNT_KEYS)}")
-    values = {name: None if name not in table else _number(table[name], f"{where} {name}")
+    check_keys(table, _MOUNT_KEYS, where)
+    values = {name: None if name not in table else toml_float(table[name], f"{where} {name}")
               for name in MOUNT_NAMES}
     free = table.get("free", list(MOUNT_NAMES))
     if not isinstance(free, list) or not all(name in MOUNT_NAMES for name in free):
         raise ProjectError(f"{where} free: expected a list of {', '.join(MOUNT_NAMES)}, got "
                            f"{free!r}")
-    sigma_table = table.get("sigma", {})
-    if not isinstance(sigma_table, dict):
-        raise ProjectError(f"{where} sigma: expected a table of prior σ, got {sigma_table!r}")
+    sigma_table = prior_table(table.get("sigma", {}), f"{where} sigma")
     sigma = {}
     for name, value in sigma_table.items():
         if name not in MOUNT_NAMES:
             raise ProjectError(f"{where[:-1]}.sigma]: unknown key {name!r}; allowed keys: "
                                f"{', '.join(MOUNT_NAMES)}")
-        sigma[name] = _number(value, f"{where[:-1]}.sigma] {name}", positive=True)
-        if name in free and "free" in table:
-            raise ProjectError(f"{where[:-1]}.sigma] {name}: {name!r} is also in free; a "
-                               "parameter is either free or weighted, not both")
+        sigma[name] = toml_float(value, f"{where[:-1]}.sigma] {name}", positive=True)
+        if "free" in table:
+            check_not_weighted(name, free, f"{where[:-1]}.sigma]")
     return MountSpec(camera, values, frozenset(free) - set(sigma), sigma)
 
 
@@ -101,7 +97,7 @@ def read_platform_mount(camera: str, table: Any, where: str) -> MountSpec:
         given = table.get(part, [0.0, 0.0, 0.0])
         if not isinstance(given, list) or len(given) != 3:
             raise ProjectError(f"{where} {part}: expected a list of three numbers, got {given!r}")
-        values.update({n: _number(v, f"{where} {part}") for n, v in zip(names, given)})
+        values.update({n: toml_float(v, f"{where} {part}") for n, v in zip(names, given)})
     free = table.get("free", [])
     if not isinstance(free, list) or not all(part in _PLATFORM_PARTS for part in free):
         raise ProjectError(f"{where} free: expected a list of lever_arm, boresight, got {free!r}")
@@ -117,23 +113,15 @@ def read_platform_mount(camera: str, table: Any, where: str) -> MountSpec:
         given = given if isinstance(given, list) else [given] * 3
         if len(given) != 3:
             raise ProjectError(f"{where} sigma {part}: expected one σ or three, got {given!r}")
-        sigma.update({n: _number(v, f"{where} sigma {part}", positive=True)
+        sigma.update({n: toml_float(v, f"{where} sigma {part}", positive=True)
                       for n, v in zip(_PLATFORM_PARTS[part], given)})
     return MountSpec(camera, values, frozenset(n for part in free
                                                for n in _PLATFORM_PARTS[part]), sigma)
 
 
-def _number(value: Any, where: str, *, positive: bool = False) -> float:
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    if not ok or not abs(value) < float("inf") or (positive and value <= 0):
-        raise ProjectError(f"{where}: expected {'a number > 0' if positive else 'a number'}, "
-                           f"got {value!r}")
-    return float(value)
-
-
 def read_frames(rows: Iterable, images: Mapping[str, ImageSpec],
                 rigs: Mapping[str, RigSpec]) -> dict[str, str]:
-    """image ID -> frame ID from the frames table's rows (`_readers._Row`: `tokens`
+    """image ID -> frame ID from the frames table's rows (`_text_table.Row`: `tokens`
     (image_id, frame_id), `error`). Every image is known and listed once; the images of one
     frame are taken with different cameras of one rig."""
     rig_of = {camera: rig.id for rig in rigs.values() for camera in rig.cameras}

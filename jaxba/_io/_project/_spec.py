@@ -22,6 +22,15 @@ from ..._models._cameras._names import REFRACTION_SEPARATOR
 
 
 @dataclasses.dataclass(frozen=True)
+class InputFile:
+    """A file named in the project's `[files]` table: its resolved path and the name used in
+    messages (as written there)."""
+
+    path: pathlib.Path
+    name: str
+
+
+@dataclasses.dataclass(frozen=True)
 class AdjustmentSettings:
     """The `[adjustment]` table of a project file."""
 
@@ -149,17 +158,6 @@ class ImagePointTable(Sequence):
     def __post_init__(self):
         object.__setattr__(self, "image", list(map(sys.intern, self.image)))
         object.__setattr__(self, "point", list(map(sys.intern, self.point)))
-
-    @classmethod
-    def from_records(cls, records: Sequence[ImagePointSpec]) -> "ImagePointTable":
-        return cls(
-            image=[m.image for m in records],
-            point=[m.point for m in records],
-            xy=np.array([m.xy for m in records], dtype=float).reshape(-1, 2),
-            sigma=np.array([m.sigma or (math.nan, math.nan) for m in records],
-                           dtype=float).reshape(-1, 2),
-            line=np.array([m.line for m in records], dtype=int),
-        )
 
     def __len__(self) -> int:
         return len(self.image)

@@ -1,0 +1,186 @@
+"""The whitespace-separated text tables of a project (images, points, image points, distances,
+frames), read column by column.
+
+A data line has either the required columns or all of them (the optional ones are σ, `-`
+when left out); `#` starts a comment, blank lines are skipped. Each rule (a number, a σ, an ID
+known elsewhere, a unique key) is written once here and checks a whole column; it notes the
+first row it fails in, and `TextTable.check` raises the first noted failure in file order
+(rules of one row in the order they were applied), so the message names the line and column
+that a reader going row by row would stop at: `file:line: column X: ...`.
+"""
+
+import dataclasses
+import math
+from collections.abc import Callable, Container, Hashable, Iterator, Sequence
+
+import numpy as np
+
+from ._errors import ProjectError
+from ._spec import InputFile
+
+# The largest magnitude of a number in a text table (coordinates, angles, image points,
+# distances): anything larger is a typo or a unit mistake, and would overflow the model
+# (a squared 1e200 is inf) instead of being reported where it was written.
+MAX_MAGNITUDE = 1e12
+
+
+class TextTable:
+    """The data rows of a text table as columns of tokens, and the failures noted so far.
+
+    `columns` names the columns in order; a row has the first `n_required` of them or all.
+    `lines` (n,) holds the line numbers of the n data rows.
+    """
+
+    def __init__(self, file: InputFile, columns: tuple[str, ...], n_required: int):
+        self.name, self.columns = file.name, columns
+        self._failures: list[tuple[int, int, str, int | None]] = []
+        text = _lines(file)
+        for k in [k for k, line in enumerate(text) if "#" in line]:
+            text[k] = text[k].split("#", 1)[0]
+        rows = list(map(str.split, text))
+        sizes = np.fromiter(map(len, rows), dtype=int, count=len(rows))
+        self.lines = np.flatnonzero(sizes) + 1
+        rows, sizes = list(filter(None, rows)), sizes[sizes > 0]
+        counts = sorted({n_required, len(columns)})
+        layout = " ".join(columns[:n_required])
+        if n_required < len(columns):
+            layout += " [" + " ".join(columns[n_required:]) + "]"
+        self.fail(~np.isin(sizes, counts), lambda r: (
+            f"expected {' or '.join(map(str, counts))} columns ({layout}), got {sizes[r]}"))
+        self._columns = _as_columns(rows, sizes, len(columns))
+
+    def __len__(self) -> int:
+        return len(self.lines)
+
+    def column(self, k: int) -> tuple[str, ...]:
+        """The tokens of column `k`, `-` where a row left it out."""
+        return self._columns[k]
+
+    def numbers(self, k: int, *, positive: bool = False, where: np.ndarray | None = None
+                ) -> np.ndarray:
+        """Column `k` as finite numbers of magnitude at most `MAX_MAGNITUDE` (> 0 with
+        `positive`), float (n,), read in the rows `where` (bool (n,), default all)."""
+        tokens = self._columns[k]
+        values = _floats(tokens)
+        where = np.ones(len(tokens), dtype=bool) if where is None else where
+        expected = "a number > 0" if positive else "a number"
+        bad = ~np.isfinite(values) | (positive & (values <= 0))
+        self.fail(bad & where, lambda r: f"expected {expected}, got {tokens[r]!r}", k)
+        self.fail((np.abs(values) > MAX_MAGNITUDE) & where, lambda r: (
+            f"{tokens[r]} is out of range: numbers must be at most 1e12 in magnitude (a typo"
+            " or a unit mistake?)"), k)
+        return values
+
+    def sigmas(self, k: int, *, fixed: bool = True) -> np.ndarray:
+        """Column `k` as σ, float (n,): NaN for `-` (none given), 0 for fixed (only if
+        `fixed`), or a finite number > 0."""
+        tokens = self._columns[k]
+        if tokens.count("-") == len(tokens):
+            return np.full(len(tokens), math.nan)
+        values = _floats(tokens)
+        valid = np.isfinite(values) & ((values >= 0) if fixed else (values > 0))
+        expected = "a number, '0' or '-'" if fixed else "a number > 0 or '-'"
+        given = np.fromiter((token != "-" for token in tokens), dtype=bool, count=len(tokens))
+        self.fail(given & ~valid, lambda r: f"expected {expected}, got {tokens[r]!r}", k)
+        return values
+
+    def known(self, k: int, ids: Container[str], message: Callable[[str], str]) -> None:
+        """Every ID in column `k` is in `ids`; `message(ID)` at the first that is not."""
+        tokens = self._columns[k]
+        if not all(map(ids.__contains__, set(tokens))):
+            bad = np.fromiter((token not in ids for token in tokens), dtype=bool,
+                              count=len(tokens))
+            self.fail(bad, lambda r: message(tokens[r]), k)
+
+    def unique(self, keys: Sequence[Hashable], what: Callable[[Hashable], str]) -> None:
+        """No key (one per row) repeats: "duplicate `what(key)`" at the first repeat, with
+        the line of the first."""
+        if len(set(keys)) == len(keys):
+            return
+        first: dict[Hashable, int] = {}
+        for r, key in enumerate(keys):
+            if key in first:
+                self._note(r, f"duplicate {what(key)} (first on line {self.lines[first[key]]})")
+                return
+            first[key] = r
+
+    def fail(self, bad: np.ndarray, message: Callable[[int], str], column: int | None = None
+             ) -> None:
+        """Note a rule that fails in the rows `bad` (bool (n,)): `message(row)` at the first."""
+        if bad.any():
+            row = int(np.argmax(bad))
+            self._note(row, message(row), column)
+
+    def check(self) -> None:
+        """Raise the first failure noted, in file order."""
+        if self._failures:
+            row, _, message, column = min(self._failures)
+            raise self.error(row, message, column)
+
+    def rows(self) -> Iterator["Row"]:
+        """The rows in order, for a reader whose rules depend on the rows before it; the first
+        failure noted is raised at its row."""
+        stop = min(self._failures)[0] if self._failures else len(self)
+        for row in range(stop):
+            yield Row(self, row)
+        self.check()
+
+    def error(self, row: int, message: str, column: int | None = None) -> ProjectError:
+        """A `ProjectError` located at data row `row` (and `column`)."""
+        field = "" if column is None else f"column {self.columns[column]}: "
+        return ProjectError(f"{self.name}:{self.lines[row]}: {field}{message}")
+
+    def _note(self, row: int, message: str, column: int | None = None) -> None:
+        self._failures.append((row, len(self._failures), message, column))
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """One data row of a `TextTable`."""
+
+    table: TextTable
+    index: int
+
+    @property
+    def tokens(self) -> tuple[str, ...]:
+        return tuple(column[self.index] for column in self.table._columns)
+
+    def error(self, message: str, column: int | None = None) -> ProjectError:
+        """A `ProjectError` located at this row (and column)."""
+        return self.table.error(self.index, message, column)
+
+
+def _lines(file: InputFile) -> list[str]:
+    """The lines of a text table (BOM dropped, any line ending)."""
+    try:
+        with file.path.open(encoding="utf-8-sig") as stream:
+            return stream.read().split("\n")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ProjectError(f"{file.name}: cannot read {file.path}: {error}") from None
+
+
+def _as_columns(rows: list[list[str]], sizes: np.ndarray, n: int) -> list[tuple[str, ...]]:
+    """`rows` (of `sizes` tokens) as `n` columns, short rows padded with `-` (the optional
+    columns left out) and long ones cut (their failure is noted)."""
+    if len(set(sizes.tolist())) == 1 and sizes[0] <= n:  # one layout: no row to pad
+        return list(zip(*rows)) + [("-",) * len(rows)] * (n - int(sizes[0]))
+    padding = ["-"] * n
+    columns = list(zip(*(row if len(row) == n else (row + padding)[:n] for row in rows)))
+    return columns or [()] * n
+
+
+def _floats(tokens: tuple[str, ...]) -> np.ndarray:
+    """The numbers the tokens spell, float (n,); NaN where one spells none (`-` too)."""
+    try:
+        return np.array(list(map(float, tokens)), dtype=float)
+    except ValueError:
+        return np.array(list(map(_float, tokens)), dtype=float)
+
+
+def _float(token: str) -> float:
+    if token == "-":
+        return math.nan
+    try:
+        return float(token)
+    except ValueError:
+        return math.nan
