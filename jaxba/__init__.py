@@ -78,7 +78,8 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._io._project._deferred": ("Deferral", "adjust_deferred"),
     "._io._project._write": ("write_project",),
     "._statistics._reliability": ("Reliability", "reliability"),
-    "._report": ("OutputError", "html_report", "read_observations", "write_reports"),
+    "._files._paths": ("OutputError",),
+    "._report": ("html_report", "read_observations", "write_reports"),
     "._models._robust": ("RobustLoss",),
     "._models._rotation": (
         "matrix_to_opk", "matrix_to_quaternion", "matrix_to_rodrigues", "opk_to_matrix",

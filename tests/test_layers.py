@@ -4,8 +4,8 @@ models < problem < solvers < statistics < adjust (orchestration) < io, report, c
 practical edges, which may also use the public face `jaxba`); the closed-form
 approximations (`_approximations`) sit beside the statistics, under the block initialisation
 that uses them. A handful of shared helpers (`_lazy`, `_custom_types`, `_float64`, `_timing`,
-`_gc`, `_memory`, `_jax_setup`, `_dask`, `_programs`) sit below everything. Every import
-counts, the ones inside functions included.
+`_gc`, `_memory`, `_jax_setup`, `_files`, `_dask`, `_programs`) sit below everything. Every
+import counts, the ones inside functions included.
 """
 
 import ast
@@ -14,7 +14,7 @@ import pathlib
 import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxba"
-BASE = {"_lazy", "_custom_types", "_float64", "_timing", "_gc", "_memory", "_jax_setup",
+BASE = {"_lazy", "_custom_types", "_float64", "_timing", "_gc", "_memory", "_jax_setup", "_files",
         "_dask", "_programs"}
 LAYERS = {
     "_models": 1, "_problem": 2, "_solvers": 3, "_statistics": 4, "_approximations": 4,

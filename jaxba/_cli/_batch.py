@@ -50,8 +50,8 @@ def add_batch(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxba._dask import SchedulerError, check_scheduler
+    from jaxba._files import output_lock
     from jaxba._io._project._batch_read import read_batch
-    from jaxba._report import output_lock
 
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk {args.chunk}: must be at least 1")

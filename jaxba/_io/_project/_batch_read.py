@@ -9,7 +9,8 @@ import dataclasses
 import json
 import pathlib
 
-from ..._report._paths import check_folder, check_outputs, check_targets, report_paths, resolved
+from ..._files._paths import check_folder, check_targets, resolved
+from ..._report._outputs import check_outputs, report_paths
 from . import ProjectError, read_project
 from ._spec import ProjectSpec
 

@@ -33,8 +33,8 @@ import numpy as np
 
 from ..._adjust._batch import _signature, batch_shape
 from ..._dask import check_scheduler, executor
+from ..._files._atomic import replace_files
 from ..._models._cameras import CAMERA_MODELS
-from ..._report._atomic import replace_files
 from ..._statistics._summary import variance_test
 from . import ProjectError, build_project
 from ._batch_processes import run_on_processes
