@@ -72,7 +72,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._problem._bundle": ("BundleProblem",),
     "._solvers._progress": ("Iteration",),
     "._io._project": ("AdjustmentSettings", "ProjectError", "ProjectSpec", "read_project"),
-    "._io._project._adjust": ("adjust_project",),
+    "._io._project._run": ("adjust_project",),
     "._io._project._build": ("Project", "build_project"),
     "._io._project._complete": ("Completion", "complete_project"),
     "._io._project._deferred": ("Deferral", "adjust_deferred"),
