@@ -28,7 +28,7 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._io._bal": ("BalFormatError", "BalProblem", "read_bal", "write_bal_project"),
     "._cli._bal": ("run_bal",),
     "._adjust._batch": ("adjust_batch", "check_datum_batch"),
-    "._io._project._batch_run": ("run_batch",),
+    "._cli._batch_run": ("run_batch",),
     "._models._cameras": (
         "CAMERA_MODELS", "AbstractCamera", "AbstractDistortion", "AbstractRefraction", "Affine",
         "AtmosphericRefraction", "BalCamera", "DecenteringSmac", "FisheyeCamera",
