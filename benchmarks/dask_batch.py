@@ -73,8 +73,8 @@ def cpu_per_project(paths: list[pathlib.Path], out: pathlib.Path) -> dict[str, f
     import pickle
 
     import jaxba
+    from jaxba._cli._batch_solve import Chunk, solve_chunk
     from jaxba._dask import numpy_copy
-    from jaxba._io._project._batch_solve import Chunk, solve_chunk
     from jaxba._report import write_reports
 
     n, cpu = len(paths), {}
@@ -134,7 +134,7 @@ def run(args):
     setup_jax()  # as the command line: float64, one BLAS thread, the cache above
     from distributed import Client, LocalCluster, get_task_stream
 
-    from jaxba._io._project._batch_run import CHUNK, run_batch
+    from jaxba._cli._batch_run import CHUNK, run_batch
 
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory() as tmp:

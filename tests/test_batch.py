@@ -15,9 +15,9 @@ from jaxba import _programs
 from jaxba._adjust import _batch
 from jaxba._adjust._batch import adjust_batch, pad_problems
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
+from jaxba._cli import _batch_run
+from jaxba._cli._batch_run import run_batch
 from jaxba._cli._main import main
-from jaxba._io._project import _batch_run
-from jaxba._io._project._batch_run import run_batch
 from jaxba._models._cameras import CAMERA_MODELS
 from jaxba._statistics._summary import variance_test
 

@@ -17,9 +17,9 @@ import pytest
 import jaxba
 from jaxba._adjust._batch import batch_shape, pad_problems
 from jaxba._adjust._montecarlo import monte_carlo
+from jaxba._cli._batch_run import run_batch
 from jaxba._cli._main import main
 from jaxba._dask import check_scheduler, local_workers
-from jaxba._io._project._batch_run import run_batch
 
 N_PROJECTS = 20
 SIZES = ((6, 20), (7, 24), (8, 28), (6, 26))  # (images, targets), cycled over the projects

@@ -25,7 +25,7 @@ import pytest
 
 import jaxba
 from jaxba._cli._main import EXIT_INTERNAL, EXIT_INTERRUPTED, main
-from jaxba._report import OutputError, output_lock, replace_files
+from jaxba._files import OutputError, output_lock, replace_files
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAB = ROOT / "configs" / "lab"

@@ -19,10 +19,10 @@ import pytest
 import scipy.stats
 
 import jaxba
+from jaxba._files import OutputError
 from jaxba._problem._bundle import free_indices
 from jaxba._problem._parameters import Parameters, flatten, unflatten
 from jaxba._report import (
-    OutputError,
     observations_csv,
     out_text,
     res_text,

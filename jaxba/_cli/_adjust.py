@@ -93,8 +93,9 @@ def _adjust_deferred(completion, project, result, options):
 def _read_checked(args: argparse.Namespace):
     """Read the project and check the output folder, without jax: bad input is reported
     within a fraction of a second. Returns the spec, the output folder and the seconds."""
+    from jaxba._files import OutputError, check_targets
     from jaxba._io._project import ProjectError, read_project
-    from jaxba._report import OutputError, check_outputs, check_targets, html_path
+    from jaxba._report import check_outputs, html_path
 
     start = time.perf_counter()
     try:
@@ -123,7 +124,7 @@ def _check_matplotlib(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxba._report import output_lock
+    from jaxba._files import output_lock
 
     if args.uncertainty is not None and not args.uncertainty > 0:
         raise UsageError(f"--uncertainty {args.uncertainty}: the distance must be > 0")
@@ -183,7 +184,7 @@ def _run_locked(args, spec, out_dir, read_seconds: float) -> int:
                 written += _report.write_figures(
                     project, result, out_dir, plots=args.plots, html="html" in args.report,
                     uncertainty=uncertainty, warn=lambda message: print_error(message, "warning"))
-    except (_report.OutputError, OSError) as error:
+    except (jaxba.OutputError, OSError) as error:
         raise UsageError(str(error)) from None
 
     for line in _report.summary_lines(project, result):

@@ -19,11 +19,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._files._atomic import replace_files
 from .._float64 import require_float64
 from .._io._bal._model import bal_bundle
 from .._io._bal._reader import BalProblem, read_bal
 from .._problem._bundle import BundleProblem
-from .._report._atomic import replace_files
 from .._solvers._progress import Iteration, StepRecorder
 from .._solvers._schur._bundle import bundle_structure
 from .._solvers._schur._descent import Schur

@@ -40,8 +40,8 @@ def add_bal(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxba._files import check_folder, check_targets, output_lock
     from jaxba._io._bal import BalFormatError, read_bal
-    from jaxba._report import check_folder, check_targets, output_lock
 
     if args.max_steps < 1:
         raise UsageError(f"--max-steps {args.max_steps}: must be at least 1")

@@ -49,9 +49,9 @@ def add_batch(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxba._cli._batch_read import read_batch
     from jaxba._dask import SchedulerError, check_scheduler
-    from jaxba._io._project._batch_read import read_batch
-    from jaxba._report import output_lock
+    from jaxba._files import output_lock
 
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk {args.chunk}: must be at least 1")
@@ -68,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
     entries = read_batch(args.projects, args.out)  # checks every report against every input
     with output_lock(args.out):
         setup_jax()
+        from jaxba._cli._batch_run import run_batch
         from jaxba._cli._progress_bar import project_progress
-        from jaxba._io._project._batch_run import run_batch
 
         if args.own_process:
             from jaxba import _report

@@ -68,8 +68,9 @@ def _compare(args: argparse.Namespace) -> int:
     from jaxba._jax_setup import setup_jax
 
     setup_jax()
+    from jaxba._files import check_folder, check_targets, replace_files
     from jaxba._io._calibration import camera_pair, read_calibration
-    from jaxba._report import check_folder, check_targets, png_bytes, replace_files
+    from jaxba._report import png_bytes
     from jaxba._report._plots._uncertainty import plot_sensor_map
     from jaxba._statistics._compare import compare_calibrations
 

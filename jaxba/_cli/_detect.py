@@ -101,7 +101,7 @@ def _cameras(specs: list[str]) -> dict[str, list[pathlib.Path]]:
 
 
 def _check_out(out_dir: pathlib.Path) -> None:
-    from jaxba._report import OutputError, check_folder
+    from jaxba._files import OutputError, check_folder
 
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise OutputError(f"{out_dir}: output folder is not empty; jaxba detect writes a new"
@@ -139,8 +139,8 @@ def _checked(args: argparse.Namespace):
 
 def run_detect(args: argparse.Namespace) -> int:
     """`jaxba detect` (module docstring); returns the exit code."""
+    from jaxba._files import output_lock
     from jaxba._io._detect import OpenCVMissingError, import_cv2
-    from jaxba._report import output_lock
 
     board, cameras = _checked(args)
     try:

@@ -81,7 +81,7 @@ def _read_results(out_dir: pathlib.Path) -> dict:
 
 def _destination(args: argparse.Namespace) -> pathlib.Path:
     """DIR, checked: new, empty or an earlier export's (it holds export.json), and writable."""
-    from jaxba._report import check_folder
+    from jaxba._files import check_folder
 
     to = args.to if args.to is not None else args.out_dir / "export" / args.format
     if to.exists() and not to.is_dir():
@@ -199,8 +199,8 @@ def _manifest(args, exported: dict, files: list[str], rigs: dict) -> str:
 
 def run_export(args: argparse.Namespace) -> int:
     """Export (module docstring); 0 when written. Bad input raises `UsageError`."""
+    from jaxba._files import check_targets, output_lock, replace_files
     from jaxba._jax_setup import setup_jax
-    from jaxba._report import check_targets, output_lock, replace_files
 
     results = _read_results(args.out_dir)  # before jax: bad input is reported at once
     where = args.out_dir / _RESULTS

@@ -42,7 +42,7 @@ def add_import(subparsers) -> None:
 
 def _import_folder(out_dir: pathlib.Path) -> None:
     """Refuse an output folder that exists and is not empty, or cannot be written."""
-    from jaxba._report import OutputError, check_folder
+    from jaxba._files import OutputError, check_folder
 
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise OutputError(f"{out_dir}: output folder is not empty; jaxba import writes a new"

@@ -28,9 +28,9 @@ def add_init(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from jaxba._files import OutputError, output_lock
     from jaxba._io._project import ProjectError, read_project
     from jaxba._io._project._write import project_paths
-    from jaxba._report import OutputError, output_lock
 
     try:  # before jax: bad input and an unusable folder are reported at once
         spec = read_project(args.project)

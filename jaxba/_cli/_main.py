@@ -62,7 +62,7 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
     """Run the command line; returns the exit code: 0 ok, 1 not converged, 2 bad input,
     3 internal error, 130 interrupted. `own_process`: the process ends after it (`entry`),
     so what it imports may be frozen for the garbage collector (`jaxba._gc`)."""
-    from jaxba._report import OutputError
+    from jaxba._files import OutputError
 
     parser = _parser()
     try:

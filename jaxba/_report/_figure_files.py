@@ -3,9 +3,9 @@
 import pathlib
 from collections.abc import Callable
 
-from ._atomic import replace_files
+from .._files._atomic import replace_files
 from ._html import html_report, png_bytes
-from ._paths import html_path
+from ._outputs import html_path
 
 
 def write_figures(project, result, out_dir, *, plots: bool, html: bool,

@@ -28,7 +28,7 @@ from ._collect import (
     variance_check,
 )
 from ._no_sigma import no_sigma_entries
-from ._paths import OBSERVATIONS_FILE
+from ._outputs import OBSERVATIONS_FILE
 from ._rigs import frame_table, mount_correlations, mounts_tree, rigs_tree
 
 

@@ -12,6 +12,8 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from .._files._atomic import replace_files
+from .._files._paths import check_targets
 from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
 from .._statistics._adjustment import Adjustment
@@ -23,8 +25,6 @@ from .._statistics._projection import (
     projection_uncertainty,
     sensor_grid,
 )
-from ._atomic import replace_files
-from ._paths import check_targets
 
 COLUMNS = ("u", "v", "sigma_worst", "sigma_rms", "cov_uu", "cov_uv", "cov_vv")
 

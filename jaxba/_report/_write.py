@@ -2,14 +2,14 @@
 
 import pathlib
 
+from .._files._atomic import replace_files
 from .._gc import paused_gc
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
-from ._atomic import replace_files
 from ._collect import shared_tables
 from ._csv import observations_csv
 from ._json import results_json
-from ._paths import check_outputs
+from ._outputs import check_outputs
 from ._text import out_text, res_text, sigma_text
 
 

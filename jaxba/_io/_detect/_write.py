@@ -8,8 +8,8 @@ import io
 import json
 import pathlib
 
+from ..._files._atomic import replace_files
 from ..._models._cameras._names import CAMERA_PARAMETER_NAMES
-from ..._report._atomic import replace_files
 from .._project._write import _toml
 from .._zhang import table_text
 from ._project import DetectedProject

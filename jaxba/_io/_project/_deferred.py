@@ -25,7 +25,6 @@ from ..._adjust._initialise._blunders import familywise
 from ..._adjust._initialise._state import INLIER_K
 from ..._models._cameras import CAMERA_MODELS
 from ..._statistics._adjustment import Adjustment
-from ._adjust import adjust_project
 from ._build import Project, build_project
 from ._complete import (
     LISTED,
@@ -35,6 +34,7 @@ from ._complete import (
     named,
     without_points,
 )
+from ._run import adjust_project
 from ._spec import ProjectSpec
 
 DEFERRED_MIN_ANGLE = np.radians(0.1)

@@ -14,8 +14,8 @@ import json
 import pathlib
 import tomllib
 
-from ..._report._atomic import replace_files
-from ..._report._paths import OutputError, check_folder, check_targets
+from ..._files._atomic import replace_files
+from ..._files._paths import OutputError, check_folder, check_targets
 from ._errors import ProjectError
 from ._spec import ProjectSpec
 

@@ -13,12 +13,12 @@ them all.
 import dataclasses
 import math
 
-from ..._adjust._adjust import NotConvergedError
-from ..._adjust._batch import BatchShape, adjust_padded, pad_problems
-from ..._statistics._adjustment import Adjustment
-from ..._statistics._datum import DatumError
-from . import adjust_project
-from ._build import Project
+from .._adjust._adjust import NotConvergedError
+from .._adjust._batch import BatchShape, adjust_padded, pad_problems
+from .._io._project import adjust_project
+from .._io._project._build import Project
+from .._statistics._adjustment import Adjustment
+from .._statistics._datum import DatumError
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,9 +9,10 @@ import dataclasses
 import json
 import pathlib
 
-from ..._report._paths import check_folder, check_outputs, check_targets, report_paths, resolved
-from . import ProjectError, read_project
-from ._spec import ProjectSpec
+from .._files._paths import check_folder, check_targets, resolved
+from .._io._project import ProjectError, read_project
+from .._io._project._spec import ProjectSpec
+from .._report._outputs import check_outputs, report_paths
 
 
 @dataclasses.dataclass

@@ -107,7 +107,7 @@ def _record(part: list[BatchEntry], future: concurrent.futures.Future) -> None:
 def _start_worker(channel) -> None:
     """A worker's start: jax set up as the command line does, the channel kept."""
     global _queue
-    from ..._jax_setup import setup_jax
+    from .._jax_setup import setup_jax
 
     setup_jax()
     _queue = channel

@@ -1,4 +1,5 @@
-"""Adjust a project with the settings of its `[adjustment]` table.
+"""The adjustment pipeline of a project (`adjust_pipeline`; its `[adjustment]` table gives
+the options, `jaxba.adjust_project`).
 
 The pipeline: adjust by least squares, then with the robust loss if one is set;
 estimate variance components (`variance_components = true`); Baarda data snooping
@@ -12,14 +13,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..._adjust._adjust import adjust
-from ..._adjust._snooping import data_snooping, restart_from
-from ..._adjust._variance_components import estimate_variance_components
-from ..._solvers._progress import Iteration
-from ..._statistics._adjustment import Adjustment
-from ..._statistics._reliability import reliability
-from ..._timing import Timings
-from ._build import Project
+from .._problem._bundle import BundleProblem
+from .._solvers._progress import Iteration
+from .._statistics._adjustment import Adjustment
+from .._statistics._reliability import reliability
+from .._timing import Timings
+from ._adjust import adjust
+from ._snooping import data_snooping as snoop, restart_from
+from ._variance_components import estimate_variance_components
 
 
 def _continue_numbering(before: list[Iteration], after: list[Iteration]) -> list[Iteration]:
@@ -39,31 +40,35 @@ def _final_reliability(result: Adjustment, snooping: dict):
         return None
 
 
-def adjust_project(
-    project: Project,
+def adjust_pipeline(
+    problem: BundleProblem,
     *,
+    labels: list[str] | None = None,
+    sigma0: float = 1.0,
+    max_steps: int = 50,
+    rtol: float = 1e-8,
+    atol: float = 1e-8,
+    solver: str = "auto",
+    variance_components: bool = False,
+    data_snooping: bool = False,
+    alpha: float = 0.05,
+    familywise: bool = True,
     on_iteration: Callable[[Iteration], None] | None = None,
-    solver: str | None = None,
     timings: Timings | None = None,
 ) -> Adjustment:
-    """Run the project's adjustment and statistics; see the module docstring. `solver`:
-    "auto", "dense" or "schur" (object points eliminated), as for `jaxba.adjust`; None: the
-    project's `solver` setting. Phases are timed into `timings` (as `jaxba.adjust`): the
-    re-adjustments of variance components and data snooping, and reliability, count as
-    "statistics"."""
-    settings = project.spec.settings
-    solver = solver or settings.solver
-    options = dict(
-        sigma0=settings.sigma0, max_steps=settings.max_iterations,
-        rtol=settings.rtol, atol=settings.atol, solver=solver,
-    )
+    """Adjust `problem` and compute its statistics; see the module docstring. `labels`,
+    `sigma0`, `max_steps`, `rtol`, `atol`, `solver` ("auto", "dense" or "schur") and
+    `on_iteration` as for `jaxba.adjust`; `variance_components` and `data_snooping` switch
+    those steps on; `alpha` and `familywise`: the significance of the w-tests (snooping and
+    reliability). Phases are timed into `timings` (as `jaxba.adjust`): the re-adjustments of
+    variance components and data snooping, and reliability, count as "statistics"."""
+    options = dict(sigma0=sigma0, max_steps=max_steps, rtol=rtol, atol=atol, solver=solver)
     timings = Timings() if timings is None else timings
-    snooping = dict(alpha=settings.snooping_alpha, familywise=settings.snooping_familywise)
-    problem = project.problem
+    snooping = dict(alpha=alpha, familywise=familywise)
     # A robust loss from far-off approximations treats every residual as an outlier; start
     # it from the least-squares solution instead.
     least_squares = dataclasses.replace(problem, robust=None)
-    result = adjust(least_squares, labels=project.labels, on_iteration=on_iteration,
+    result = adjust(least_squares, labels=labels, on_iteration=on_iteration,
                     timings=timings, **options)
     iterations, ids = list(result.iterations), result.ids  # re-adjustments have no labels
     if problem.robust is not None and result.converged:
@@ -75,23 +80,23 @@ def adjust_project(
     def with_components(current):
         nonlocal components, variance_iterations, iterations
         # Re-adjustments (robust loss, data snooping) carry no IDs: the components are
-        # named by the project's cameras all the same.
+        # named by the first adjustment's IDs all the same.
         current, components, rounds = estimate_variance_components(
-            dataclasses.replace(current, ids=ids), reference=project.problem, **options
+            dataclasses.replace(current, ids=ids), reference=problem, **options
         )
         variance_iterations += rounds
         iterations = _continue_numbering(iterations, current.iterations)
         return current
 
     with timings.phase("statistics"):
-        if settings.variance_components and result.converged:
+        if variance_components and result.converged:
             result = with_components(result)
-        if settings.data_snooping and result.converged:
-            result, found, _ = data_snooping(result, **snooping, **options)
+        if data_snooping and result.converged:
+            result, found, _ = snoop(result, **snooping, **options)
             rejections = tuple(found)
             if found:
                 iterations = _continue_numbering(iterations, result.iterations)
-                if settings.variance_components:
+                if variance_components:
                     result = with_components(result)
         final_reliability = _final_reliability(result, snooping)
     return dataclasses.replace(

@@ -31,12 +31,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..._adjust._batch import _signature, batch_shape
-from ..._dask import check_scheduler, executor
-from ..._models._cameras import CAMERA_MODELS
-from ..._report._atomic import replace_files
-from ..._statistics._summary import variance_test
-from . import ProjectError, build_project
+from .._adjust._batch import _signature, batch_shape
+from .._dask import check_scheduler, executor
+from .._files._atomic import replace_files
+from .._io._project import ProjectError, build_project
+from .._models._cameras import CAMERA_MODELS
+from .._statistics._summary import variance_test
 from ._batch_processes import run_on_processes
 from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths
 from ._batch_solve import Chunk, Outcome, solve_chunk
@@ -192,7 +192,7 @@ def _solve(run, chunks, say, finished, total: int) -> None:
     (XLA, file writes and fsync release the GIL; `WRITERS` threads, so that one formats
     while another waits for the disk); what each project became is said here, in order, as
     its reports are done."""
-    from ..._report import write_reports
+    from .._report import write_reports
 
     done = 0
     writer = concurrent.futures.ThreadPoolExecutor(WRITERS, thread_name_prefix="jaxba-reports")

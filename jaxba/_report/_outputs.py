@@ -1,0 +1,44 @@
+"""Where the reports of a project go, checked before anything is computed (no jax here)."""
+
+import os
+import pathlib
+from collections.abc import Iterable
+
+from .._files._paths import check_folder, check_targets, resolved
+from .._io._project._spec import ProjectSpec
+
+OBSERVATIONS_FILE = "observations.csv"
+
+
+def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
+    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json
+    and observations.csv."""
+    out_dir = pathlib.Path(out_dir)
+    return {
+        "out": out_dir / f"{spec.name}.out",
+        "res": out_dir / f"{spec.name}.res",
+        "sigma": out_dir / f"{spec.name}.sigma",
+        "json": out_dir / "results.json",
+        "observations": out_dir / OBSERVATIONS_FILE,
+    }
+
+
+def html_path(spec: ProjectSpec, out_dir) -> pathlib.Path:
+    """The HTML report of a project in `out_dir`: NAME.html."""
+    return pathlib.Path(out_dir) / f"{spec.name}.html"
+
+
+def check_outputs(
+    spec: ProjectSpec, out_dir, *, inputs: Iterable[os.PathLike] = ()
+) -> dict[str, pathlib.Path]:
+    """`report_paths`, after checking that `out_dir` is writable (`check_folder`) and that
+    no report is an input file of the project (or one of `inputs`, e.g. those of the other
+    projects of a batch, best as one `resolved` set for them all) or a folder.
+
+    Raises `OutputError` naming the file; call it before adjusting to fail early.
+    """
+    check_folder(out_dir)
+    paths = report_paths(spec, out_dir)
+    inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)
+    check_targets(paths.values(), resolved(spec.input_files) | inputs, f"project {spec.name!r}")
+    return paths
