@@ -8,6 +8,7 @@ and the same frames; pycolmap, where installed, reads the export as the same rig
 """
 
 import contextlib
+import dataclasses
 import io
 import json
 import pathlib
@@ -22,13 +23,17 @@ from board_scene import board, project, stations, write_pixel_project
 import jaxba
 from jaxba._cli._main import main
 from jaxba._io._colmap import (
+    ColmapRig,
     colmap_pose_to_eop,
     eop_to_colmap_pose,
+    matrix_to_quaternion,
     quaternion_to_matrix,
     read_colmap_model,
     write_colmap,
+    write_colmap_model,
     write_colmap_project,
 )
+from jaxba._io._colmap._poses import compose, inverse, rigid
 from jaxba._models._rotation_numpy import opk_to_matrix
 from jaxba._statistics._rigs import composed_poses
 
@@ -112,6 +117,38 @@ def test_a_rig_imports_and_composes_to_colmaps_image_poses(kind, tmp_path):
     # The datum: the first image's pose and one coordinate of the next reference image's.
     free = np.asarray(project.problem.free.images)
     assert not free[0].any() and free[1].sum() == 5 and free[2:].all()
+
+
+def test_an_imu_as_the_reference_sensor_gives_the_same_camera_rig(tmp_path):
+    """The fixture's stereo rig re-expressed with its IMU as the reference sensor (every
+    sensor_from_rig and rig_from_world moved into the IMU's frame): camera 1 is the reference
+    again, camera 2's pose in the rig and every image's pose as before."""
+    model = read_colmap_model(FIXTURE / "text")
+    ((_, imu_from_camera1),) = [(s, p) for s, p in model.rigs[1].sensors if s[0] == "IMU"]
+    ((_, camera2_from_camera1),) = [(s, p) for s, p in model.rigs[1].sensors if s[1] == 2]
+    to_imu = rigid(*imu_from_camera1)
+
+    def pose(r_t):
+        return tuple(matrix_to_quaternion(r_t[0])), tuple(r_t[1])
+
+    rig = ColmapRig(1, ("IMU", 1), ((("CAMERA", 1), pose(inverse(to_imu))),
+                                    (("CAMERA", 2), pose(compose(rigid(*camera2_from_camera1),
+                                                                 inverse(to_imu))))))
+    frames = {fid: dataclasses.replace(frame, qvec=q, tvec=t) if frame.rig_id == 1 else frame
+              for fid, frame in model.frames.items()
+              for q, t in [pose(compose(to_imu, rigid(frame.qvec, frame.tvec)))]}
+    write_colmap_model(dataclasses.replace(model, rigs={**model.rigs, 1: rig}, frames=frames),
+                       tmp_path / "imu")
+    before = write_colmap_project(FIXTURE / "text", tmp_path / "before", warn=lambda m: None)
+    after = write_colmap_project(tmp_path / "imu", tmp_path / "after", warn=lambda m: None)
+    spec_before, spec_after = (jaxba.read_project(p.project_file) for p in (before, after))
+    assert spec_after.rigs["rig1"].reference == "1"
+    np.testing.assert_allclose([spec_after.rigs["rig1"].mounts["2"].values[n] for n in EOP],
+                               [spec_before.rigs["rig1"].mounts["2"].values[n] for n in EOP],
+                               rtol=0, atol=POSE_ATOL)
+    for image_id, image in spec_before.images.items():
+        np.testing.assert_allclose(spec_after.images[image_id].eop, image.eop, rtol=0,
+                                   atol=POSE_ATOL)
 
 
 def test_jaxba_import_warns_of_the_sensor_it_leaves_out(tmp_path):
@@ -271,7 +308,8 @@ def test_the_export_writes_the_rig_and_imports_back_the_same(adjusted, exported,
 
 def test_write_colmap_of_the_project_is_the_cli_export(adjusted, exported, tmp_path):
     """The library's export of the adjusted project (`write_colmap` with the adjusted
-    parameters) has the CLI export's rigs and frames."""
+    parameters) has the CLI export's rigs and frames: the same adjustment, one from its
+    parameters, one from results.json, to rounding."""
     project = jaxba.build_project(jaxba.read_project(adjusted[0]))
     result = jaxba.adjust_project(project)
     model = write_colmap(project, tmp_path, result.parameters)
@@ -281,9 +319,12 @@ def test_write_colmap_of_the_project_is_the_cli_export(adjusted, exported, tmp_p
         rig.reference for rig in cli.rigs.values()]
     (((_, (q, t)),),) = (rig.sensors for rig in model.rigs.values() if rig.sensors)
     (((_, (q_cli, t_cli)),),) = (rig.sensors for rig in cli.rigs.values() if rig.sensors)
-    np.testing.assert_allclose(q, q_cli, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(t, t_cli, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(q, q_cli, rtol=0, atol=POSE_ATOL)
+    np.testing.assert_allclose(t, t_cli, rtol=0, atol=ROUND_TRIP_ATOL)
     assert [f.data for f in model.frames.values()] == [f.data for f in cli.frames.values()]
+    for frame, frame_cli in zip(model.frames.values(), cli.frames.values()):
+        np.testing.assert_allclose(frame.qvec, frame_cli.qvec, rtol=0, atol=POSE_ATOL)
+        np.testing.assert_allclose(frame.tvec, frame_cli.tvec, rtol=0, atol=ROUND_TRIP_ATOL)
 
 
 def test_pycolmap_reads_the_export_as_the_same_rig(adjusted, exported):
