@@ -159,19 +159,24 @@ def test_jaxba_import_warns_of_the_sensor_it_leaves_out(tmp_path):
     assert "rigs.toml" in stdout and "frames.txt" in stdout
 
 
-def test_a_model_without_rigs_imports_as_before(tmp_path):
-    """Without rigs.txt and frames.txt (a model before COLMAP 3.12) no rigs.toml and no
-    frames table, the images' poses images.txt's."""
+@pytest.mark.parametrize("kind, suffix", [("text", "txt"), ("binary", "bin")])
+def test_a_model_without_rigs_imports_as_before(kind, suffix, tmp_path):
+    """Without rigs and frames (a model before COLMAP 3.12) no rigs.toml and no frames
+    table, the images' poses images.txt's."""
     source = tmp_path / "legacy"
     source.mkdir()
-    for name in ("cameras.txt", "images.txt", "points3D.txt"):
-        shutil.copy(FIXTURE / "text" / name, source / name)
+    for name in ("cameras", "images", "points3D"):
+        shutil.copy(FIXTURE / kind / f"{name}.{suffix}", source / f"{name}.{suffix}")
     written = write_colmap_project(source, tmp_path / "project", warn=pytest.fail)
     assert written.n_rigs == 0
     assert not (tmp_path / "project" / "rigs.toml").exists()
     assert "rigs" not in (tmp_path / "project" / "colmap.toml").read_text()
     spec = jaxba.read_project(written.project_file)
     assert spec.rigs == {} and spec.frames == {}
+    for image in read_colmap_model(source).images.values():
+        eop = colmap_pose_to_eop(image.qvec, image.tvec)
+        np.testing.assert_allclose(spec.images[image.name].eop,
+                                   np.r_[eop[:3], np.degrees(eop[3:])], rtol=0, atol=POSE_ATOL)
 
 
 def _broken(tmp_path, name: str, edit) -> pathlib.Path:
