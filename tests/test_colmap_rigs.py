@@ -300,6 +300,9 @@ def test_the_export_writes_the_rig_and_imports_back_the_same(adjusted, exported,
                                atol=ROUND_TRIP_ATOL)
 
     image_frames = results["image_frames"]
+    n_pairs = len(results["frames"])
+    assert image_frames == {f"{side}{k}": f"pair{k}" for side in ("left", "right")
+                            for k in range(n_pairs)}
     groups = {}
     for image, frame in spec.frames.items():
         groups.setdefault(frame, set()).add(image)
@@ -357,6 +360,19 @@ def test_pycolmap_reads_the_export_as_the_same_rig(adjusted, exported):
                                    atol=1e-9)
         np.testing.assert_allclose(sensor_from_rig.translation,
                                    t_right - r_right @ r_left.T @ t_left, rtol=0, atol=1e-9)
+
+
+def test_a_results_json_without_image_frames_is_refused(adjusted, tmp_path):
+    """A results.json of a jaxba before "image_frames": the rigs cannot be exported."""
+    out = tmp_path / "out"
+    out.mkdir()
+    shutil.copy(adjusted[1] / "observations.csv", out)
+    results = json.loads((adjusted[1] / "results.json").read_text())
+    del results["image_frames"]
+    (out / "results.json").write_text(json.dumps(results))
+    code, _, stderr = _run("export", str(out), "--format", "colmap")
+    assert code == 2 and 'no "image_frames"' in stderr and "adjust the project again" in stderr
+    assert not (out / "export").exists()
 
 
 def test_an_export_without_rigs_removes_the_earlier_exports_rig_files(adjusted, exported,
