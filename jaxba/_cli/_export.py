@@ -9,11 +9,14 @@ its model, else OpenCV's model fitted over the sensor, its misfit printed and a 
 - opencv: CAMERA.yml per camera (cv::FileStorage: camera_matrix, distortion_coefficients,
   image size), RIG_REFERENCE_CAMERA.yml per camera of a rig with its reference (OpenCV's stereo
   YAML: K1, D1, K2, D2, R, T, E, F);
-- colmap: cameras.txt, images.txt, points3D.txt (a COLMAP text model);
+- colmap: cameras.txt, images.txt, points3D.txt (a COLMAP text model), and with rigs
+  rigs.txt and frames.txt (COLMAP 3.12's rigs and frames);
 - export.json: what was written, and per camera exact or fitted (why, misfit in pixels).
 
 DIR must be new, empty or an earlier export's (it holds export.json): nothing else is ever
-replaced. Registered by `jaxba._cli._main` (`add_export`); jax is loaded only to fit.
+replaced, and the earlier export's files that this one does not write are removed (a stale
+rigs.txt would put the new images into the old frames). Registered by `jaxba._cli._main`
+(`add_export`); jax is loaded only to fit.
 """
 
 import argparse
@@ -29,11 +32,11 @@ _DESCRIPTION = (
     "Write the calibrated cameras of an adjustment (OUT_DIR, the folder with its results.json)"
     " in OpenCV's or COLMAP's conventions into DIR (default OUT_DIR/export/FORMAT): opencv:"
     " CAMERA.yml per camera and, per camera of a rig, OpenCV's stereo YAML with the rig's"
-    " reference (K1 D1 K2 D2 R T E F); colmap: cameras.txt, images.txt, points3D.txt; and"
-    " export.json. A camera without an exact equivalent is fitted with OpenCV's model over its"
-    " sensor, and the fit's misfit is reported (a warning above 0.1 px). Exit codes: 0"
-    " written, 2 bad input (or an output folder that cannot be used), 3 internal error, 130"
-    " interrupted."
+    " reference (K1 D1 K2 D2 R T E F); colmap: cameras.txt, images.txt, points3D.txt (and"
+    " rigs.txt, frames.txt with rigs); and export.json. A camera without an exact equivalent"
+    " is fitted with OpenCV's model over its sensor, and the fit's misfit is reported (a"
+    " warning above 0.1 px). Exit codes: 0 written, 2 bad input (or an output folder that"
+    " cannot be used), 3 internal error, 130 interrupted."
 )
 
 
@@ -101,6 +104,17 @@ def _selected(cameras: dict, names: list[str] | None, where: pathlib.Path) -> li
         raise UsageError(f"--camera {unknown[0]}: {where} has no such camera; its cameras:"
                          f" {', '.join(cameras)}")
     return list(dict.fromkeys(names))
+
+
+def _earlier_files(to: pathlib.Path) -> set[str]:
+    """The files an earlier export wrote into `to` (its export.json's "files"); none where
+    there is no such export.json or it cannot be read."""
+    try:
+        names = json.loads((to / _MANIFEST).read_text(encoding="utf-8"))["files"]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
+        return set()
+    return {name for name in names if isinstance(name, str) and pathlib.Path(name).name == name
+            and name not in ("", ".", "..", _MANIFEST)}
 
 
 def _file_name(*ids: str) -> str:
@@ -230,7 +244,10 @@ def run_export(args: argparse.Namespace) -> int:
     with output_lock(to):
         _destination(args)  # again, under the lock
         check_targets(paths, [where, args.out_dir / _OBSERVATIONS], "the export")
+        stale = _earlier_files(to) - set(texts)
         replace_files(paths)
+        for name in stale:
+            (to / name).unlink(missing_ok=True)
     for camera in exported.values():
         if camera.fitted is not None and camera.max_misfit_px > WARN_MISFIT_PX:
             print_error(_misfit_warning(camera, args.format, args.coefficients), "warning")

@@ -6,11 +6,12 @@ import pathlib
 import shutil
 import tempfile
 
-from ._common import EXIT_OK, UsageError, common_options, say
+from ._common import EXIT_OK, UsageError, common_options, print_error, say
 
 _IMPORT_SOURCES = {
     "dbat": "a DBAT XML script",
-    "colmap": "a COLMAP text model folder (cameras.txt, images.txt, points3D.txt)",
+    "colmap": "a COLMAP model folder (binary or text: cameras, images, points3D; rigs and"
+              " frames where it has them)",
     "zhang": "Zhang's data folder (Model.txt, data1.txt .. data5.txt)",
     "bal": "a BAL problem file (plain, .bz2 or .gz)",
 }
@@ -60,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     name = args.name or args.source.name.split(".")[0] or args.kind
     writers = {
         "dbat": lambda out: _io.write_dbat_project(args.source, out, name=name),
-        "colmap": lambda out: _io.write_colmap_project(args.source, out, name=name),
+        "colmap": lambda out: _io.write_colmap_project(
+            args.source, out, name=name, warn=lambda message: print_error(message, "warning")),
         "zhang": lambda out: _io.write_zhang_project(args.source, out, name=name),
         "bal": lambda out: write_bal_project(args.source, out, name=name),
     }

@@ -9,7 +9,8 @@ Every other central camera, and those, is fitted: OpenCV's model over its sensor
 (`fit_opencv`), whose largest and RMS misfit in pixels say how far the exported camera is
 from the calibrated one anywhere on the sensor. A COLMAP export is a whole model: the cameras,
 the images' poses and the points with the image points of observations.csv (in COLMAP's
-pixels; observations removed by data snooping left out).
+pixels; observations removed by data snooping left out) and, with rigs, COLMAP's rigs and
+frames (each camera's pose in its rig, each frame's pose).
 """
 
 import dataclasses
@@ -32,6 +33,7 @@ from ._colmap import (
     ColmapModel,
     ColmapPoint,
     camera_to_colmap,
+    colmap_rigs,
     eop_to_colmap_pose,
     numeric_ids,
 )
@@ -189,19 +191,27 @@ def export_camera(camera: ResultsCamera, target: str, *, coefficients: int = 5,
                           obstacle, fit.max_misfit_px, fit.rms_misfit_px)
 
 
+def results_rigs(results: Mapping) -> dict[str, tuple[str, dict[str, Mapping]]]:
+    """results.json "rigs" as rig -> (its reference camera, {camera: its entries}); {}
+    without rigs. Raises `ValueError` for a rig that names no reference camera."""
+    rigs = {}
+    for rig, table in (results.get("rigs") or {}).items():
+        reference = table.get("reference")
+        if not isinstance(reference, str):
+            raise ValueError(f"rig {rig!r}: names no reference camera (\"reference\")")
+        rigs[rig] = (reference, {camera: entry for camera, entry in table.items()
+                                 if camera != reference and isinstance(entry, dict)})
+    return rigs
+
+
 def stereo_pairs(results: Mapping, exported: Mapping[str, ExportedCamera]) -> list[StereoPair]:
     """Every non-reference camera of every rig of a results.json with its rig's reference
     camera, where both are `exported` (results.json "rigs": rig -> "reference", the camera
     whose frame is the rig frame, and camera -> X0, Y0, Z0, omega, phi, kappa); [] without
     rigs. F is that of the exported cameras' K."""
     pairs = []
-    for rig, table in (results.get("rigs") or {}).items():
-        reference = table.get("reference")
-        if not isinstance(reference, str):
-            raise ValueError(f"rig {rig!r}: names no reference camera (\"reference\")")
-        for camera, entry in table.items():
-            if camera == reference or not isinstance(entry, dict):
-                continue
+    for rig, (reference, entries) in results_rigs(results).items():
+        for camera, entry in entries.items():
             if camera not in exported or reference not in exported:
                 continue
             where = f"rig {rig!r} camera {camera!r}"
@@ -223,7 +233,9 @@ def colmap_model(results: Mapping, observations: Mapping[str, np.ndarray],
     the image ID) and the points they observe (results.json's coordinates), with the image
     points of `observations` (observations.csv's columns, `read_observations`) not removed
     by data snooping, converted to COLMAP's pixels (mm through the camera's pixel size).
-    Numeric camera and point IDs are kept where they can be (`project_to_colmap`)."""
+    Numeric camera and point IDs are kept where they can be (`project_to_colmap`). With
+    rigs, COLMAP's rigs and frames too (`colmap_rigs`: results.json's "rigs", "frames" and
+    "image_frames")."""
     camera_numbers = numeric_ids(list(exported))
     colmap_cameras = {}
     for cid, camera in exported.items():
@@ -256,11 +268,10 @@ def colmap_model(results: Mapping, observations: Mapping[str, np.ndarray],
         tracks[pid].append((image_numbers[iid], len(entries)))
         entries.append((x, y, point_numbers[pid]))
 
+    poses = {iid: _pose(results["images"][iid], f"image {iid!r}") for iid in image_ids}
     colmap_images = {}
     for iid in image_ids:
-        entries = results["images"][iid]
-        eop = [_value(entries[name], f"image {iid!r} {name}") for name in _EOP]
-        q, t = eop_to_colmap_pose(np.r_[eop[:3], np.radians(eop[3:])])
+        q, t = eop_to_colmap_pose(poses[iid])
         number = image_numbers[iid]
         colmap_images[number] = ColmapImage(number, tuple(q), tuple(t),
                                             camera_numbers[image_cameras[iid]], iid,
@@ -271,4 +282,32 @@ def colmap_model(results: Mapping, observations: Mapping[str, np.ndarray],
                     for name in ("X", "Y", "Z"))
         number = point_numbers[pid]
         colmap_points[number] = ColmapPoint(number, xyz, (0, 0, 0), -1.0, tuple(tracks[pid]))
-    return ColmapModel(colmap_cameras, colmap_images, colmap_points)
+    if not results_rigs(results):
+        return ColmapModel(colmap_cameras, colmap_images, colmap_points)
+    rigs, frames = _colmap_rigs(results, poses, camera_numbers, image_numbers)
+    return ColmapModel(colmap_cameras, colmap_images, colmap_points, rigs, frames)
+
+
+def _pose(entries: Mapping, what: str) -> np.ndarray:
+    """(6,) X0, Y0, Z0, omega, phi, kappa (radians) of results.json's entries (degrees)."""
+    pose = np.array([_value(entries[name], f"{what} {name}") for name in _EOP])
+    return np.r_[pose[:3], np.radians(pose[3:])]
+
+
+def _colmap_rigs(results: Mapping, poses: Mapping[str, np.ndarray],
+                 camera_numbers: Mapping[str, int], image_numbers: Mapping[str, int]):
+    """COLMAP's rigs and frames (`colmap_rigs`) of results.json's "rigs", "frames" and
+    "image_frames" for the exported images `poses` (radians)."""
+    image_frames = results.get("image_frames")
+    if not isinstance(image_frames, dict):
+        raise ValueError('no "image_frames" (each image\'s frame): written by an older jaxba; '
+                         "adjust the project again to export its rigs")
+    rigs = {rig: (reference, {camera: _pose(entry, f"rig {rig!r} camera {camera!r}")
+                              for camera, entry in entries.items()})
+            for rig, (reference, entries) in results_rigs(results).items()}
+    image_cameras = results["image_cameras"]
+    images = {iid: (image_cameras[iid], image_frames.get(iid, iid), pose)
+              for iid, pose in poses.items()}
+    frames = {frame: _pose(results["frames"][frame], f"frame {frame!r}")
+              for frame in {frame for _, frame, _ in images.values()}}
+    return colmap_rigs(rigs, images, frames, camera_numbers, image_numbers)

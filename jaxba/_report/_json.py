@@ -254,8 +254,9 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     Every parameter carries "status": free, fixed or weighted; a tied camera parameter
     "tied to CAMERA.parameter" (its source's unknown: the same value and std). With rigs:
     "images" every image's pose composed from its frame's and its camera's (σ propagated),
-    "frames" the frames' poses (as "images"), "rigs" {rig: {camera: X0 .. kappa, baseline}}
-    (`rigs_tree`), and "correlations" also per "<rig>/<camera>" its relative pose's.
+    "frames" the frames' poses (as "images"), "image_frames" every image's frame, "rigs"
+    {rig: {camera: X0 .. kappa, baseline}} (`rigs_tree`), and "correlations" also per
+    "<rig>/<camera>" its relative pose's.
     """
     precision = result.precision
     cameras = camera_tables(project, result)
@@ -311,6 +312,8 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     if project.rigs is not None:
         frames = frame_table(project, result)
         tree["frames"] = {fid: _entries(frames, k) for k, fid in enumerate(frames.ids)}
+        tree["image_frames"] = {iid: project.rigs.frame_ids[row] for iid, row in
+                                zip(project.image_ids, project.rigs.image_frame.tolist())}
         tree["rigs"] = _nulls(rigs_tree(project, result, _entries))
         tree["mounts"] = _nulls(mounts_tree(project, result))
         tree["correlations"].update(
