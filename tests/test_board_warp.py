@@ -8,12 +8,13 @@ backends (dense only: the Schur path refuses it) and `jaxba batch` (adjusted alo
 import json
 import pathlib
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 import scipy.stats
 from board_scene import COLS, ROWS, board, write_project
-from helpers import FD_ATOL, FD_RTOL, central_difference
+from helpers import FD_ATOL, FD_RTOL, central_difference, synthetic_rig
 
 import jaxba
 from jaxba._adjust._batch import pad_problems
@@ -109,6 +110,38 @@ def test_warp_derivatives_match_central_differences(bent):
                               np.asarray(positions.warp).ravel())
     np.testing.assert_allclose(jacobian[:, columns], numeric.reshape(-1, 2), rtol=FD_RTOL,
                                atol=FD_ATOL)
+
+
+def test_rig_rows_carry_the_warp_after_the_mount():
+    """Rows of rig cameras (IOPs, frame, mount, point, then kx, ky): the warp's columns
+    against central differences, every other column that of the same rows without a warp
+    at the moved points (the warp changes nothing but where the point is)."""
+    problem, _ = synthetic_rig()
+    (group,) = problem.groups
+    points = np.asarray(problem.initial.points)
+    shape = warp_shape(points[:, :2], board_extent(points[:, :2]))
+    warped = eqx.tree_at(lambda g: (g.board, g.warp_shape), group,
+                         (np.zeros(group.point.shape[0], dtype=int),
+                          shape[np.asarray(group.point)]), is_leaf=lambda leaf: leaf is None)
+    warp = np.array([[0.6, -0.4]])
+    params = eqx.tree_at(lambda p: p.warp, problem.initial, warp,
+                         is_leaf=lambda leaf: leaf is None)
+    refraction = problem.refraction
+
+    def residuals(values):
+        moved = eqx.tree_at(lambda p: p.warp, params, values)
+        return np.asarray(warped.residuals(moved, refraction))
+
+    numeric = central_difference(residuals, warp, WARP_FD_STEP)[..., 0, :]
+    residual, blocks = warped.row_jacobians(params, refraction)
+    blocks = np.asarray(blocks)
+    np.testing.assert_allclose(blocks[:, :, -2:], numeric, rtol=FD_RTOL, atol=FD_ATOL)
+    moved = eqx.tree_at(lambda p: p.points, problem.initial,
+                        points + np.outer(shape @ warp[0], [0, 0, 1]))
+    plain_residual, plain = group.row_jacobians(moved, refraction)
+    assert blocks.shape[2] == plain.shape[2] + 2 == 10 + 12 + 3 + 2
+    np.testing.assert_allclose(blocks[:, :, :-2], plain, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(residual, plain_residual, rtol=1e-12, atol=1e-12)
 
 
 def _warp_estimates(tmp_path: pathlib.Path, warp) -> np.ndarray:
