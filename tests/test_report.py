@@ -558,8 +558,8 @@ def test_res_of_a_pixel_project_is_in_pixels():
 
 
 def test_board_warp_in_out_json_and_html(tmp_path):
-    """A warped board (`board_warp = true`): kx, ky with σ in NAME.out, results.json and the
-    HTML report, ρ(kx, ky) and their correlations with the camera's estimated IOPs from the
+    """A warped board (`board_warp = true`): kx, ky with σ in NAME.out, results.json, the
+    HTML report and the console summary, ρ(kx, ky) and their correlations with the camera's estimated IOPs from the
     covariance (recomputed here); nothing of it without the key."""
     file = write_project(tmp_path, 0, warp=(1.0, -0.5), board_warp=True, name="bent")
     project = jaxba.build_project(jaxba.read_project(file))
@@ -591,6 +591,10 @@ def test_board_warp_in_out_json_and_html(tmp_path):
     assert table[2].split() == ["board", "0.81250", "-0.43750", "0.00020", "0.00020",
                                 f"{rho[0, 1]:.2f}"]
     assert f"  board kx  {rho[0, 2]:.2f}" in text
+    console = summary_lines(project, result)
+    start = console.index("board board warp (object units)")
+    assert console[start + 1:start + 3] == ["  kx   8.12500000e-01 +/- 2.00e-04",
+                                            "  ky  -4.37500000e-01 +/- 2.00e-04"]
     figures = {figure.name: b"" for figure in jaxba.figure_set(project, result)}
     page = jaxba.html_report(project, result, figures=figures)
     section = page[page.index('<section id="warp">'):]
@@ -602,3 +606,4 @@ def test_board_warp_in_out_json_and_html(tmp_path):
     flat_result = _fake_result(flat)
     assert "board_warp" not in results_dict(flat, flat_result)
     assert "Board warp" not in out_text(flat, flat_result)
+    assert not any(line.startswith("board") for line in summary_lines(flat, flat_result))
