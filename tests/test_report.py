@@ -559,8 +559,8 @@ def test_res_of_a_pixel_project_is_in_pixels():
 
 def test_board_warp_in_out_json_and_html(tmp_path):
     """A warped board (`board_warp = true`): kx, ky with σ in NAME.out, results.json, the
-    HTML report and the console summary, ρ(kx, ky) and their correlations with the camera's estimated IOPs from the
-    covariance (recomputed here); nothing of it without the key."""
+    HTML report and the console summary, ρ(kx, ky) and their correlations with the camera's
+    estimated IOPs from the covariance (recomputed here); nothing of it without the key."""
     file = write_project(tmp_path, 0, warp=(1.0, -0.5), board_warp=True, name="bent")
     project = jaxba.build_project(jaxba.read_project(file))
     result = _fake_result(project)
