@@ -7,6 +7,7 @@ from ._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "jaxba._adjust._batch": ("PaddedBatch", "broadcast_plan", "pad_problems", "solve_batch"),
+    "jaxba._models._board_warp": ("board_extent", "warp_shape"),
     "jaxba._problem._bundle": ("free_indices",),
     "jaxba._problem._linearisation": ("LinearisationPlan", "linearisation_plan", "pad_plans"),
     "jaxba._problem._observations": ("collinearity_residual",),

@@ -24,21 +24,25 @@ N_IMAGES = 10
 NOISE_PX = 0.3
 
 
-def board() -> np.ndarray:
-    """(COLS * ROWS, 3) corner coordinates, mm, row by row."""
+def board(spacing: float = SPACING, warp=(0.0, 0.0)) -> np.ndarray:
+    """(COLS * ROWS, 3) corner coordinates, mm, row by row; `warp` (kx, ky, mm) bends the
+    board as mrcal does: Z = kx (1 - x²) + ky (1 - y²), x, y from -1 to 1 over the corners."""
     cols, rows = np.meshgrid(np.arange(COLS), np.arange(ROWS))
-    return np.column_stack([cols.ravel() * SPACING, rows.ravel() * SPACING,
-                            np.zeros(cols.size)])
+    x, y = 2 * cols.ravel() / (COLS - 1) - 1, 2 * rows.ravel() / (ROWS - 1) - 1
+    return np.column_stack([cols.ravel() * spacing, rows.ravel() * spacing,
+                            warp[0] * (1 - x ** 2) + warp[1] * (1 - y ** 2)])
 
 
-def stations(rng) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(M, X0) of every image: 300-450 mm from the board, tilted up to ~35 degrees."""
-    centre = board().mean(axis=0)
+def stations(rng, spacing: float = SPACING) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(M, X0) of every image: 300-450 mm from the board (scaled with `spacing`), tilted up
+    to ~35 degrees."""
+    centre = board(spacing).mean(axis=0)
+    scale = spacing / SPACING
     poses = []
     for _ in range(N_IMAGES):
         direction = np.array([*rng.uniform(-0.7, 0.7, 2), 1.0])
-        station = centre + rng.uniform(300, 450) * direction / np.linalg.norm(direction)
-        target = centre + np.array([*rng.uniform(-40, 40, 2), 0.0])
+        station = centre + scale * rng.uniform(300, 450) * direction / np.linalg.norm(direction)
+        target = centre + np.array([*scale * rng.uniform(-40, 40, 2), 0.0])
         poses.append((look_at(station, target, rng.uniform(-0.4, 0.4)), station))
     return poses
 
@@ -55,12 +59,15 @@ def project(camera: dict, poses, points) -> list[np.ndarray]:
 
 def write_project(out: pathlib.Path, seed: int, *, camera: dict = TRUTH,
                   noise_px: float = NOISE_PX, name: str = "board",
-                  keep=lambda k: True) -> pathlib.Path:
+                  keep=lambda k: True, spacing: float = SPACING, warp=(0.0, 0.0),
+                  board_warp: bool = False) -> pathlib.Path:
     """The project of a fresh calibration (new stations and noise from `seed`) of `camera`
-    in `out`; `keep(k)` chooses the images. Returns the project file."""
+    in `out`; `keep(k)` chooses the images. The corners are projected from the board bent
+    by `warp` (`board`), the points table has the flat board; `board_warp` estimates its
+    warp. Returns the project file."""
     rng = np.random.default_rng(seed)
-    points, poses = board(), stations(rng)
-    pixels = project(camera, poses, points)
+    points, poses = board(spacing), stations(rng, spacing)
+    pixels = project(camera, poses, board(spacing, warp))
     out.mkdir(parents=True, exist_ok=True)
     lines = ["[C1]", 'model = "opencv"', f"sensor = [{SENSOR[0]}, {SENSOR[1]}]"]
     start = {**camera, "fx": 520.0, "fy": 520.0, "cx": 320.0, "cy": 240.0,
@@ -79,11 +86,11 @@ def write_project(out: pathlib.Path, seed: int, *, camera: dict = TRUTH,
                       + " " + " ".join(f"{v:.2f}" for v in opk))
         noisy = uv + rng.normal(scale=noise_px, size=uv.shape)
         observed += [f"i{k} {j + 1} {float(u)!r} {float(v)!r}" for j, (u, v) in enumerate(noisy)]
-    return write_pixel_project(out, name, images, observed, noise_px)
+    return write_pixel_project(out, name, images, observed, noise_px, board_warp)
 
 
 def write_pixel_project(out: pathlib.Path, name: str, images: list[str], observed: list[str],
-                        image_sigma: float) -> pathlib.Path:
+                        image_sigma: float, board_warp: bool = False) -> pathlib.Path:
     """orientation.txt (`images` rows), image_points.txt (`observed` rows) and NAME.toml of
     a project in pixels in `out`, beside the caller's cameras.toml and points.txt. Returns
     the project file."""
@@ -95,6 +102,7 @@ def write_pixel_project(out: pathlib.Path, name: str, images: list[str], observe
         "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
         'image_points = "image_points.txt"', 'points = "points.txt"', "",
         "[adjustment]", f"image_sigma = {image_sigma!r}", "max_iterations = 50",
+        *(["board_warp = true"] if board_warp else []),
     ]) + "\n")
     return project_file
 

@@ -17,6 +17,7 @@ import equinox as eqx
 import numpy as np
 import pytest
 import scipy.stats
+from board_scene import write_project
 
 import jaxba
 from jaxba._files import OutputError
@@ -71,6 +72,7 @@ def _fake_result(project, *, nan_std: bool = False, seed: int = 0) -> jaxba.Adju
         cameras={m: np.where(np.asarray(f), STD_MM, 0.0) for m, f in free.cameras.items()},
         images=np.where(np.asarray(free.images), [STD_OBJ] * 3 + [STD_RAD] * 3, 0.0),
         points=np.where(np.asarray(free.points), STD_OBJ, 0.0),
+        warp=None if free.warp is None else np.where(np.asarray(free.warp), STD_OBJ, 0.0),
     )
     if nan_std:
         std.points[0, 0] = math.nan
@@ -553,3 +555,55 @@ def test_res_of_a_pixel_project_is_in_pixels():
     rms = next(line for line in text.splitlines() if line.startswith("# RMS all")).split()
     assert float(rms[rms.index("vy") + 1]) == pytest.approx(
         math.sqrt(np.mean(expected[:, 1] ** 2)), abs=5e-4)
+
+
+def test_board_warp_in_out_json_and_html(tmp_path):
+    """A warped board (`board_warp = true`): kx, ky with σ in NAME.out, results.json, the
+    HTML report and the console summary, ρ(kx, ky) and their correlations with the camera's
+    estimated IOPs from the covariance (recomputed here); nothing of it without the key."""
+    file = write_project(tmp_path, 0, warp=(1.0, -0.5), board_warp=True, name="bent")
+    project = jaxba.build_project(jaxba.read_project(file))
+    result = _fake_result(project)
+    result = dataclasses.replace(result, parameters=eqx.tree_at(
+        lambda p: p.warp, result.parameters, np.array([[0.8125, -0.4375]])))
+    data = results_dict(project, result)["board_warp"]
+    assert data["kx"] == {"value": 0.8125, "std": STD_OBJ}
+    assert data["ky"] == {"value": -0.4375, "std": STD_OBJ}
+    covariance = np.zeros((flatten(result.parameters).size,) * 2)
+    index = result.precision.free_index
+    covariance[np.ix_(index, index)] = result.precision.covariance
+    position = unflatten(result.parameters, np.arange(covariance.shape[0]))
+    warp = np.asarray(position.warp)[0]
+    model, row = project.camera_rows["C1"]
+    free = np.asarray(project.problem.free.cameras[model])[row]
+    iop = np.asarray(position.cameras[model])[row][free]
+    chosen = np.concatenate([warp, iop])
+    block = covariance[np.ix_(chosen, chosen)]
+    rho = block / np.sqrt(np.outer(np.diag(block), np.diag(block)))
+    assert data["correlation"] == pytest.approx(rho[0, 1], rel=MATRIX_RTOL)
+    entry = data["camera_correlations"]["C1"]
+    names = jaxba.CAMERA_MODELS[model].parameter_names
+    assert entry["parameters"] == [n for n, f in zip(names, free) if f]
+    np.testing.assert_allclose([entry["kx"], entry["ky"]], rho[:2, 2:], rtol=MATRIX_RTOL)
+    text = out_text(project, result)
+    table = text[text.index("Board warp"):].splitlines()
+    assert table[1].split() == ["board", "kx", "ky", "skx", "sky", "rho"]
+    assert table[2].split() == ["board", "0.81250", "-0.43750", "0.00020", "0.00020",
+                                f"{rho[0, 1]:.2f}"]
+    assert f"  board kx  {rho[0, 2]:.2f}" in text
+    console = summary_lines(project, result)
+    start = console.index("board board warp (object units)")
+    assert console[start + 1:start + 3] == ["  kx   8.12500000e-01 +/- 2.00e-04",
+                                            "  ky  -4.37500000e-01 +/- 2.00e-04"]
+    figures = {figure.name: b"" for figure in jaxba.figure_set(project, result)}
+    page = jaxba.html_report(project, result, figures=figures)
+    section = page[page.index('<section id="warp">'):]
+    section = section[:section.index("</section>")]
+    assert "<td>0.81250</td><td>-0.43750</td><td>0.0002</td><td>0.0002</td>" in section
+    assert "Correlations with the IOPs of camera C1" in section
+    flat = jaxba.build_project(jaxba.read_project(
+        write_project(tmp_path / "flat", 0, name="flat")))
+    flat_result = _fake_result(flat)
+    assert "board_warp" not in results_dict(flat, flat_result)
+    assert "Board warp" not in out_text(flat, flat_result)
+    assert not any(line.startswith("board") for line in summary_lines(flat, flat_result))

@@ -9,10 +9,11 @@ import jax
 import numpy as np
 import pytest
 import scipy.stats
+from board_scene import write_project
 
 import jaxba
 from jaxba._statistics._by_id import observation_columns
-from jaxba._statistics._ids import ids_from_labels
+from jaxba._statistics._ids import ids_from_labels, index_ids
 
 PRINTED = 1e-9  # observations.csv writes 10 significant digits
 
@@ -190,3 +191,25 @@ def test_labels_of_another_form_are_refused(block):
     with pytest.raises(ValueError, match="image ID 'img01' names two rows"):
         ids_from_labels(project.problem.initial, labels)
 
+
+
+def test_boards_by_id(block, tmp_path):
+    """A warped board's kx, ky by ID (`Adjustment.boards`), as the result's arrays, status
+    free; its ID from the labels ("board board kx"), row numbers without; no boards without
+    a warp."""
+    file = write_project(tmp_path, 0, warp=(1.0, -0.5), board_warp=True, name="bent")
+    project = jaxba.build_project(jaxba.read_project(file))
+    result = jaxba.adjust_project(project)
+    board = result.boards["board"]
+    assert list(result.boards) == ["board"] and list(board) == ["kx", "ky"]
+    assert board.id == "board" and board.model == "warp"
+    values = np.asarray(result.parameters.warp)[0]
+    std = np.asarray(result.precision.std.warp)[0]
+    for k, name in enumerate(("kx", "ky")):
+        assert board[name].value == values[k] and board[name].sigma == std[k] > 0
+        assert board[name].status == "free" and board[name].unit is None
+    assert ids_from_labels(result.parameters, project.labels).boards == ("board",)
+    assert index_ids(result.parameters).boards == (0,)
+    with pytest.raises(KeyError, match="no board 'other' \\(there are 1: 'board'\\)"):
+        result.boards["other"]
+    assert list(block[1].boards) == []

@@ -246,6 +246,9 @@ def _plans(padded, free_index, live) -> list[LinearisationPlan]:
 
 
 def _check_kind(problems) -> None:
+    if any(problem.initial.warp is not None for problem in problems):
+        raise ValueError("a board warp (Parameters.warp) is not adjusted in a padded batch:"
+                         " adjust such a problem alone (jaxba.adjust; jaxba batch does)")
     reference = _signature(problems[0])
     for k, problem in enumerate(problems):
         if _signature(problem) != reference:

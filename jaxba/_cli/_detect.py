@@ -55,6 +55,11 @@ def add_detect(subparsers) -> None:
              " repeat it for several cameras")
     parser.add_argument("--rig", metavar="NAME",
                         help="the cameras are one rig: write rigs.toml and frames.txt")
+    parser.add_argument("--board-warp", action="store_true",
+                        help="estimate the board's warp: its points bent along the board's"
+                             " normal by kx (1 - x^2) + ky (1 - y^2), x, y from -1 to 1 over the"
+                             " board (mrcal's model); writes board_warp = true and every"
+                             " point of the board")
     parser.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                         help="folder for the project (created if needed; must be empty)")
     parser.add_argument("--name", default="calibration",
@@ -167,7 +172,7 @@ def _detect_locked(args, board, cameras: dict[str, list[pathlib.Path]]) -> int:
     except DetectError as detect_error:  # still list the detections
         error, project = str(detect_error), detect_error.project
     try:
-        written = write_detected(project, args.out, args.name)
+        written = write_detected(project, args.out, args.name, board_warp=args.board_warp)
     except OSError as write_error:
         print_error(f"{args.out}: {write_error}")
         return EXIT_BAD_INPUT

@@ -36,7 +36,8 @@ def check_problem(problem: BundleProblem, labels: list[str] | None = None) -> No
         owners = list(dict.fromkeys(labels[k].rsplit(" ", 1)[0] for k in unreached))
         what = {"camera": "no image was taken with it", "image": "no image points or other "
                 "observations", "point": "it is measured in no image",
-                "mount": "no image of a rig frame was taken with it"}
+                "mount": "no image of a rig frame was taken with it",
+                "board": "no image point is on it"}
         first = owners[0]
         more = f" (and {len(owners) - 1} more: {', '.join(owners[1:4])})" if owners[1:] else ""
         raise ProblemError(
@@ -46,8 +47,8 @@ def check_problem(problem: BundleProblem, labels: list[str] | None = None) -> No
 
 def _reached(problem: BundleProblem) -> np.ndarray:
     """(n_all,) bool in `flatten` order: the unknowns some real observation depends on,
-    from the blocks each group's rows refer to, the camera (and mount) rows of image-point
-    groups and the unknowns the priors observe directly."""
+    from the blocks each group's rows refer to, the camera (mount and board warp) rows of
+    image-point groups and the unknowns the priors observe directly."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.free).size))
     positions = jax.tree.map(np.asarray, positions)
     reached = np.zeros(flatten(problem.free).size, dtype=bool)
@@ -63,5 +64,8 @@ def _reached(problem: BundleProblem) -> np.ndarray:
         mount = getattr(group, "mount", None)
         if mount is not None:  # image points of rig cameras: their mounts
             reached[positions.mounts[np.asarray(mount)[real]]] = True
+        board = getattr(group, "board", None)
+        if board is not None:  # image points of a warped board: its warp
+            reached[positions.warp[np.asarray(board)[real]]] = True
         reached[np.asarray(group.prior_positions(positions), dtype=int)] = True
     return reached

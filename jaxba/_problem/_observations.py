@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._custom_types import Vector2, Vector3
+from .._models._board_warp import warped_point
 from .._models._cameras import CAMERA_MODELS, AbstractRefraction
 from .._models._poses import POSE_MODELS, AbstractPose, ComposedPose, image_frames
 from ._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES, Parameters
@@ -219,6 +220,14 @@ class ImagePoints(AbstractObservationGroup):
     followed by the mount (`ComposedPose`); a row outside a rig, or of a rig's reference
     camera, points to a fixed identity mount. `local_values` and the Jacobians then carry
     the mount's 6 parameters after the frame's.
+
+    `board`: None, or the row of `Parameters.warp` of every row's board, and `warp_shape`
+    (n, 2) the row's point's (1 - x², 1 - y²) over its board (`warp_shape`): the point is
+    then moved along +Z of the object frame (the board's normal: a board's points in its
+    own frame, as a calibration has them) by kx (1 - x²) + ky (1 - y²) before it is
+    projected. `local_values` and the Jacobians then carry the board's kx, ky after the
+    point. More boards take a row each; a board whose plane is not Z = 0 of the object
+    frame would need its normal per row.
     """
 
     name: str = eqx.field(static=True)
@@ -232,7 +241,13 @@ class ImagePoints(AbstractObservationGroup):
     constants: tuple[tuple[str, float], ...] = eqx.field(static=True, default=())
     per_camera: bool = eqx.field(static=True, default=False)
     mount: Int[Array, " n"] | None = None
+    board: Int[Array, " n"] | None = None
+    warp_shape: Float[Array, "n 2"] | None = None
     removed_whole: ClassVar[bool] = True
+
+    def __check_init__(self):
+        if (self.board is None) != (self.warp_shape is None):
+            raise ValueError("a warped board needs both `board` and `warp_shape`")
 
     def kind(self) -> str:
         return "image_points"
@@ -259,14 +274,24 @@ class ImagePoints(AbstractObservationGroup):
 
     def local_values(self, params: Parameters) -> Float[Array, "n width"]:
         """IOPs of the camera, pose parameters of the image (or frame, then mount), XYZ of
-        the point, per row."""
+        the point (then kx, ky of its board where the group has `board`), per row."""
         mount = [] if self.mount is None else [jnp.asarray(params.mounts)[self.mount]]
+        warp = [] if self.board is None else [jnp.asarray(params.warp)[self.board]]
         return jnp.concatenate([
             jnp.asarray(params.cameras[self.model])[self.camera],
             jnp.asarray(params.images)[self.image],
             *mount,
             jnp.asarray(params.points)[self.point],
+            *warp,
         ], axis=1)
+
+    def _points(self, params: Parameters) -> Float[Array, "n 3"]:
+        """Every row's object point, moved by its board's warp where the group has one."""
+        points = jnp.asarray(params.points)[self.point]
+        if self.board is None:
+            return points
+        return jax.vmap(warped_point)(points, jnp.asarray(params.warp)[self.board],
+                                      jnp.asarray(self.warp_shape))
 
     def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Float[Array, "n 2"]:
         """Whitened residuals (n, 2), each image's frame (`AbstractPose.frame`) made once
@@ -279,7 +304,7 @@ class ImagePoints(AbstractObservationGroup):
             frames = ComposedPose(frames, jax.tree.map(lambda x: x[self.mount], mounts))
         return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, None))(
             jnp.asarray(params.cameras[self.model])[self.camera], frames,
-            jnp.asarray(params.points)[self.point], self.measured, self.stddev, refraction)
+            self._points(params), self.measured, self.stddev, refraction)
 
     def row_jacobians(
         self, params: Parameters, refraction: AbstractRefraction
@@ -294,19 +319,25 @@ class ImagePoints(AbstractObservationGroup):
             mounts = pose.row_inputs(jnp.asarray(params.mounts))
             inputs = (inputs, jax.tree.map(lambda x: x[self.mount], mounts))
 
-        def row(iop, delta, point, pose_inputs, measured, sigma):
+        def row(iop, delta, point, warp, pose_inputs, measured, sigma, shape):
             frame = row_pose(pose, pose_inputs, delta, self.mount is not None)
+            if shape is not None:
+                point = warped_point(point, warp, shape)
             e = self._row_residual(iop, frame, point, measured, sigma, refraction)
             return e, e
 
-        jacobian = jax.jacrev(row, argnums=(0, 1, 2), has_aux=True)
+        warped = self.board is not None
+        jacobian = jax.jacrev(row, argnums=(0, 1, 2, 3) if warped else (0, 1, 2), has_aux=True)
         n = self.image.shape[0]
         width = 6 if self.mount is None else 12
-        (d_iop, d_pose, d_point), residuals = jax.vmap(jacobian)(
+        warp = jnp.asarray(params.warp)[self.board] if warped else None
+        shape = jnp.asarray(self.warp_shape) if warped else None
+        blocks, residuals = jax.vmap(jacobian)(
             jnp.asarray(params.cameras[self.model])[self.camera],
             jnp.zeros((n, width), jnp.asarray(params.images).dtype),
-            jnp.asarray(params.points)[self.point], inputs, self.measured, self.stddev)
-        return residuals, jnp.concatenate([d_iop, d_pose, d_point], axis=2)
+            jnp.asarray(params.points)[self.point], warp, inputs, self.measured, self.stddev,
+            shape)
+        return residuals, jnp.concatenate(blocks, axis=2)
 
     def _row_residual(self, iop, frame, point, measured, sigma, refraction):
         return _frame_collinearity_residual(

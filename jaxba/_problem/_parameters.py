@@ -1,4 +1,5 @@
-"""The unknowns of a bundle: camera (IOP), image (EOP), object-point and rig-mount blocks."""
+"""The unknowns of a bundle: camera (IOP), image (EOP), object-point, rig-mount and board-warp
+blocks."""
 
 import equinox as eqx
 import jax
@@ -12,6 +13,7 @@ from .._models._poses import OpkPose
 IMAGE_PARAMETER_NAMES = OpkPose.parameter_names  # the images columns of project files
 POINT_PARAMETER_NAMES = ("X", "Y", "Z")
 MOUNT_PARAMETER_NAMES = IMAGE_PARAMETER_NAMES  # a camera's pose in its rig's frame
+WARP_PARAMETER_NAMES = ("kx", "ky")  # a board's warp (`jaxba._models._board_warp`)
 ANGLE_NAMES = ("omega", "phi", "kappa")
 
 
@@ -28,15 +30,19 @@ class Parameters(eqx.Module):
       centre in the rig frame, omega, phi, kappa the rotation rig -> camera). A rig image's
       pose is its frame's `images` row followed by its camera's mount (`ComposedPose`).
       None keeps a bundle without rigs free of any trace of them.
+    - `warp`: (n_boards, 2) or None (flat targets): kx, ky of every board (object units),
+      its points moved along its normal by kx (1 - x²) + ky (1 - y²) (`board_warp`) in the
+      rows of the image-point groups that carry `board`. None: no board is warped.
     """
 
     cameras: dict[str, Float[Array, "n_cameras n_iop"]]
     images: Float[Array, "n_images 6"]
     points: Float[Array, "n_points 3"]
     mounts: Float[Array, "n_mounts 6"] | None = None
+    warp: Float[Array, "n_boards 2"] | None = None
 
     def block(self, name: str) -> Array:
-        """The block called "images", "points", "mounts" or "cameras/<model>"."""
+        """The block called "images", "points", "mounts", "warp" or "cameras/<model>"."""
         if name.startswith("cameras/"):
             return self.cameras[name.removeprefix("cameras/")]
         return getattr(self, name)
@@ -73,11 +79,12 @@ def parameter_labels(
     image_ids: list[str] | None = None,
     point_ids: list[str] | None = None,
     mount_ids: list[str] | None = None,
+    board_ids: list[str] | None = None,
 ) -> list[str]:
     """A readable name for every scalar unknown, in `flatten` order.
 
-    E.g. "camera C1 c", "image img03 omega", "point 12 Z", "mount stereo/right X0"; row
-    numbers stand in for missing IDs.
+    E.g. "camera C1 c", "image img03 omega", "point 12 Z", "mount stereo/right X0",
+    "board board kx"; row numbers stand in for missing IDs.
     """
     def ids(given, n):
         return list(given) if given is not None else [str(i) for i in range(n)]
@@ -85,7 +92,8 @@ def parameter_labels(
     def block(prefix: str, row_ids: list[str], names) -> list[str]:
         return [f"{prefix} {i} {n}" for i in row_ids for n in names]
 
-    # The blocks in `flatten` order: cameras by sorted model name, images, points, mounts.
+    # The blocks in `flatten` order: cameras by sorted model name, images, points, mounts,
+    # warp.
     labels = []
     for model in sorted(params.cameras):
         rows = ids((camera_ids or {}).get(model), params.cameras[model].shape[0])
@@ -94,4 +102,6 @@ def parameter_labels(
     labels += block("point", ids(point_ids, params.points.shape[0]), POINT_PARAMETER_NAMES)
     if params.mounts is not None:
         labels += block("mount", ids(mount_ids, params.mounts.shape[0]), MOUNT_PARAMETER_NAMES)
+    if params.warp is not None:
+        labels += block("board", ids(board_ids, params.warp.shape[0]), WARP_PARAMETER_NAMES)
     return labels

@@ -311,7 +311,8 @@ def project_ids(project: Project) -> Ids:
         cameras.setdefault(model, []).append(cid)
     mounts = () if project.rigs is None else tuple(project.rigs.mount_ids)
     return Ids({model: tuple(ids) for model, ids in cameras.items()},
-               tuple(project.frame_ids), tuple(project.point_ids), mounts)
+               tuple(project.frame_ids), tuple(project.point_ids), mounts,
+               tuple(project.board_ids))
 
 
 def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[str, str]:

@@ -7,6 +7,7 @@ from .._io._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
 from .._statistics._summary import outlier_summary, variance_test
+from ._board_warp import board_warp
 from ._collect import (
     CONSTANT,
     FIXED,
@@ -42,9 +43,9 @@ def start_line(project: Project) -> str:
 
 
 def summary_lines(project: Project, result: Adjustment) -> list[str]:
-    """Every free or weighted IOP with its σ; σ̂0 with its χ² test, the datum and the outliers
-    (`jaxba._statistics._summary`); variance components and rejections; the convergence
-    state and the backend."""
+    """Every free or weighted IOP with its σ, a warped board's kx, ky with σ; σ̂0 with its
+    χ² test, the datum and the outliers (`jaxba._statistics._summary`); variance components
+    and rejections; the convergence state and the backend."""
     lines = []
     for cid, camera in camera_tables(project, result).items():
         lines.append(f"camera {cid} ({project.camera_rows[cid][0]})")
@@ -58,6 +59,11 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
                 f"  {name.ljust(width)}  {camera.values[0, k]: .8e}"
                 f" +/- {camera.stds[0, k]:.2e}{note}"
             )
+    warp = board_warp(project, result)
+    for b, board in enumerate(() if warp is None else warp.ids):
+        lines.append(f"board {board} warp (object units)")
+        lines += [f"  {name}  {warp.values[b, k]: .8e} +/- {warp.stds[b, k]:.2e}"
+                  for k, name in enumerate(("kx", "ky"))]
     precision = result.precision
     lines.append(
         f"sigma0 {math.sqrt(precision.sigma0_squared):.6g}"

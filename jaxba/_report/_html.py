@@ -14,6 +14,7 @@ import numpy as np
 from .._io._project._build import Project
 from .._problem._observations import part_name
 from .._statistics._adjustment import Adjustment
+from ._board_warp import BoardWarp, board_warp
 from ._collect import (
     FIXED,
     camera_tables,
@@ -70,9 +71,11 @@ def html_report(
     shown = figure_set(project, result)
     if figures is None:
         figures = {figure.name: png_bytes(figure.make()) for figure in shown}
+    warp = board_warp(project, result)
     sections = [
         ("summary", "Summary", _summary(project, result)),
         ("cameras", "Cameras", _cameras(project, result)),
+        *([("warp", "Board warp", _board_warp(warp))] if warp is not None else []),
         *([("rigs", "Rigs", _rigs(project, result))] if project.rigs is not None else []),
         ("images", "Images", _images(project, result)),
         ("points", "Object points", _points(project, result)),
@@ -225,6 +228,24 @@ def _rigs(project: Project, result: Adjustment) -> str:
             + "\n<h3>Frames</h3>\n"
             + _table(["frame"] + names + [f"σ {name}" for name in names],
                      _parameter_rows(frames, [[] for _ in frames.ids])))
+
+
+def _board_warp(warp: BoardWarp) -> str:
+    """kx, ky of every board with σ and ρ(kx, ky), and their correlations with every camera's
+    estimated IOPs."""
+    rows = [[_e(board), *(_value(warp.values[b, k], warp.stds[b, k]) for k in range(2)),
+             *(_sigma(warp.stds[b, k]) for k in range(2)), f"{warp.rho[b]:.2f}"]
+            for b, board in enumerate(warp.ids)]
+    parts = ["<p class=\"note\">Each board point moved along the board's normal by"
+             " kx (1 − x²) + ky (1 − y²), x, y from −1 to 1 over the board; object units.</p>",
+             _table(["board", "kx", "ky", "σ kx", "σ ky", "ρ(kx, ky)"], rows)]
+    for cid, (names, rho) in warp.cameras.items():
+        if names:
+            parts.append(f"<h3>Correlations with the IOPs of camera {_e(cid)}</h3>\n" + _table(
+                ["", *map(_e, names)],
+                [[f"{_e(board)} {name}", *(f"{r:.2f}" for r in rho[b, k])]
+                 for b, board in enumerate(warp.ids) for k, name in enumerate(("kx", "ky"))]))
+    return "\n".join(parts)
 
 
 def _points(project: Project, result: Adjustment) -> str:

@@ -9,6 +9,7 @@ from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_covariance
+from ._board_warp import board_warp_tree
 from ._collect import (
     ParameterTable,
     camera_correlations,
@@ -319,6 +320,9 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
         tree["correlations"].update(
             {mid: {"parameters": list(names), "matrix": _nulls(np.asarray(matrix).tolist())}
              for mid, (names, matrix) in mount_correlations(project, result).items()})
+    warp = board_warp_tree(project, result)
+    if warp is not None:
+        tree["board_warp"] = _nulls(warp)
     if project.initialisation is not None:
         tree["initialisation"] = _nulls(project.initialisation)
     return tree

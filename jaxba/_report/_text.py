@@ -12,6 +12,7 @@ import numpy as np
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._summary import aligned, statistical_items
+from ._board_warp import board_warp
 from ._collect import (
     MM,
     PIXEL,
@@ -235,6 +236,30 @@ def _correlation_section(cid: str, names: list[str], matrix: np.ndarray,
     ]
 
 
+def board_warp_section(project: Project, result: Adjustment) -> list[str]:
+    """The boards' warp kx, ky with σ and ρ(kx, ky), and their correlations with every
+    camera's estimated IOPs; [] where no board is warped."""
+    warp = board_warp(project, result)
+    if warp is None:
+        return []
+    decimals = decimals_for(warp.stds, low=4)
+    lines = [
+        "Board warp (object units; each point moved along the board's normal by"
+        " kx (1 - x^2) + ky (1 - y^2), x, y from -1 to 1 over the board)",
+        *column_table(["board", "kx", "ky", "skx", "sky", "rho"], [list(warp.ids)],
+                      np.column_stack([warp.values, warp.stds, warp.rho]), [decimals] * 4 + [2]),
+    ]
+    for cid, (names, rho) in warp.cameras.items():
+        if not names:
+            continue
+        lines += ["", f"Correlations of the board warp with the IOPs of camera {cid}",
+                  *table(["", *names],
+                         [[f"{board} {name}", *(f"{r:.2f}" for r in rho[b, k])]
+                          for b, board in enumerate(warp.ids)
+                          for k, name in enumerate(("kx", "ky"))], "l" + "r" * len(names))]
+    return lines
+
+
 def _variance_component_section(result: Adjustment) -> list[str]:
     components = result.variance_components
     rows = [
@@ -421,6 +446,8 @@ def out_text(project: Project, result: Adjustment) -> str:
     for cid, camera in camera_tables(project, result).items():
         lines += ["", *_camera_section(project, cid, camera)]
         lines += ["", *_correlation_section(cid, *correlations[cid])]
+    warp = board_warp_section(project, result)
+    lines += ["", *warp] if warp else []
     lines += ["", *_residual_summary_section(project, result)]
     if result.variance_components is not None:
         lines += ["", *_variance_component_section(result)]

@@ -97,6 +97,12 @@ class Adjustment:
         return self._unknowns.mounts()
 
     @property
+    def boards(self) -> ById:
+        """Board ID -> `Estimates`: a warped board's kx, ky (object units, `board_warp`);
+        empty without a warp."""
+        return self._unknowns.boards()
+
+    @property
     def points(self) -> ById:
         """Point ID -> `PointEstimate`: X, Y, Z with σ, the 3 x 3 covariance and its kind."""
         return self._unknowns.points()

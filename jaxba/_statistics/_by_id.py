@@ -8,7 +8,12 @@ import numpy as np
 
 from .._models._cameras import CAMERA_MODELS
 from .._models._poses import POSE_MODELS
-from .._problem._parameters import POINT_PARAMETER_NAMES, flatten, unflatten
+from .._problem._parameters import (
+    POINT_PARAMETER_NAMES,
+    WARP_PARAMETER_NAMES,
+    flatten,
+    unflatten,
+)
 from ._ids import Ids
 from ._observation_statistics import group_statistics, image_point_rows, row_parts
 
@@ -149,6 +154,16 @@ class UnknownTables:
         positions = self.positions.mounts
         return self._poses("mount", np.zeros((0, 6), int) if positions is None else positions,
                            self.ids.mounts)
+
+    def boards(self) -> ById:
+        """The warped boards' kx, ky (object units; none without a warp), model "warp"."""
+        positions = self.positions.warp
+
+        def make(row):
+            estimates = self._estimates(positions[row], WARP_PARAMETER_NAMES, [None] * 2)
+            return Estimates(self.ids.boards[row], "warp", estimates)
+
+        return ById("board", {bid: k for k, bid in enumerate(self.ids.boards)}, make)
 
     def _poses(self, what: str, positions: np.ndarray, ids) -> ById:
         pose = POSE_MODELS[self.result.problem.pose]

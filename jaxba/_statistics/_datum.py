@@ -31,7 +31,7 @@ def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk"
     theta = (t, a, s) (7,): translation (object units), Rodrigues rotation vector (rad),
     scale change; camera attitudes turn with the network: M -> M R(a)ᵀ. IOPs stay; rig
     cameras' relative poses (`Parameters.mounts`) keep their rotations, their perspective
-    centres in the rig frame scale by 1 + s. `pose`:
+    centres in the rig frame scale by 1 + s, and so does a board's warp. `pose`:
     the pose model of the images rows (`BundleProblem.pose`), which converts them to and
     from M and X0.
     """
@@ -55,7 +55,8 @@ def similarity_transform(params: Parameters, theta, centre, *, pose: str = "opk"
         relative = jax.vmap(model.from_parameters)(mounts)
         mounts = jax.vmap(pose)(jax.vmap(model.rotation)(relative),
                                 (1 + s) * jax.vmap(model.station)(relative))
-    return Parameters(params.cameras, images, move(params.points), mounts)
+    warp = None if params.warp is None else (1 + s) * params.warp  # a length: scales
+    return Parameters(params.cameras, images, move(params.points), mounts, warp)
 
 
 def similarity_directions(params: Parameters, centre, *, pose: str = "opk") -> np.ndarray:

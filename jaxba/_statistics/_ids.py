@@ -1,6 +1,6 @@
 """The IDs of the rows of an adjustment's blocks: from the labels `adjust` was given
-(`parameter_labels` names: "camera C1 c", "image img03 X0", "point 12 X", "mount rig/C2 X0";
-`adjust_project`
+(`parameter_labels` names: "camera C1 c", "image img03 X0", "point 12 X", "mount rig/C2 X0",
+"board board kx"; `adjust_project`
 passes the project's) or, without labels, the row numbers (cameras numbered over all models in
 `flatten` order: models by name, then rows)."""
 
@@ -14,6 +14,7 @@ from .._problem._parameters import (
     IMAGE_PARAMETER_NAMES,
     MOUNT_PARAMETER_NAMES,
     POINT_PARAMETER_NAMES,
+    WARP_PARAMETER_NAMES,
     Parameters,
     flatten,
     unflatten,
@@ -23,13 +24,14 @@ from .._problem._parameters import (
 @dataclasses.dataclass(frozen=True)
 class Ids:
     """The ID of every row of the unknowns' blocks: `cameras` {model: (id per row)},
-    `images`, `points` and `mounts` (id per row; `images` are frames where there are
-    rigs, `mounts` () without rigs)."""
+    `images`, `points`, `mounts` and `boards` (id per row; `images` are frames where there
+    are rigs, `mounts` () without rigs, `boards` the rows of the warp block, () without)."""
 
     cameras: dict[str, tuple[Hashable, ...]]
     images: tuple[Hashable, ...]
     points: tuple[Hashable, ...]
     mounts: tuple[Hashable, ...] = ()
+    boards: tuple[Hashable, ...] = ()
 
     def block(self, name: str) -> tuple[Hashable, ...]:
         """The IDs of the block called "images", "points", "mounts" or "cameras/<model>"."""
@@ -45,8 +47,9 @@ def index_ids(params: Parameters) -> Ids:
         n = int(np.shape(params.cameras[model])[0])
         cameras[model], start = tuple(range(start, start + n)), start + n
     mounts = () if params.mounts is None else tuple(range(np.shape(params.mounts)[0]))
+    boards = () if params.warp is None else tuple(range(np.shape(params.warp)[0]))
     return Ids(cameras, tuple(range(np.shape(params.images)[0])),
-               tuple(range(np.shape(params.points)[0])), mounts)
+               tuple(range(np.shape(params.points)[0])), mounts, boards)
 
 
 def ids_from_labels(params: Parameters, labels: list[str]) -> Ids:
@@ -82,5 +85,7 @@ def ids_from_labels(params: Parameters, labels: list[str]) -> Ids:
         raise ValueError("labels: a camera ID names cameras of two models")
     mounts = () if positions.mounts is None else block(
         "mount", positions.mounts, MOUNT_PARAMETER_NAMES[0])
+    boards = () if positions.warp is None else block(
+        "board", positions.warp, WARP_PARAMETER_NAMES[0])
     return Ids(cameras, block("image", positions.images, IMAGE_PARAMETER_NAMES[0]),
-               block("point", positions.points, POINT_PARAMETER_NAMES[0]), mounts)
+               block("point", positions.points, POINT_PARAMETER_NAMES[0]), mounts, boards)

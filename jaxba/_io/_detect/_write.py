@@ -1,7 +1,8 @@
 """A `DetectedProject` as files: the project (docs/project-files.md), detections.csv and the
 contact sheet. The project has image_units "pixel", one "opencv" camera per camera with OpenCV's
 default free set, the board's points fixed (only those seen), Zhang's approximations and, for
-a rig, rigs.toml and frames.txt. Numbers are written in full (`repr`)."""
+a rig, rigs.toml and frames.txt; with a board warp, `board_warp = true` and every point of the
+board (the extent its warp is normalised over). Numbers are written in full (`repr`)."""
 
 import csv
 import io
@@ -55,7 +56,8 @@ def _rigs_toml(project: DetectedProject) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _project_toml(project: DetectedProject, name: str, files: dict[str, str]) -> str:
+def _project_toml(project: DetectedProject, name: str, files: dict[str, str],
+                  board_warp: bool) -> str:
     n_used = len(project.used())
     return "\n".join([
         f"# Written by jaxba detect: board {project.board.text()}, {n_used} of"
@@ -72,23 +74,29 @@ def _project_toml(project: DetectedProject, name: str, files: dict[str, str]) ->
         "sigma0 = 1.0",
         f"image_sigma = {IMAGE_SIGMA!r}  # pixel",
         "max_iterations = 100",
+        *(["board_warp = true  # the board's warp kx, ky estimated (its points bent along Z)"]
+          if board_warp else []),
         "",
     ])
 
 
-def project_texts(project: DetectedProject, name: str) -> dict[str, str]:
+def project_texts(project: DetectedProject, name: str, *, board_warp: bool = False
+                  ) -> dict[str, str]:
     """File name -> text of the project files (`NAME.toml` and its tables); the project must
-    use at least one image."""
+    use at least one image. `board_warp`: the board's warp estimated, and every point of
+    the board in the points table (only those seen otherwise)."""
     if not project.starts:
         raise ValueError("no image with the board: no project to write")
     files = {**FILES, **(RIG_FILES if project.rig is not None else {})}
     used = project.used()
     points = project.board.points()
     seen = sorted({int(i) for image in used for i in image.detection.ids})
+    if board_warp:  # the whole board: its extent normalises the warp
+        seen = list(range(len(points)))
     eops = {image.id: eop for camera, start in project.starts.items()
             for image, eop in zip(project.used(camera), start.eops)}
     texts = {
-        f"{name}.toml": _project_toml(project, name, files),
+        f"{name}.toml": _project_toml(project, name, files, board_warp),
         FILES["cameras"]: _cameras_toml(project),
         FILES["images"]: table_text(
             "image_id camera_id X0 Y0 Z0 (board frame) omega phi kappa (deg): Zhang's closed form",
@@ -131,11 +139,12 @@ def detection_texts(project: DetectedProject) -> dict[str, str | bytes]:
     return {DETECTIONS_FILE: detections_csv(project), SHEET_FILE: contact_sheet(project.images)}
 
 
-def write_detected(project: DetectedProject, out_dir, name: str) -> list[pathlib.Path]:
+def write_detected(project: DetectedProject, out_dir, name: str, *, board_warp: bool = False
+                   ) -> list[pathlib.Path]:
     """Write detections.csv, the contact sheet and (where an image was used) the project into
     `out_dir` (created if needed), all files together; returns their paths, the project file
-    first when there is one."""
-    texts = {**(project_texts(project, name) if project.starts else {}),
+    first when there is one. `board_warp`: as for `project_texts`."""
+    texts = {**(project_texts(project, name, board_warp=board_warp) if project.starts else {}),
              **detection_texts(project)}
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -10,6 +10,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ..._models._board_warp import board_extent, warp_shape
 from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
 from ..._models._robust import RobustLoss
 from ..._problem._bundle import BundleProblem
@@ -35,6 +36,7 @@ class Project:
     `datum`: how the datum is defined (`datum_summary`; the `datum` section of the reports).
     `rigs`: the frames and mounts (`RigLayout`) of a project with rigs, None without: the
     image block's rows are then `rigs.frame_ids`, not `image_ids` (`frame_ids`).
+    `board_ids`: the rows of the warp block (`Parameters.warp`; `BOARD_ID`), () without.
     """
 
     spec: ProjectSpec
@@ -47,6 +49,7 @@ class Project:
     initialisation: dict | None = None
     datum: dict = dataclasses.field(default_factory=lambda: {"kind": "control"})
     rigs: RigLayout | None = None
+    board_ids: tuple[str, ...] = ()
 
     @property
     def frame_ids(self) -> list[str]:
@@ -155,6 +158,35 @@ def _points(spec: ProjectSpec, point_ids: list[str]):
     return xyz, free, groups
 
 
+BOARD_ID = "board"  # the one board of a project's points table
+
+
+def _board_warp(spec: ProjectSpec, point_ids: list[str], xyz: np.ndarray,
+                xyz_free: np.ndarray) -> np.ndarray | None:
+    """(n_points, 2) (1 - x², 1 - y²) of every point of the point block (`warp_shape`), x
+    and y normalised over the extent of the whole points table (the board's, also where
+    some of its points are never measured); None without `board_warp`. The board's points
+    must be fixed and lie in one plane Z = const."""
+    if not spec.settings.board_warp:
+        return None
+    where = f"{spec.path.name}: [adjustment] board_warp"
+    if spec.settings.datum != "control":
+        raise ProjectError(f"{where} needs datum = \"control\": the board's points fixed")
+    free = np.flatnonzero(np.any(xyz_free, axis=1))
+    if free.size:
+        raise ProjectError(f"{where}: point {point_ids[free[0]]!r} is not fixed (σ 0): a "
+                           "warped board's points are its fixed design coordinates")
+    table = np.array([p.xyz for p in spec.points.values() if p.xyz is not None], dtype=float)
+    if np.ptp(table[:, 2]) > 0:
+        raise ProjectError(f"{where}: the points table's Z are not all equal: the board "
+                           "lies in a plane Z = const of its own frame")
+    try:
+        extent = board_extent(table[:, :2])
+    except ValueError as error:
+        raise ProjectError(f"{where}: {error}") from None
+    return warp_shape(xyz[:, :2], extent)
+
+
 def pixel_grid(camera) -> PixelGrid | None:
     if camera.pixel_size is None or camera.sensor is None:
         return None
@@ -182,13 +214,15 @@ def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
     return xy, sigma
 
 
-def _image_point_groups(spec, camera_rows, image_index, point_index, grids, mount_index=None):
+def _image_point_groups(spec, camera_rows, image_index, point_index, grids, mount_index=None,
+                        point_warp=None):
     """One ImagePoints group per camera model and constants (`per_camera`: reports and
     variance components still part it by camera), each row's camera its row of the model's
     block; pixels -> mm per row's camera for mm-models. Named "image_points" where there is
     one group, else "image_points:<model>" (and ":<k>" for a model's cameras with different
     constants). `image_index`: image ID -> its row of the images block (its frame's with
-    rigs); `mount_index`: image ID -> its camera's mounts row (None: no rigs)."""
+    rigs); `mount_index`: image ID -> its camera's mounts row (None: no rigs); `point_warp`:
+    (n_points, 2) every point's `warp_shape` on the board (warp row 0; None: flat)."""
     table = spec.image_points
     camera_of = {iid: image.camera for iid, image in spec.images.items()}
     cameras = [camera_of[iid] for iid in table.image]
@@ -226,6 +260,8 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids, moun
             constants=constants,
             per_camera=True,
             mount=None if mount is None else mount[rows],
+            board=None if point_warp is None else np.zeros(rows.size, dtype=int),
+            warp_shape=None if point_warp is None else point_warp[point[rows]],
         ))
     return groups
 
@@ -352,10 +388,11 @@ def build_project(spec: ProjectSpec) -> Project:
         gauge = np.asarray(eop_free) & ~held
         eop_free = np.asarray(held)
     xyz, xyz_free, control = _points(spec, point_ids)
+    point_warp = _board_warp(spec, point_ids, xyz, xyz_free)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     point_index = {pid: k for k, pid in enumerate(point_ids)}
     groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids,
-                                 mount_index)
+                                 mount_index, point_warp)
     groups += control + gnss + camera_priors
     if spec.distances:
         groups.append(Distances(
@@ -381,10 +418,12 @@ def build_project(spec: ProjectSpec) -> Project:
     robust = (
         None if settings.robust == "none" else RobustLoss(settings.robust, settings.robust_scale)
     )
-    initial = Parameters(iop, eop, xyz, mounts)
+    warped = point_warp is not None
+    initial = Parameters(iop, eop, xyz, mounts, np.zeros((1, 2)) if warped else None)
     problem = _on_device(BundleProblem(
         initial=initial,
-        free=Parameters(iop_free, eop_free, xyz_free, mounts_free),
+        free=Parameters(iop_free, eop_free, xyz_free, mounts_free,
+                        np.ones((1, 2), dtype=bool) if warped else None),
         groups=tuple(groups),
         refraction=refraction,
         robust=robust,
@@ -394,10 +433,11 @@ def build_project(spec: ProjectSpec) -> Project:
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
+    board_ids = (BOARD_ID,) if warped else ()
     labels = parameter_labels(initial, camera_ids, frame_ids, point_ids,
-                              None if rigs is None else rigs.mount_ids)
+                              None if rigs is None else rigs.mount_ids, list(board_ids))
     if settings.datum == "free":
         problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
     return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum,
-                   rigs=rigs)
+                   rigs=rigs, board_ids=board_ids)
 

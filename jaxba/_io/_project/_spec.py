@@ -64,6 +64,9 @@ class AdjustmentSettings:
     # Solver: "dense" (normal equations of all unknowns), "schur" (object points
     # eliminated, covariance in blocks) or "auto" (schur above 2000 unknowns).
     solver: str = "auto"
+    # Board warp: the points table is one calibration board in the plane Z = 0 (all points
+    # fixed) whose warp kx, ky (`jaxba._models._board_warp`) is estimated; false: flat.
+    board_warp: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

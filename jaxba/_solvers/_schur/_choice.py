@@ -20,7 +20,8 @@ def use_schur(problem: BundleProblem, solver: str = "auto") -> bool:
     `SCHUR_MIN_UNKNOWNS` unknowns or `SCHUR_MIN_JACOBIAN_ENTRIES` Jacobian entries whose
     observations the Schur split supports (image points, direct observations of unknowns,
     distances; a free network's inner constraints through
-    `jaxba._statistics._free_network.minimal_constraints`).
+    `jaxba._statistics._free_network.minimal_constraints`). A problem with a board warp
+    (`Parameters.warp`) is dense: "schur" refuses it.
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
@@ -31,6 +32,11 @@ def use_schur(problem: BundleProblem, solver: str = "auto") -> bool:
         raise ValueError(
             "solver 'schur' handles image points, direct observations of unknowns, "
             "distances and a free network's inner constraints only")
+    if problem.initial.warp is not None:  # its blocks have no columns for a board's warp
+        if solver == "schur":
+            raise ValueError("solver 'schur' does not adjust a board warp (kx, ky): take "
+                             "solver 'dense' (or 'auto'), a calibration's size")
+        return False
     n_unknowns = problem.n_unknowns()
     large = (n_unknowns > SCHUR_MIN_UNKNOWNS
              or n_unknowns * problem.n_observations() > SCHUR_MIN_JACOBIAN_ENTRIES)
