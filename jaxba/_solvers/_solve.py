@@ -105,15 +105,17 @@ def choose_backend(problem: BundleProblem, name: str = "auto") -> Backend:
     """The backend `name` ("dense", "schur", or "auto": `use_schur`, the Schur split for
     large bundles) for `problem`. Where the problem's arrays are traced (`jax.jit`,
     `jax.vmap`: no NumPy count of its observations, and a batch needs it), "auto" is
-    Dense. `ValueError` for another name."""
+    Dense. `ValueError` for another name, or for "schur" where the Schur split cannot
+    adjust the problem (`use_schur`)."""
     if name not in SOLVERS:
         raise ValueError(f"backend must be one of {', '.join(SOLVERS)}, not {name!r}")
-    if name != "auto":
-        return Dense() if name == "dense" else Schur()
-    try:  # the values under jax.grad, a tracer's error under jit / vmap
-        return Schur() if use_schur(_stop_gradient(problem)) else Dense()
-    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+    if name == "dense":
         return Dense()
+    try:  # the values under jax.grad, a tracer's error under jit / vmap (after its checks)
+        schur = use_schur(_stop_gradient(problem), name)
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+        schur = name == "schur"
+    return Schur() if schur else Dense()
 
 
 def _traced(problem: BundleProblem) -> bool:
