@@ -6,7 +6,8 @@ solver and the residual of one image point. Imported from their modules when fir
 from ._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "jaxba._adjust._batch": ("PaddedBatch", "broadcast_plan", "pad_problems", "solve_batch"),
+    "jaxba._adjust._batch": ("solve_batch",),
+    "jaxba._adjust._padding": ("PaddedBatch", "broadcast_plan", "pad_problems"),
     "jaxba._models._board_warp": ("board_extent", "warp_shape"),
     "jaxba._problem._bundle": ("free_indices",),
     "jaxba._problem._linearisation": ("LinearisationPlan", "linearisation_plan", "pad_plans"),

@@ -12,9 +12,10 @@ import pytest
 
 import jaxba
 from jaxba import _programs
-from jaxba._adjust import _batch
-from jaxba._adjust._batch import adjust_batch, pad_problems
+from jaxba._adjust import _batch, _padding
+from jaxba._adjust._batch import adjust_batch
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
+from jaxba._adjust._padding import pad_problems
 from jaxba._cli import _batch_run
 from jaxba._cli._batch_run import run_batch
 from jaxba._cli._main import main
@@ -267,7 +268,7 @@ def test_batched_datum_check_equals_check_datum(projects, tmp_path):
                                            n_targets=20, datum="none")
     free = jaxba.build_project(jaxba.read_project(defect.project_file))
     batch = [p.problem for p in built] + [free.problem]
-    assert len({_batch._signature(problem) for problem in batch}) == 1
+    assert len({_padding.batch_kind(problem) for problem in batch}) == 1
     errors = jaxba.check_datum_batch(batch, labels=[p.labels for p in [*built, free]])
     assert errors[:3] == [None, None, None]
     with pytest.raises(jaxba.DatumError) as alone:

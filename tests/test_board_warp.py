@@ -17,7 +17,7 @@ from board_scene import COLS, ROWS, board, write_project
 from helpers import FD_ATOL, FD_RTOL, central_difference, synthetic_rig
 
 import jaxba
-from jaxba._adjust._batch import pad_problems
+from jaxba._adjust._padding import pad_problems
 from jaxba._models._board_warp import board_extent, warp_shape, warped_point
 from jaxba._problem._linearisation import dense_jacobian
 from jaxba._problem._observations import ImagePoints

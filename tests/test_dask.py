@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._adjust._batch import batch_shape, pad_problems
 from jaxba._adjust._montecarlo import monte_carlo
+from jaxba._adjust._padding import batch_shape, pad_problems
 from jaxba._cli._batch_run import run_batch
 from jaxba._cli._main import main
 from jaxba._dask import check_scheduler, local_workers

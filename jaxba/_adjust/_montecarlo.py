@@ -37,7 +37,8 @@ from .._problem._observations import ImagePoints
 from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._solution import Solution
 from ._adjust import adjust
-from ._batch import broadcast_plan, solve_batch
+from ._batch import solve_batch
+from ._padding import broadcast_plan
 
 
 @dataclasses.dataclass(frozen=True)

@@ -31,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .._adjust._batch import _signature, batch_shape
+from .._adjust._padding import batch_kind, batch_shape
 from .._dask import check_scheduler, executor
 from .._files._atomic import replace_files
 from .._io._project import ProjectError, build_project
@@ -170,7 +170,7 @@ def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], 
             groups.setdefault(("single", id(entry)), []).append(entry)
             continue
         settings = entry.project.spec.settings
-        key = (_signature(entry.project.problem), settings.max_iterations, settings.rtol,
+        key = (batch_kind(entry.project.problem), settings.max_iterations, settings.rtol,
                settings.atol)
         groups.setdefault(key, []).append(entry)
     chunks = []

@@ -14,7 +14,8 @@ import dataclasses
 import math
 
 from .._adjust._adjust import NotConvergedError
-from .._adjust._batch import BatchShape, adjust_padded, pad_problems
+from .._adjust._batch import adjust_padded
+from .._adjust._padding import BatchShape, pad_problems
 from .._io._project import adjust_project
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment

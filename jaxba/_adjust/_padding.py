@@ -1,0 +1,318 @@
+"""Bundles of one kind padded to a common shape and stacked, so that one compiled program
+solves them all (`jax.vmap`); and the padding taken off the results.
+
+Padding changes no result:
+
+- observation rows added to a group repeat the group's first row with σ = inf, so they are
+  whitened to exactly 0 and counted nowhere (`AbstractObservationGroup.mask`);
+- camera, image and point rows added to a block copy its first row and are fixed
+  (free = False); no real observation references them;
+- one extra point row is always added; the free-index vector of every problem is padded to
+  the longest one with the flat position of that spare point's X. The padded entries of
+  the solver vector therefore move an unreferenced coordinate: their Jacobian columns are
+  exactly 0, the damped Gauss-Newton step decouples them (JᵀJ + λI is block diagonal) and
+  they stay 0. The statistics drop them (their block of N is replaced by I), and the
+  redundancy r = n - u counts real observations and unknowns only.
+"""
+
+import dataclasses
+import hashlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Int
+
+from .._problem._bundle import BundleProblem, free_indices
+from .._problem._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
+from .._problem._observations import AbstractObservationGroup
+from .._problem._parameters import Parameters, flatten, unflatten
+
+
+@dataclasses.dataclass(frozen=True)
+class PaddedBatch:
+    """Problems padded to one shape and stacked along a leading batch axis.
+
+    - `problem`: a BundleProblem whose every array leaf has a leading axis of `n_batch`;
+    - `plan`: the stacked `LinearisationPlan`s of the padded problems; `plan.free_index`
+      (n_batch, n_free_max) the free positions in `flatten` order, padded;
+    - `problems`: the original (unpadded) problems;
+    - `n_free`, `n_observations`: per problem, real unknowns and observations.
+    """
+
+    problem: BundleProblem
+    plan: LinearisationPlan
+    problems: tuple[BundleProblem, ...]
+    n_free: np.ndarray
+    n_observations: np.ndarray
+
+    @property
+    def n_batch(self) -> int:
+        return len(self.problems)
+
+    @property
+    def free_index(self) -> Int[Array, "n_batch n_free_max"]:
+        return self.plan.free_index
+
+
+def batch_kind(problem: BundleProblem) -> tuple:
+    """What must agree between problems for them to share a padded shape (one kind)."""
+    groups = tuple(
+        (type(g).__name__, getattr(g, "model", None), getattr(g, "block", None),
+         tuple(np.shape(g.stddev)[1:]), getattr(g, "mount", None) is None)
+        for g in problem.groups
+    )
+    cameras = tuple((m, np.shape(b)[1]) for m, b in sorted(problem.initial.cameras.items()))
+    return groups, cameras, problem.initial.mounts is None, problem.refraction, problem.robust
+
+
+def _pad_rows(array, n: int, fill=None):
+    """Pad the leading axis of `array` to `n` rows by repeating row 0 (or with `fill`)."""
+    array = np.asarray(array)
+    extra = n - array.shape[0]
+    if extra == 0:
+        return array
+    if fill is None:
+        rows = np.repeat(array[:1], extra, axis=0)
+    else:
+        rows = np.full((extra, *array.shape[1:]), fill, dtype=array.dtype)
+    return np.concatenate([array, rows])
+
+
+def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractObservationGroup:
+    """Rows repeated from row 0 up to `n`, σ = inf on the added rows; `name` unified."""
+    n_real = np.shape(group.stddev)[0]
+    leaves = {
+        field.name: getattr(group, field.name)
+        for field in dataclasses.fields(group)
+        if not field.metadata.get("static", False) and field.name != "stddev"
+        and getattr(group, field.name) is not None
+    }
+    padded = {key: _pad_rows(value, n) for key, value in leaves.items()}
+    stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
+    stddev[n_real:] = np.inf
+    padded["stddev"] = stddev
+    group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
+    return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
+
+
+def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | None) -> Parameters:
+    def pad(leaf, like):
+        n = np.shape(like)[0]
+        if fill_free is None:
+            return _pad_rows(leaf, n)
+        return _pad_rows(leaf, n, fill=fill_free)
+
+    return jax.tree.map(pad, params, shapes)
+
+
+def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
+    """`problem.ties` as positions of the padded Parameters shaped like `shapes`."""
+    own = unflatten(problem.initial, np.arange(flatten(problem.initial).size)).cameras
+    padded = unflatten(shapes, np.arange(flatten(shapes).size)).cameras
+    position = np.zeros(flatten(problem.initial).size, dtype=int)
+    for model, block in own.items():
+        position[np.ravel(block)] = np.ravel(padded[model][: block.shape[0]])
+    return tuple((int(position[d]), int(position[s])) for d, s in problem.ties)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchShape:
+    """The padded shape of a batch, all that its compiled programs depend on: rows per
+    camera model, images, points (the spare one included), rows per observation group, the
+    length of the free-index vector and, per group of the linearisation plan, its live
+    slots and (keys, rows per key) (None for a group that is not row-local); `mounts` the
+    rows of the mounts block (None: no rigs)."""
+
+    cameras: dict[str, int]
+    images: int
+    points: int
+    rows: tuple[int, ...]
+    free: int
+    live: tuple[tuple[int, ...] | None, ...] | None = None
+    keys: tuple[tuple[int, int] | None, ...] | None = None
+    mounts: int | None = None
+
+
+def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
+    """The largest of every block and group, one spare point row; no plan yet."""
+    return BatchShape(
+        cameras={m: max(p.initial.cameras[m].shape[0] for p in problems)
+                 for m in problems[0].initial.cameras},
+        images=max(p.initial.images.shape[0] for p in problems),
+        points=max(p.initial.points.shape[0] for p in problems) + 1,
+        rows=tuple(max(np.shape(p.groups[g].stddev)[0] for p in problems)
+                   for g in range(len(problems[0].groups))),
+        free=max(p.n_unknowns() for p in problems),
+        mounts=None if problems[0].initial.mounts is None
+        else max(p.initial.mounts.shape[0] for p in problems),
+    )
+
+
+def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list]:
+    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices
+    and the live slots of the plans (`shape.live`, or the union over these problems)."""
+    shapes = Parameters(
+        cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
+                 for m, n in shape.cameras.items()},
+        images=np.zeros((shape.images, 6)),
+        points=np.zeros((shape.points, 3)),
+        mounts=None if shape.mounts is None else np.zeros((shape.mounts, 6)),
+    )
+    names = [g.name for g in problems[0].groups]
+    padded, indices = [], []
+    ties = {_padded_ties(problem, shapes) for problem in problems}
+    if len(ties) > 1:
+        raise ValueError("the problems tie different camera parameters (BundleProblem.ties);"
+                         " pad only problems with the same ties")
+    for problem in problems:
+        initial = _pad_parameters(problem.initial, shapes, None)
+        free = _pad_parameters(problem.free, shapes, False)
+        groups = tuple(_pad_group(g, n, name)
+                       for g, n, name in zip(problem.groups, shape.rows, names))
+        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust,
+                            ties=next(iter(ties)))
+        padded.append(one)
+        indices.append(free_indices(one))
+    size = flatten(padded[0].initial).size
+    spare = int(np.asarray(unflatten(padded[0].initial, np.arange(size)).points)[-1, 0])
+    # X of the spare (last) point; points are not the last block where there are mounts
+    free_index = np.full((len(problems), shape.free), spare)
+    for k, index in enumerate(indices):
+        free_index[k, : len(index)] = index
+    if shape.live is not None:
+        return padded, free_index, list(shape.live)
+    # One set of live slots for all: problems may free different IOPs.
+    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
+    live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
+    return padded, free_index, live
+
+
+def _structure(problem: BundleProblem, free_index: np.ndarray, live) -> bytes:
+    """A digest of all that `linearisation_plan(problem, free_index, live)` reads: the
+    integer (index) arrays and observed entries of every group, the free index, the ties and
+    the live slots. Padded problems of one kind and equal digests have equal plans."""
+    digest = hashlib.blake2b(repr((problem.ties, live)).encode())
+    digest.update(np.asarray(free_index).tobytes())
+    for group in problem.groups:
+        for leaf in jax.tree.leaves(group):
+            leaf = np.asarray(leaf)
+            if leaf.dtype.kind in "biu":
+                digest.update(repr(leaf.shape).encode())
+                digest.update(leaf.tobytes())
+        digest.update(np.isfinite(np.asarray(group.stddev)).tobytes())
+    return digest.digest()
+
+
+def _plans(padded, free_index, live) -> list[LinearisationPlan]:
+    """`linearisation_plan` of every padded problem, computed once per distinct structure
+    (a batch of calibrations of one target and one set of images has one)."""
+    known, plans = {}, []
+    for one, index in zip(padded, free_index):
+        key = _structure(one, index, live)
+        if key not in known:
+            known[key] = linearisation_plan(one, index, live)
+        plans.append(known[key])
+    return plans
+
+
+def _check_kind(problems) -> None:
+    if any(problem.initial.warp is not None for problem in problems):
+        raise ValueError("a board warp (Parameters.warp) is not adjusted in a padded batch:"
+                         " adjust such a problem alone (jaxba.adjust; jaxba batch does)")
+    reference = batch_kind(problems[0])
+    for k, problem in enumerate(problems):
+        if batch_kind(problem) != reference:
+            raise ValueError(
+                f"problem {k} has another structure than problem 0 (observation groups, camera"
+                " models, refraction or robust loss); pad only problems of one kind"
+            )
+
+
+def batch_shape(problems) -> BatchShape:
+    """The smallest shape that holds every one of `problems` (bundles of one kind), their
+    plans included: chunks of them padded to it (`pad_problems(chunk, shape)`) share one
+    compiled program. Pads one problem of each distinct structure (`_structure`) to find
+    the plans' sizes."""
+    problems = tuple(problems)
+    _check_kind(problems)
+    blocks = _block_shape(problems)
+    distinct = {_structure(p, free_indices(p), None): p for p in problems}
+    padded, free_index, live = _pad_each(tuple(distinct.values()), blocks)
+    plans = _plans(padded, free_index, live)
+    keys = tuple(None if slots is None else
+                 tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
+                 for g, slots in enumerate(live))
+    return dataclasses.replace(blocks, live=tuple(live), keys=keys)
+
+
+def _holds(shape: BatchShape, own: BatchShape) -> bool:
+    return (shape.cameras.keys() == own.cameras.keys()
+            and all(shape.cameras[m] >= n for m, n in own.cameras.items())
+            and shape.images >= own.images and shape.points >= own.points
+            and (shape.mounts is None) == (own.mounts is None)
+            and (shape.mounts or 0) >= (own.mounts or 0)
+            and len(shape.rows) == len(own.rows)
+            and all(a >= b for a, b in zip(shape.rows, own.rows)) and shape.free >= own.free)
+
+
+def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
+    """Pad bundles of one kind (same observation groups in the same order, same camera
+    models, refraction and robust loss) to a common shape and stack them.
+
+    `shape`: the shape to pad to (`batch_shape` of these problems and maybe others: chunks
+    of one larger batch padded alike share one compiled program); default the problems'
+    own. Raises ValueError naming the first problem whose structure differs from the first
+    one, or when `shape` cannot hold them.
+    """
+    problems = tuple(problems)
+    if not problems:
+        raise ValueError("pad_problems: no problems")
+    _check_kind(problems)
+    own = _block_shape(problems)
+    shape = own if shape is None else shape
+    if not _holds(shape, own):
+        raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
+    padded, free_index, live = _pad_each(problems, shape)
+    plans = _plans(padded, free_index, live)
+    # Padded in NumPy, stacked in NumPy, one transfer per leaf.
+    stacked = jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
+    if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated
+        one = pad_plans(plans[:1], shape.keys)
+        plan = jax.tree.map(lambda leaf: jax.device_put(np.repeat(leaf, len(plans), 0)), one)
+    else:
+        plan = pad_plans(plans, shape.keys)
+    return PaddedBatch(
+        problem=stacked,
+        plan=plan,
+        problems=problems,
+        n_free=np.array([p.n_unknowns() for p in problems]),
+        n_observations=np.array([p.n_observations() for p in problems]),
+    )
+
+
+def broadcast_plan(plan: LinearisationPlan, n: int) -> LinearisationPlan:
+    """`plan` repeated along a new leading batch axis of length `n`."""
+    return jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (n, *jnp.shape(leaf))), plan)
+
+
+def _take(tree, k: int):
+    return jax.tree.map(lambda leaf: leaf[k], tree)
+
+
+def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
+    return jax.tree.map(lambda leaf, ref: leaf[: np.shape(ref)[0]], padded, like)
+
+
+def _unpad_residuals(layout: list[tuple], problem: BundleProblem, flat) -> list:
+    """Split a flat padded residual vector (groups of (rows, k) as `layout`) into the real
+    rows of each group of `problem`."""
+    parts, start = [], 0
+    for shape, group in zip(layout, problem.groups):
+        size = int(np.prod(shape))
+        parts.append(flat[start:start + size].reshape(shape)[: np.shape(group.stddev)[0]])
+        start += size
+    return parts
+
+
