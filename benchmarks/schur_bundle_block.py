@@ -115,8 +115,8 @@ def synthetic_block(
 
 
 def main() -> None:
-    from jaxba._solvers._schur._bundle import bundle_structure
     from jaxba._solvers._schur._descent import _solve_schur
+    from jaxba._solvers._schur._structure import bundle_structure
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

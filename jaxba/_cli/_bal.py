@@ -24,8 +24,8 @@ from .._io._bal._reader import BalProblem, read_bal
 from .._problem._bundle import BundleProblem
 from .._report._atomic import replace_files
 from .._solvers._progress import Iteration, StepRecorder
-from .._solvers._schur._bundle import bundle_structure
 from .._solvers._schur._descent import solve_schur
+from .._solvers._schur._structure import bundle_structure
 from .._timing import CompileLog
 
 

@@ -25,9 +25,9 @@ from .._problem._bundle import BundleProblem
 from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters
 from .._solvers._dense import solve
-from .._solvers._schur._bundle import bundle_structure
 from .._solvers._schur._choice import use_schur
 from .._solvers._schur._descent import solve_schur
+from .._solvers._schur._structure import bundle_structure
 from .._solvers._solution import Solution
 from ._adjustment import Adjustment
 from ._covariance import Precision, precision

@@ -39,8 +39,8 @@ from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._dense import _residual_fn, column_scale
 from .._solvers._levenberg_marquardt import NormalLevenbergMarquardt
 from .._solvers._schur._adjoint import _stop_gradient, schur_adjusted
-from .._solvers._schur._bundle import BundleStructure, bundle_structure
 from .._solvers._schur._choice import SOLVERS, use_schur
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 
 
 def adjusted(
