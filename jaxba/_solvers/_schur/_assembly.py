@@ -105,13 +105,16 @@ def bundle_normal_equations(
         jacobian, residual = row_jacobians(problem, group, params)
         columns = row_columns(structure, group)
         reduced = jacobian * free_r[columns][:, None, :]
+        # One product over the row's k entries (`gram` writes the sum out, for the image
+        # blocks' k = 2): fewer operations in the program for these few rows.
         hessian = hessian.at[columns[:, :, None], columns[:, None, :]].add(
-            gram(reduced, reduced))
+            jnp.einsum("nka,nkb->nab", reduced, reduced))
         gradient = gradient.at[columns].add(transposed_product(reduced, residual))
         point = row_points(structure, group)
         if point is not None:  # a row on one eliminated point (control): V and g_e
             eliminated = jacobian * free_e[point][:, None, :]
-            point_hessian = point_hessian.at[point].add(gram(eliminated, eliminated))
+            point_hessian = point_hessian.at[point].add(
+                jnp.einsum("nka,nkb->nab", eliminated, eliminated))
             point_gradient = point_gradient.at[point].add(
                 transposed_product(eliminated, residual))
 
