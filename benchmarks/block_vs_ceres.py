@@ -112,8 +112,8 @@ def export_problem(project_file: pathlib.Path, path: pathlib.Path) -> None:
     jax.config.update("jax_enable_x64", True)
     import jaxba
     from jaxba._models._cameras import NoRefraction
+    from jaxba._problem._inner_constraints import InnerConstraints
     from jaxba._problem._observations import Distances, ImagePoints
-    from jaxba._statistics._free_network import InnerConstraints
 
     problem = jaxba.build_project(jaxba.read_project(project_file)).problem
     if list(problem.initial.cameras) != ["smac"] or problem.robust is not None:

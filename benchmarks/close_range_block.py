@@ -51,12 +51,10 @@ def _best_seconds(function, *args, repeat: int) -> tuple[float, float]:
 
 
 def main() -> None:
-    from jaxba._solvers._schur._bundle import (
-        bundle_normal_equations,
-        bundle_structure,
-        solve_bundle_damped,
-    )
+    from jaxba._solvers._schur._assembly import bundle_normal_equations
     from jaxba._solvers._schur._descent import Schur
+    from jaxba._solvers._schur._reduced_solve import solve_bundle_damped
+    from jaxba._solvers._schur._structure import bundle_structure
     from jaxba._solvers._solve import lower_solve
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 

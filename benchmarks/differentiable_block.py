@@ -39,7 +39,7 @@ from jaxba._solvers._schur._adjoint import (  # noqa: E402
     _optimality,
     gauss_newton_factor,
 )
-from jaxba._solvers._schur._bundle import bundle_structure  # noqa: E402
+from jaxba._solvers._schur._structure import bundle_structure  # noqa: E402
 from jaxba._statistics._differentiable import adjusted  # noqa: E402
 
 OBS_STEP = 1e-3  # mm, central-difference step of one image coordinate (~0.3 σ)

@@ -115,8 +115,8 @@ def synthetic_block(
 
 
 def main() -> None:
-    from jaxba._solvers._schur._bundle import bundle_structure
     from jaxba._solvers._schur._descent import Schur
+    from jaxba._solvers._schur._structure import bundle_structure
     from jaxba._solvers._solve import lower_solve
     from jaxba._solvers._trust_region import STEP_TOLERANCE
 

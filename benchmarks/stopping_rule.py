@@ -29,13 +29,11 @@ from blocks import write_block  # noqa: E402
 
 import jaxba  # noqa: E402
 from jaxba._solvers._backend import Tolerances  # noqa: E402
-from jaxba._solvers._schur._bundle import (  # noqa: E402
-    _reduced_vector,
-    bundle_normal_equations,
-    bundle_structure,
-    solve_bundle_damped,
-)
+from jaxba._solvers._schur._assembly import bundle_normal_equations  # noqa: E402
+from jaxba._solvers._schur._columns import reduced_vector  # noqa: E402
 from jaxba._solvers._schur._descent import Schur  # noqa: E402
+from jaxba._solvers._schur._reduced_solve import solve_bundle_damped  # noqa: E402
+from jaxba._solvers._schur._structure import bundle_structure  # noqa: E402
 from jaxba._solvers._steps import _init, _step  # noqa: E402
 from jaxba._statistics._schur_precision import schur_cofactors  # noqa: E402
 
@@ -62,7 +60,7 @@ def bound_table(problem, structure) -> None:
     iterates = damped_iterates(problem, structure, 12)
     cofactors = schur_cofactors(problem, iterates[-1][0], structure=structure)
     sigma0 = float(jnp.sqrt(cofactors.sigma0_squared))
-    std_r = _reduced_vector(structure, cofactors.std)
+    std_r = reduced_vector(structure, cofactors.std)
     std_e = cofactors.std.points[structure.eliminated_points]
 
     @jax.jit

@@ -42,7 +42,8 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
     "._statistics._differentiable": (
         "adjusted", "camera_positions", "covariance", "iop_trace_gradient", "sensitivity",
     ),
-    "._statistics._free_network": ("InnerConstraints", "inner_constraints"),
+    "._statistics._free_network": ("inner_constraints",),
+    "._problem._inner_constraints": ("InnerConstraints",),
     "._io": (
         "ColmapModel", "ColmapProject", "DbatProject", "ZhangProject", "read_colmap_model",
         "write_colmap", "write_colmap_project", "write_dbat_project",

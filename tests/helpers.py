@@ -9,12 +9,10 @@ from jax.flatten_util import ravel_pytree
 import jaxba
 from jaxba._problem._bundle import free_indices, observation_mask, params_from_free
 from jaxba._problem._observations import ParameterObservations
-from jaxba._solvers._schur._bundle import (
-    _to_parameters,
-    bundle_normal_equations,
-    solve_bundle_damped,
-)
+from jaxba._solvers._schur._assembly import bundle_normal_equations
+from jaxba._solvers._schur._columns import to_parameters
 from jaxba._solvers._schur._descent import bundle_predicted_reduction
+from jaxba._solvers._schur._reduced_solve import solve_bundle_damped
 
 # Tolerances, named where the tests use them.
 ROTATION_TOL = 1e-13  # elementwise agreement of two float64 rotation matrices / quaternions
@@ -103,7 +101,7 @@ def schur_damped_step(problem, structure, params, damping):
     reduction, as one program: run op by op, a step compiled ~500 small programs."""
     normal = bundle_normal_equations(problem, structure, params)
     x_r, x_e = solve_bundle_damped(structure, normal, damping)
-    step = _to_parameters(structure, params, x_r, x_e)
+    step = to_parameters(structure, params, x_r, x_e)
     return step, bundle_predicted_reduction(structure, normal, jax.tree.map(jnp.negative, step))
 
 

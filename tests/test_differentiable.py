@@ -13,7 +13,7 @@ import pytest
 import jaxba
 import jaxba._solvers._schur._choice
 from jaxba._problem._observations import ParameterObservations
-from jaxba._solvers._schur._bundle import bundle_structure
+from jaxba._solvers._schur._structure import bundle_structure
 from jaxba._statistics._differentiable import adjusted, iop_trace_gradient, sensitivity
 from jaxba.advanced import choose_backend
 

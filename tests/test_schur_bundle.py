@@ -1,4 +1,4 @@
-"""Schur-complement solve of photogrammetric bundles (`jaxba._solvers._schur._bundle`) against the
+"""Schur-complement solve of photogrammetric bundles (`jaxba._solvers._schur`) against the
 dense path: one damped step against the dense normal equations, the full solve against
 `jaxba.solve`, on synthetic self-calibration blocks (distances, GNSS/INS, control, fixed
 IOPs, robust loss)."""
@@ -18,12 +18,9 @@ import jaxba
 from jaxba._problem._bundle import free_indices
 from jaxba._problem._observations import AbstractObservationGroup
 from jaxba._problem._parameters import flatten
-from jaxba._solvers._schur._bundle import (
-    bundle_normal_equations,
-    bundle_structure,
-    zero_normal_equations,
-)
+from jaxba._solvers._schur._assembly import bundle_normal_equations, zero_normal_equations
 from jaxba._solvers._schur._normal import marquardt_diagonal
+from jaxba._solvers._schur._structure import bundle_structure
 from jaxba._statistics._backends import DenseBackend
 from jaxba._statistics._schur_precision import schur_cofactors
 from jaxba._statistics._schur_reliability import schur_redundancy_numbers
@@ -60,6 +57,24 @@ def _with_control_and_robust(problem):
     """Weighted control on 3 points (one of them also in a distance) and a Huber loss."""
     distances = next(g for g in problem.groups if isinstance(g, jaxba.Distances))
     return with_control_and_huber(problem, [int(distances.a[0]), 5, 9])
+
+
+def _with_camera_priors(problem):
+    """IOP priors (`ParameterObservations` on a camera block) on the first and third IOP of
+    every camera, 2 µm off the approximations, the others unobserved: rows of U's own."""
+    groups = []
+    for model, iops in problem.initial.cameras.items():
+        stddev = np.full(iops.shape, np.inf)
+        stddev[:, 0], stddev[:, 2] = 0.005, 0.01
+        groups.append(jaxba.ParameterObservations(
+            name=f"camera_priors:{model}", block=f"cameras/{model}",
+            rows=jnp.arange(iops.shape[0]), observed=iops + 0.002, stddev=jnp.asarray(stddev)))
+    return eqx.tree_at(lambda p: p.groups, problem, (*problem.groups, *groups))
+
+
+def _variant(problem, variant):
+    return {"plain": lambda p: p, "control_robust": _with_control_and_robust,
+            "camera_priors": _with_camera_priors}[variant](problem)
 
 
 def test_structure_splits_distance_points(block):
@@ -103,10 +118,10 @@ def test_unknown_group_is_rejected(block):
         bundle_structure(problem)
 
 
-@pytest.mark.parametrize("variant", ["plain", "control_robust"])
+@pytest.mark.parametrize("variant", ["plain", "control_robust", "camera_priors"])
 @pytest.mark.parametrize("damping", [1e-3, 1.0])
 def test_damped_step_matches_dense_normal_equations(block, variant, damping):
-    problem = block if variant == "plain" else _with_control_and_robust(block)
+    problem = _variant(block, variant)
     params = problem.initial
     structure = bundle_structure(problem, pair_batch=64)  # several chunks of pairs
     all_steps, predicted = schur_damped_step(problem, structure, params, jnp.asarray(damping))
@@ -197,11 +212,12 @@ def test_cofactors_match_dense_precision(block, plain_solution, pairwise):
 
 
 @pytest.mark.parametrize("pairwise", [True, False])
-@pytest.mark.parametrize("variant", ["plain", "control_robust"])
+@pytest.mark.parametrize("variant", ["plain", "control_robust", "camera_priors"])
 def test_redundancy_numbers_match_dense(block, variant, pairwise):
     """r_i = 1 - j N⁻¹ jᵀ from the Schur blocks equals the dense computation for every real
-    observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances."""
-    problem = block if variant == "plain" else _with_control_and_robust(block)
+    observation: image points (two cameras, a Huber loss), GNSS/INS EOPs, control, distances,
+    IOP priors."""
+    problem = _variant(block, variant)
     flat, unravel = ravel_pytree(problem.initial)
     perturbation = np.random.default_rng(7).normal(size=flat.size) * 1e-4
     params = unravel(flat + jnp.where(flatten(problem.free), perturbation, 0.0))

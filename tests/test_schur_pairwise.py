@@ -1,6 +1,6 @@
-"""The pair-wise reduced camera matrix of photogrammetric bundles (`jaxba._solvers._schur._bundle`)
-against the dense normal equations: S = N_rr - N_re N_ee⁻¹ N_er, and one damped step when
-the cameras of one model free different IOPs."""
+"""The pair-wise reduced camera matrix of photogrammetric bundles
+(`jaxba._solvers._schur._assembly`) against the dense normal equations: S = N_rr - N_re
+N_ee⁻¹ N_er, and one damped step when the cameras of one model free different IOPs."""
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -11,14 +11,10 @@ from helpers import jacfwd_jacobian, schur_damped_step
 import jaxba
 from jaxba._problem._bundle import free_indices
 from jaxba._problem._parameters import flatten, unflatten
-from jaxba._solvers._schur._bundle import (
-    _reduced_positions,
-    _schur_complement,
-    _small_inverse,
-    bundle_normal_equations,
-    bundle_structure,
-)
-from jaxba._solvers._schur._normal import marquardt_diagonal
+from jaxba._solvers._schur._assembly import bundle_normal_equations, schur_complement
+from jaxba._solvers._schur._columns import reduced_positions
+from jaxba._solvers._schur._normal import marquardt_diagonal, small_inverse
+from jaxba._solvers._schur._structure import bundle_structure
 
 RTOL = 1e-9  # Schur blocks vs dense normal equations (float64)
 
@@ -44,7 +40,7 @@ def _reduced_camera_matrix(problem, structure):
     """S = N_rr - N_re N_ee⁻¹ N_er at the approximations, as one program (op by op it compiled
     ~500 small programs)."""
     normal = bundle_normal_equations(problem, structure, problem.initial)
-    product, _ = _schur_complement(structure, normal, _small_inverse(normal.point_hessian))
+    product, _ = schur_complement(structure, normal, small_inverse(normal.point_hessian))
     return normal.reduced_hessian + product
 
 
@@ -55,7 +51,7 @@ def test_schur_complement_matches_dense(block):
     hessian, index = _dense_normal(block)
     row_of = np.full(flatten(block.initial).size, -1)
     row_of[index] = np.arange(index.size)
-    rows = row_of[_reduced_positions(block, structure)]
+    rows = row_of[reduced_positions(block, structure)]
     free = rows >= 0
     r = rows[free]
     e = np.setdiff1d(np.arange(index.size), r)

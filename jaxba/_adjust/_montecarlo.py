@@ -33,7 +33,6 @@ from jaxtyping import Array, PRNGKeyArray
 from .._dask import executor
 from .._problem._bundle import BundleProblem
 from .._problem._linearisation import linearisation_plan
-from .._problem._observations import ImagePoints
 from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._solution import Solution
 from ._adjust import adjust
@@ -59,7 +58,7 @@ class Replicates:
 
 
 def _image_groups(problem: BundleProblem) -> list[int]:
-    return [k for k, g in enumerate(problem.groups) if isinstance(g, ImagePoints)]
+    return [k for k, g in enumerate(problem.groups) if g.kind() == "image_points"]
 
 
 def _computed(problem: BundleProblem, params: Parameters, k: int) -> Array:

@@ -25,8 +25,8 @@ from .._io._bal._model import bal_bundle
 from .._io._bal._reader import BalProblem, read_bal
 from .._problem._bundle import BundleProblem
 from .._solvers._progress import Iteration, StepRecorder
-from .._solvers._schur._bundle import bundle_structure
 from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import bundle_structure
 from .._solvers._solve import solve
 from .._timing import CompileLog
 

@@ -28,12 +28,12 @@ class AbstractObservationGroup(eqx.Module):
     σ = inf marks an entry that is not an observation (an unobserved coordinate, or a
     measurement removed as a blunder): it is whitened to 0 and counted nowhere.
 
-    A row-local group (every group here but the inner constraints) says which unknowns
-    each row depends on (`local_values`) and computes one row from them
-    (`row_residual`); `residuals` vmaps that row function and `row_jacobians`
-    differentiates it (reverse mode: k outputs, few inputs). `ImagePoints` overrides
-    both, to make each image's pose frame once rather than once per row. A group that
-    is not row-local overrides `residuals` and leaves `local_values` None.
+    A row-local group (every group but the inner constraints) says which parameter
+    blocks each row depends on (`row_blocks`; `local_values` gathers their values) and
+    computes one row from them (`row_residual`); `residuals` vmaps that row function and
+    `row_jacobians` differentiates it (reverse mode: k outputs, few inputs). `ImagePoints`
+    overrides both, to make each image's pose frame once rather than once per row. A
+    group that is not row-local overrides `residuals` and has no `row_blocks`.
     """
 
     name: eqx.AbstractVar[str]
@@ -51,12 +51,26 @@ class AbstractObservationGroup(eqx.Module):
         del positions
         return np.zeros(0, dtype=int)
 
+    def row_blocks(self) -> tuple[tuple[str, Int[Array, " n"]], ...]:
+        """The parameter blocks every row depends on, as (block, index) pairs: row i reads
+        row index[i] (index (n,)) of the block ("cameras/<model>", "images", "mounts" or
+        "points"), in the order of `local_values`' columns; () where rows may depend on any
+        unknown (not row-local). This is how a group contributes to the normal equations:
+        the dense backend places its rows' Jacobian blocks at these blocks' positions
+        (`local_values` of flat positions); the Schur split eliminates the point of an
+        image point's row and keeps on the reduced side a point that a row of another
+        group couples with further unknowns (a distance's two points)."""
+        return ()
+
     def local_values(self, params: Parameters) -> Array | None:
-        """(n, width): the values of the unknowns row i depends on, taken from `params`
-        by indexing only (so a Parameters of flat positions gives their positions).
-        None: rows may depend on any unknown."""
-        del params
-        return None
+        """(n, width): the values of the unknowns row i depends on (`row_blocks`' rows, side
+        by side), taken from `params` by indexing only (so a Parameters of flat positions
+        gives their positions). None: rows may depend on any unknown."""
+        blocks = self.row_blocks()
+        if not blocks:
+            return None
+        return jnp.concatenate([jnp.asarray(params.block(block))[index]
+                                for block, index in blocks], axis=1)
 
     def row_residual(self, values: Array, row: Array, refraction: AbstractRefraction) -> Array:
         """Whitened residual (k,) of row `row` from its unknowns `values` (width,)."""
@@ -272,18 +286,13 @@ class ImagePoints(AbstractObservationGroup):
                     ("point", "points", self.point))
         return ("image", "images", self.image), ("point", "points", self.point)
 
-    def local_values(self, params: Parameters) -> Float[Array, "n width"]:
-        """IOPs of the camera, pose parameters of the image (or frame, then mount), XYZ of
-        the point (then kx, ky of its board where the group has `board`), per row."""
-        mount = [] if self.mount is None else [jnp.asarray(params.mounts)[self.mount]]
-        warp = [] if self.board is None else [jnp.asarray(params.warp)[self.board]]
-        return jnp.concatenate([
-            jnp.asarray(params.cameras[self.model])[self.camera],
-            jnp.asarray(params.images)[self.image],
-            *mount,
-            jnp.asarray(params.points)[self.point],
-            *warp,
-        ], axis=1)
+    def row_blocks(self) -> tuple[tuple[str, Int[Array, " n"]], ...]:
+        """The camera's IOPs, the image's (or frame's, then the mount's) pose parameters,
+        the point's XYZ (then kx, ky of its board where the group has `board`)."""
+        mount = () if self.mount is None else (("mounts", self.mount),)
+        warp = () if self.board is None else (("warp", self.board),)
+        return ((f"cameras/{self.model}", self.camera), ("images", self.image), *mount,
+                ("points", self.point), *warp)
 
     def _points(self, params: Parameters) -> Float[Array, "n 3"]:
         """Every row's object point, moved by its board's warp where the group has one."""
@@ -302,7 +311,7 @@ class ImagePoints(AbstractObservationGroup):
         if self.mount is not None:
             mounts = image_frames(pose, jnp.asarray(params.mounts))
             frames = ComposedPose(frames, jax.tree.map(lambda x: x[self.mount], mounts))
-        return jax.vmap(self._row_residual, in_axes=(0, 0, 0, 0, 0, None))(
+        return jax.vmap(self.frame_residual, in_axes=(0, 0, 0, 0, 0, None))(
             jnp.asarray(params.cameras[self.model])[self.camera], frames,
             self._points(params), self.measured, self.stddev, refraction)
 
@@ -323,7 +332,7 @@ class ImagePoints(AbstractObservationGroup):
             frame = row_pose(pose, pose_inputs, delta, self.mount is not None)
             if shape is not None:
                 point = warped_point(point, warp, shape)
-            e = self._row_residual(iop, frame, point, measured, sigma, refraction)
+            e = self.frame_residual(iop, frame, point, measured, sigma, refraction)
             return e, e
 
         warped = self.board is not None
@@ -339,7 +348,9 @@ class ImagePoints(AbstractObservationGroup):
             shape)
         return residuals, jnp.concatenate(blocks, axis=2)
 
-    def _row_residual(self, iop, frame, point, measured, sigma, refraction):
+    def frame_residual(self, iop, frame, point, measured, sigma, refraction) -> Vector2:
+        """Whitened residual (2,) of one row from its camera's IOPs, its image's frame
+        (`AbstractPose.frame`, or a `ComposedPose`), its point, measurement and σ."""
         return _frame_collinearity_residual(
             self.model, iop, frame, point, measured, sigma, refraction, self.constants)
 
@@ -374,9 +385,9 @@ class ParameterObservations(AbstractObservationGroup):
             self.block, "camera")
         return ((label, self.block, self.rows),)
 
-    def local_values(self, params: Parameters) -> Float[Array, "n k"]:
-        """The observed block row of every row."""
-        return jnp.asarray(params.block(self.block))[self.rows]
+    def row_blocks(self) -> tuple[tuple[str, Int[Array, " n"]], ...]:
+        """The observed row of the block."""
+        return ((self.block, self.rows),)
 
     def row_residual(self, values, row, refraction) -> Float[Array, " k"]:
         del refraction
@@ -406,10 +417,9 @@ class Distances(AbstractObservationGroup):
     def row_references(self) -> tuple[tuple[str, str, Int[Array, " n"]], ...]:
         return ("point_a", "points", self.a), ("point_b", "points", self.b)
 
-    def local_values(self, params: Parameters) -> Float[Array, "n 6"]:
-        """XYZ of both end points of every distance."""
-        points = jnp.asarray(params.points)
-        return jnp.concatenate([points[self.a], points[self.b]], axis=1)
+    def row_blocks(self) -> tuple[tuple[str, Int[Array, " n"]], ...]:
+        """Both end points."""
+        return ("points", self.a), ("points", self.b)
 
     def row_residual(self, values, row, refraction) -> Float[Array, " 1"]:
         del refraction

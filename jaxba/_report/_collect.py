@@ -19,7 +19,7 @@ import numpy as np
 
 from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
-from .._problem._observations import ImagePoints, named_parts, part_name
+from .._problem._observations import named_parts, part_name
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
@@ -396,7 +396,7 @@ def other_observations(project: Project, result: Adjustment) -> list[ScalarObser
     """
     observations = []
     for stats in group_statistics(project, result):
-        if isinstance(stats.group, ImagePoints) or not is_measurement(stats.group):
+        if stats.kind == "image_points" or not is_measurement(stats.group):
             continue
         rows, coordinates = np.nonzero(stats.observed)
         v = stats.v[rows, coordinates]

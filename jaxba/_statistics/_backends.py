@@ -25,8 +25,8 @@ from .._problem._bundle import BundleProblem
 from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters
 from .._solvers._dense import Dense
-from .._solvers._schur._bundle import bundle_structure
 from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import bundle_structure
 from .._solvers._solution import Solution
 from .._solvers._solve import choose_backend, solve
 from ._adjustment import Adjustment

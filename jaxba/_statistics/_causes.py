@@ -11,7 +11,6 @@ import numpy as np
 
 from .._models._poses import POSE_MODELS
 from .._problem._bundle import BundleProblem
-from .._problem._observations import ImagePoints
 from .._problem._parameters import flatten, unflatten
 
 # Rays to a point that all lie within this angle of each other (degrees, an upper bound of
@@ -54,7 +53,7 @@ def _image_rows(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
     """(image, point) of every real image observation (rows with a finite σ)."""
     images, points = [np.zeros(0, int)], [np.zeros(0, int)]
     for group in problem.groups:
-        if isinstance(group, ImagePoints):
+        if group.kind() == "image_points":
             real = np.asarray(group.mask()).any(axis=1)
             images.append(np.asarray(group.image)[real])
             points.append(np.asarray(group.point)[real])
@@ -64,12 +63,11 @@ def _image_rows(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
 def _unconstrained_points(problem: BundleProblem) -> np.ndarray:
     """(n_points,) True for points with three free coordinates and no control observation:
     those that only rays can determine."""
-    free = np.asarray(problem.free.points).all(axis=1)
-    for group in problem.groups:
-        if getattr(group, "block", None) == "points":
-            rows = np.asarray(group.rows)[np.asarray(group.mask()).any(axis=1)]
-            free[rows] = False
-    return free
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    observed = np.concatenate([np.zeros(0, int)] + [
+        group.prior_positions(positions) for group in problem.groups])
+    controlled = np.isin(np.asarray(positions.points), observed).any(axis=1)
+    return np.asarray(problem.free.points).all(axis=1) & ~controlled
 
 
 def intersection_cause(
@@ -149,7 +147,7 @@ def nonfinite_observations(problem: BundleProblem, whitened, labels: list[str]) 
     for group, e in zip(problem.groups, whitened):
         bad = np.flatnonzero(~np.isfinite(np.asarray(e)).all(axis=1)
                              & np.asarray(group.mask()).any(axis=1))
-        if isinstance(group, ImagePoints):
+        if group.kind() == "image_points":
             image, point = np.asarray(group.image), np.asarray(group.point)
             named += [f"image {image_ids[image[k]]} point {point_ids[point[k]]}" for k in bad]
         else:
@@ -197,7 +195,7 @@ def divergence_cause(
     image_ids, _ = entity_ids(problem, labels)
     squares, counts = np.zeros(len(image_ids)), np.zeros(len(image_ids))
     for group, e in zip(problem.groups, whitened):
-        if isinstance(group, ImagePoints):
+        if group.kind() == "image_points":
             mask = np.asarray(group.mask())
             e = np.where(mask, np.asarray(e), 0.0)
             np.add.at(squares, np.asarray(group.image), np.sum(e**2, axis=1))

@@ -11,7 +11,6 @@ from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices, tie_source
 from .._problem._linearisation import dense_jacobian
-from .._problem._observations import ParameterObservations
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from ._causes import intersection_cause, nonfinite_observations
 
@@ -238,21 +237,20 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
     solve from there collapses, e.g. to c = 0, K0 = 1)."""
     # A tied parameter is as free as its source (`BundleProblem.ties`).
     estimated = unflatten(problem.free, flatten(problem.free)[tie_source(problem)])
+    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    priors = np.concatenate([np.zeros(0, int)] + [  # the unknowns with a prior
+        group.prior_positions(positions) for group in problem.groups])
     for model, free in estimated.cameras.items():
         pairs = INSEPARABLE_PARAMETERS.get(lens_model(model), ())
         if not pairs:
             continue
         free = np.asarray(free, dtype=bool)
-        prior = np.zeros_like(free)
-        for group in problem.groups:
-            if isinstance(group, ParameterObservations) and group.block == f"cameras/{model}":
-                prior[np.asarray(group.rows)] |= np.isfinite(np.asarray(group.stddev))
+        prior = np.isin(np.asarray(positions.cameras[model]), priors)
         names = CAMERA_MODELS[model].parameter_names
         for a, b, reason in pairs:
             ia, ib = names.index(a), names.index(b)
             both = free[:, ia] & free[:, ib] & ~prior[:, ia] & ~prior[:, ib]
             for row in np.flatnonzero(both):
-                positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
                 camera = labels[int(np.asarray(positions.cameras[model])[row, ia])]
                 camera = camera.removesuffix(f" {a}")
                 raise DatumError(

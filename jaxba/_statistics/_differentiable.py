@@ -38,8 +38,8 @@ from .._problem._linearisation import LinearisationPlan, linearisation_plan
 from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._dense import Dense, cofactors
 from .._solvers._schur._adjoint import schur_adjusted
-from .._solvers._schur._bundle import BundleStructure, bundle_structure
 from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 from .._solvers._solve import choose_backend, solve
 
 

@@ -24,7 +24,6 @@ Q_i = S Q_m Sᵀ, S = I - G (C G)⁻¹ C, G the null space at the solution, C th
 Gauge-invariant quantities (residuals, σ̂0, redundancy numbers) need no transformation.
 """
 
-from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -33,12 +32,12 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float
 
-from .._models._cameras import AbstractRefraction
 from .._problem._bundle import BundleProblem, free_indices
+from .._problem._inner_constraints import InnerConstraints
 from .._problem._linearisation import column_norms
-from .._problem._observations import AbstractObservationGroup
 from .._problem._parameters import Parameters, flatten, unflatten
-from .._solvers._schur._bundle import BundleStructure, bundle_structure, schur_solve
+from .._solvers._schur._reduced_solve import schur_solve
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 from ._covariance import Precision, SchurCovariance, with_ties
 from ._datum import DatumError, network_centre, similarity_directions, similarity_transform
 from ._schur_reliability import schur_precision_and_redundancy, schur_redundancy_numbers
@@ -54,34 +53,12 @@ NEWTON_STEPS = 8
 RANK_RTOL = 1e-6
 
 
-class InnerConstraints(AbstractObservationGroup):
-    """d constraints Bᵀ (x - x₀) = 0 on the flattened unknowns (`flatten` order).
-
-    `directions` (d, n_all) holds the rows of Bᵀ, `reference` (n_all,) x₀; `similarity`
-    (7, d) the unobservable similarity motions (their coefficients in
-    `similarity_transform`'s (t, a, s)), `centre` (3,) the similarity's fixed point, `pose`
-    the images' pose model (how the similarity turns them).
-    """
-
-    directions: Float[Array, "d n_all"]
-    reference: Float[Array, " n_all"]
-    stddev: Float[Array, "d 1"]
-    similarity: Float[Array, "7 d"]
-    centre: Float[Array, " 3"]
-    name: str = eqx.field(static=True, default="inner_constraints")
-    pose: str = eqx.field(static=True, default="opk")
-    constraint: ClassVar[bool] = True
-
-    def residuals(self, params: Parameters, refraction: AbstractRefraction) -> Array:
-        del refraction
-        flat = ravel_pytree(params)[0]
-        return -(self.directions @ (flat - self.reference))[:, None] / self.stddev
-
-    def null_space(self, params: Parameters, free: Parameters) -> Float[np.ndarray, "d n_all"]:
-        """The unobservable directions at `params` (rows, `flatten` positions), 0 on the
-        fixed unknowns of `free`."""
-        motions = similarity_directions(params, self.centre, pose=self.pose)
-        return np.asarray(self.similarity).T @ motions * flatten(free)
+def constraint_null_space(group: InnerConstraints, params: Parameters, free: Parameters
+                          ) -> Float[np.ndarray, "d n_all"]:
+    """The unobservable directions of the inner constraints `group` at `params` (rows,
+    `flatten` positions), 0 on the fixed unknowns of `free`."""
+    motions = similarity_directions(params, group.centre, pose=group.pose)
+    return np.asarray(group.similarity).T @ motions * flatten(free)
 
 
 @eqx.filter_jit
@@ -165,9 +142,9 @@ def inner_constraints(
 
 
 def inner_constraint_group(problem: BundleProblem) -> InnerConstraints | None:
-    """The free network's inner constraints (the last group), or None for a bundle with a
-    datum."""
-    found = [k for k, group in enumerate(problem.groups) if isinstance(group, InnerConstraints)]
+    """The free network's inner constraints (the last group, the one whose rows are
+    constraints), or None for a bundle with a datum."""
+    found = [k for k, group in enumerate(problem.groups) if group.constraint]
     if not found:
         return None
     if found != [len(problem.groups) - 1]:
@@ -183,7 +160,8 @@ def minimal_constraints(problem: BundleProblem, params: Parameters) -> BundlePro
     network's up to the similarity `to_inner_datum` removes."""
     group = inner_constraint_group(problem)
     free = flatten(problem.free).copy()
-    free[minimal_datum(problem, group.null_space(problem.initial, problem.free))] = False
+    null = constraint_null_space(group, problem.initial, problem.free)
+    free[minimal_datum(problem, null)] = False
     return eqx.tree_at(
         lambda p: (p.initial, p.free, p.groups), problem,
         (params, jax.tree.map(jnp.asarray, unflatten(problem.free, free)), problem.groups[:-1]))
@@ -267,7 +245,7 @@ def free_network_precision(
     # With the redundancy numbers (gauge invariant: from the minimal datum) in one program.
     base = schur_precision_and_redundancy(minimal, params, sigma0=sigma0, structure=structure)
     variance_factor = base.sigma0_squared / sigma0**2
-    null = group.null_space(params, problem.free)  # G (d, n_all)
+    null = constraint_null_space(group, params, problem.free)  # G (d, n_all)
     constraint = np.asarray(group.directions)  # C
     projector = np.linalg.solve(constraint @ null.T, constraint)  # P (d, n_all)
     k = variance_factor * schur_solve(minimal, params, projector, structure=structure)

@@ -15,9 +15,10 @@ import jax
 import numpy as np
 
 from .._problem._bundle import BundleProblem
+from .._problem._inner_constraints import InnerConstraints
 from .._problem._parameters import Parameters, flatten, unflatten
 from ._datum import network_centre
-from ._free_network import InnerConstraints, _inner_datum
+from ._free_network import _inner_datum
 
 
 def released(problem: BundleProblem) -> tuple[BundleProblem, Parameters]:

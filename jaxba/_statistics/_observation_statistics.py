@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._problem._observations import AbstractObservationGroup, ImagePoints, part_names
+from .._problem._observations import AbstractObservationGroup, part_names
 from ._ids import Ids
 
 
@@ -175,7 +175,7 @@ def group_statistics(result) -> list[GroupStatistics]:
 def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
     """The image points of `group_statistics`, one row per measured point (removed ones
     included), sorted by image."""
-    parts = [(k, s) for k, s in enumerate(statistics) if isinstance(s.group, ImagePoints)]
+    parts = [(k, s) for k, s in enumerate(statistics) if s.kind == "image_points"]
 
     def stack(get, shape=(0,)):
         return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])

@@ -81,7 +81,7 @@ def camera_ref(result, camera_id) -> CameraRef:
         if camera_id in ids:
             row = list(ids).index(camera_id)
             groups = tuple(k for k, g in enumerate(result.problem.groups)
-                           if isinstance(g, ImagePoints) and g.model == model)
+                           if g.kind() == "image_points" and g.model == model)
             constants = result.problem.groups[groups[0]].constants if groups else ()
             return CameraRef(camera_id, model, row, constants, groups)
     known = [i for ids in result._ids.cameras.values() for i in ids]

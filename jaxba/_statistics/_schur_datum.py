@@ -16,12 +16,9 @@ import numpy as np
 
 from .._problem._bundle import BundleProblem, free_indices
 from .._problem._parameters import flatten, parameter_labels, unflatten
-from .._solvers._schur._bundle import (
-    BundleStructure,
-    _reduced_positions,
-    bundle_structure,
-    compiled_normal_equations,
-)
+from .._solvers._schur._assembly import compiled_normal_equations
+from .._solvers._schur._columns import reduced_positions
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 from ._datum import check_columns, describe_defect
 
 EIGENVALUE_RTOL = 1e-12
@@ -44,7 +41,7 @@ def check_datum_schur(
     row_of = np.full(n_all, -1)
     row_of[index] = np.arange(index.size)
     positions = unflatten(problem.initial, np.arange(n_all))
-    reduced_rows = row_of[_reduced_positions(problem, structure)]
+    reduced_rows = row_of[reduced_positions(problem, structure)]
     point_rows = row_of[np.asarray(positions.points)[np.asarray(structure.eliminated_points)]]
     reduced_free, point_free = reduced_rows >= 0, point_rows >= 0
 

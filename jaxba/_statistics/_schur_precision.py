@@ -9,17 +9,14 @@ from jaxtyping import Array, Float
 
 from .._problem._bundle import BundleProblem, free_indices
 from .._problem._parameters import Parameters
-from .._solvers._schur._bundle import (
+from .._solvers._schur._assembly import (
     BundleNormalEquations,
-    BundleStructure,
-    _reduced_positions,
-    _reduced_vector,
-    _schur_complement,
-    _to_parameters,
-    bundle_structure,
     compiled_normal_equations,
+    schur_complement,
 )
-from .._solvers._schur._normal import _matmul, point_inverse, singular_points
+from .._solvers._schur._columns import reduced_positions, reduced_vector, to_parameters
+from .._solvers._schur._normal import matmul, point_inverse, singular_points
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 from ._covariance import Precision, SchurCovariance, with_ties
 
 
@@ -102,7 +99,7 @@ def _precision_from_cofactors(
         covariance=None,
         std=jax.tree.map(np.asarray, cofactors.std),
         schur=SchurCovariance(
-            reduced_positions=_reduced_positions(problem, structure),
+            reduced_positions=reduced_positions(problem, structure),
             reduced=variance_factor * np.asarray(cofactors.reduced),
             points=variance_factor * np.asarray(cofactors.points),
             redundancy=redundancy,
@@ -124,12 +121,12 @@ def _reduced_cofactor(problem, structure, normal, reduced, inverse) -> tuple[Arr
     (`singular_points`) its pseudo-inverse (`point_inverse`) instead, and S formed again
     with it."""
     dtype = reduced.dtype
-    free_r = _reduced_vector(structure, problem.free).astype(dtype)
+    free_r = reduced_vector(structure, problem.free).astype(dtype)
     singular = singular_points(normal.point_hessian)
     inverse = jnp.where(singular[:, None, None], point_inverse(normal.point_hessian), inverse)
     reduced = jax.lax.cond(
         singular.any(),
-        lambda: normal.reduced_hessian + _schur_complement(structure, normal, inverse)[0],
+        lambda: normal.reduced_hessian + schur_complement(structure, normal, inverse)[0],
         lambda: reduced)
     factor = jax.scipy.linalg.cho_factor(reduced, lower=True)
     cofactor = jax.scipy.linalg.cho_solve(factor, jnp.diag(free_r)) * free_r[:, None]
@@ -209,7 +206,7 @@ def _pairwise_cofactors(
     first = structure.key_columns[structure.key_pairs[:, 0], :k]
     second = structure.key_columns[structure.key_pairs[:, 1], :k]
     blocks = padded[first[:, :, None], second[:, None, :]]  # S⁻¹[c_i, c_j] per key pair
-    t = _matmul(inverse[structure.image_point], normal.coupling[:, :, :k])  # t_iᵀ (n, 3, k)
+    t = matmul(inverse[structure.image_point], normal.coupling[:, :, :k])  # t_iᵀ (n, 3, k)
 
     def accumulate(total, chunk):
         first, second, block = chunk  # (rows, row_size), (rows, row_size), (rows,)
@@ -226,7 +223,7 @@ def _pairwise_cofactors(
                         (structure.pair_first, structure.pair_second, structure.pair_block))
     n_e1 = inverse.shape[0]
     points = inverse + jax.ops.segment_sum(
-        _matmul(t, g.transpose(0, 2, 1)), structure.image_point, n_e1)
+        matmul(t, g.transpose(0, 2, 1)), structure.image_point, n_e1)
     return g, points
 
 
@@ -266,5 +263,5 @@ def _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, r
     reduced_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(cofactor), 0.0))
     point_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(points, axis1=1, axis2=2), 0.0))
     eliminated_std = point_std[structure.eliminated_points]
-    std = _to_parameters(structure, problem.initial, reduced_std, eliminated_std)
+    std = to_parameters(structure, problem.initial, reduced_std, eliminated_std)
     return BundleCofactors(cofactor, points, sigma0_squared, std)

@@ -10,30 +10,24 @@ eliminated point p),
 Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
 observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
 3 x 3 cofactor block; a needs only G_p's rows at its own columns, which, as Q_pp, are sums
-over the pairs of observations of the point (`_precision._observation_cofactors`). Direct
-observations of unknowns (control, GNSS/INS, IOP priors) need one diagonal cofactor each;
-distances the 6 x 6 block of their two (reduced) points.
+over the pairs of observations of the point (`_precision._observation_cofactors`). The rows
+of the other groups need the cofactor block among their own unknowns (`row_blocks`): one
+point's 3 x 3 block for control, S⁻¹ at a few reduced columns otherwise (GNSS/INS and IOP
+priors, a distance's two reduced points).
 """
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array
 
 from .._problem._bundle import BundleProblem, observation_mask
-from .._problem._observations import Distances, ImagePoints, ParameterObservations
 from .._problem._parameters import Parameters
-from .._solvers._schur._bundle import (
-    BundleStructure,
-    _block_columns,
-    _distance_columns,
-    _distance_jacobians,
-    _free_masks,
-    _image_blocks,
-    bundle_structure,
-    compiled_normal_equations,
-)
+from .._solvers._schur._assembly import compiled_normal_equations
+from .._solvers._schur._columns import free_masks, row_columns, row_points
+from .._solvers._schur._jacobians import image_blocks, row_jacobians
+from .._solvers._schur._structure import BundleStructure, bundle_structure
 from ._covariance import Precision
 from ._schur_precision import (
     _bundle_cofactors,
@@ -126,30 +120,36 @@ def _leverages(problem, structure, params, normal, reduced, point_inverse):
     `normal`, `reduced` S and `point_inverse` V⁻¹ at `params`: `compiled_normal_equations`'s."""
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
-    jr, je, _ = _image_blocks(problem, structure, params,
-                              *_free_masks(problem, structure, dtype))
+    free_r, free_e = free_masks(problem, structure, dtype)
+    jr, je, _ = image_blocks(problem, structure, params, free_r, free_e)
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
     point_cofactors = _point_cofactors(problem, structure, cofactor,
                                        no_sigma(normal, eliminated))
 
-    full = problem.with_free(params)
-    residuals = problem.residuals(full)
-    free_r, _ = _free_masks(problem, structure, dtype)
+    residuals = problem.residuals(problem.with_free(params))
+    padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
+    eliminated_cofactors = jnp.concatenate([point_cofactors[structure.eliminated_points],
+                                            jnp.zeros((1, 3, 3), dtype)])
     leverages, start = [], 0
     for group in problem.groups:
-        if isinstance(group, ImagePoints):
+        if group.kind() == "image_points":
             stop = start + group.point.shape[0]
             leverages.append(image[start:stop])
             start = stop
-        elif isinstance(group, ParameterObservations):
-            leverages.append(_direct_leverages(structure, group, cofactor, point_cofactors))
-        elif isinstance(group, Distances):
-            jd, _ = _distance_jacobians(problem, group, full)
-            columns = _distance_columns(structure, group)
-            jd = jd * free_r[columns][:, None, :]
-            block = cofactor[columns[:, :, None], columns[:, None, :]]
-            leverages.append(jnp.einsum("nka,nab,nkb->nk", jd, block, jd))
+            continue
+        # A row over a few unknowns: j Q jᵀ with Q the cofactor block among them.
+        jacobian, _ = row_jacobians(problem, group, params)
+        columns = row_columns(structure, group)
+        reduced = jacobian * free_r[columns][:, None, :]
+        block = padded[columns[:, :, None], columns[:, None, :]]
+        leverage = jnp.einsum("nka,nab,nkb->nk", reduced, block, reduced)
+        point = row_points(structure, group)
+        if point is not None:  # on one eliminated point: its 3 x 3 block
+            eliminated = jacobian * free_e[point][:, None, :]
+            leverage = leverage + jnp.einsum("nka,nab,nkb->nk", eliminated,
+                                             eliminated_cofactors[point], eliminated)
+        leverages.append(leverage)
     return leverages, residuals, (cofactor, point_cofactors)
 
 
@@ -173,13 +173,3 @@ def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Arra
               for c in range(3))
     leverage = leverage + jnp.sum((b_q - 2.0 * a_g) * je, axis=2)
     return leverage[:-1], point_blocks
-
-
-def _direct_leverages(structure, group, cofactor, point_cofactors) -> Float[Array, "n k"]:
-    """Q_jj / σ² of direct observations of unknowns (whitened row -1/σ on one unknown)."""
-    rows = jnp.asarray(group.rows)
-    if group.block == "points":
-        variance = jnp.diagonal(point_cofactors[rows], axis1=1, axis2=2)
-    else:
-        variance = jnp.diagonal(cofactor)[_block_columns(structure, group)]
-    return jnp.where(group.mask(), variance / group.stddev**2, 0.0)

@@ -11,7 +11,7 @@ import numpy as np
 
 from .._problem._observations import part_name
 from .._problem._parameters import flatten, unflatten
-from ._free_network import InnerConstraints
+from ._free_network import inner_constraint_group
 from ._ids import Ids
 from ._observation_statistics import (
     describe,
@@ -81,7 +81,7 @@ def datum_description(problem) -> str:
     points" or "control: 3 control points (6 fixed, 0 weighted coordinates), 4 distances"."""
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
     point_positions = np.asarray(positions.points)
-    inner = next((g for g in problem.groups if isinstance(g, InnerConstraints)), None)
+    inner = inner_constraint_group(problem)
     if inner is not None:
         touched = np.asarray(inner.directions)[:, point_positions.ravel()] != 0
         n_points = int(touched.any(axis=0).reshape(-1, 3).any(axis=1).sum())

@@ -46,18 +46,11 @@ from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
 from .._solve import solve
 from .._trust_region import STEP_TOLERANCE
-from ._bundle import (
-    BundleStructure,
-    _add_at_columns,
-    _at_columns,
-    _free_masks,
-    _reduced_vector,
-    _schur_complement,
-    _to_parameters,
-    bundle_normal_equations,
-)
+from ._assembly import bundle_normal_equations, schur_complement
+from ._columns import add_at_columns, at_columns, free_masks, reduced_vector, to_parameters
 from ._descent import Schur, bundle_residuals
-from ._normal import _matvec, _small_inverse
+from ._normal import matvec, small_inverse
+from ._structure import BundleStructure
 
 # ‖r‖_N⁻¹ ≤ CG_RTOL ‖b‖_N⁻¹: the adjoint's solution to ~1e-10 of its size in N's metric,
 # far below the 1e-8 to which derivatives are compared (tests/test_differentiable.py).
@@ -92,18 +85,18 @@ class GaussNewtonFactor(eqx.Module):
         dtype = self.factor.dtype
         n_e = self.point_inverse.shape[0]
         k = s.m - s.point_width
-        r_r = _reduced_vector(s, r) * self.free_r[:-1]
+        r_r = reduced_vector(s, r) * self.free_r[:-1]
         r_e = r.points[s.eliminated_points] * self.free_e[:-1]
-        eliminated = jnp.concatenate([_matvec(self.point_inverse, r_e), jnp.zeros((1, 3), dtype)])
+        eliminated = jnp.concatenate([matvec(self.point_inverse, r_e), jnp.zeros((1, 3), dtype)])
         per_observation = jnp.sum(
             self.coupling[:, :, :k] * eliminated[s.image_point][:, :, None], axis=1)
-        rhs = r_r - _add_at_columns(s, per_observation)[: s.n_reduced]
+        rhs = r_r - add_at_columns(s, per_observation)[: s.n_reduced]
         x_r = self.scale * jax.scipy.linalg.cho_solve((self.factor, True), self.scale * rhs)
         x_r_padded = jnp.append(x_r, jnp.zeros((), dtype))
-        coupled = jnp.sum(self.coupling * _at_columns(s, x_r_padded)[:, None, :], axis=2)
+        coupled = jnp.sum(self.coupling * at_columns(s, x_r_padded)[:, None, :], axis=2)
         coupled = jax.ops.segment_sum(coupled, s.image_point, n_e + 1)[:n_e]
-        x_e = _matvec(self.point_inverse, r_e - coupled)
-        x = _to_parameters(s, r, x_r, x_e)
+        x_e = matvec(self.point_inverse, r_e - coupled)
+        x = to_parameters(s, r, x_r, x_e)
         return jax.tree.map(jnp.where, self.free, x, r)
 
 
@@ -113,12 +106,12 @@ def gauss_newton_factor(
     """`GaussNewtonFactor` of `problem` at `params` (the backend's normal equations: U, V,
     W, with unit diagonals on fixed unknowns; S assembled pair-wise, Cholesky once)."""
     normal = bundle_normal_equations(problem, structure, params)
-    point_inverse = _small_inverse(normal.point_hessian)
-    product, _ = _schur_complement(structure, normal, point_inverse)
+    point_inverse = small_inverse(normal.point_hessian)
+    product, _ = schur_complement(structure, normal, point_inverse)
     reduced = normal.reduced_hessian + product
     scale = 1.0 / jnp.sqrt(jnp.diagonal(reduced))
     factor, _ = jax.scipy.linalg.cho_factor(scale[:, None] * reduced * scale[None, :], lower=True)
-    free_r, free_e = _free_masks(problem, structure, normal.reduced_gradient.dtype)
+    free_r, free_e = free_masks(problem, structure, normal.reduced_gradient.dtype)
     return GaussNewtonFactor(structure, point_inverse, factor, scale, normal.coupling, free_r,
                              free_e, problem.free)
 

@@ -1,7 +1,6 @@
 """Which solver adjusts a bundle: the dense normal equations or the Schur split."""
 
 from ..._problem._bundle import BundleProblem
-from ..._problem._observations import Distances, ImagePoints, ParameterObservations
 
 # Above this many unknowns, or this many entries of the whitened Jacobian (observations x
 # unknowns), `adjust` eliminates the object points: the dense path's datum check and
@@ -18,20 +17,19 @@ def use_schur(problem: BundleProblem, solver: str = "auto") -> bool:
 
     `solver`: "dense" never, "schur" always, "auto" for a bundle of more than
     `SCHUR_MIN_UNKNOWNS` unknowns or `SCHUR_MIN_JACOBIAN_ENTRIES` Jacobian entries whose
-    observations the Schur split supports (image points, direct observations of unknowns,
-    distances; a free network's inner constraints through
-    `jaxba._statistics._free_network.minimal_constraints`). A problem with a board warp
-    (`Parameters.warp`) is dense: "schur" refuses it.
+    observations the Schur split supports (row-local groups, whose rows each depend on a
+    few parameter blocks: `AbstractObservationGroup.row_blocks`; a free network's inner
+    constraints through `jaxba._statistics._free_network.minimal_constraints`). A problem with a
+    board warp (`Parameters.warp`) is dense: "schur" refuses it.
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
-    supported = all(
-        isinstance(g, ImagePoints | ParameterObservations | Distances) or g.constraint
-        for g in problem.groups)
+    supported = all(g.row_blocks() or g.constraint for g in problem.groups)
     if solver == "schur" and not supported:
         raise ValueError(
-            "solver 'schur' handles image points, direct observations of unknowns, "
-            "distances and a free network's inner constraints only")
+            "solver 'schur' handles observations whose rows each depend on a few parameter"
+            " blocks (image points, direct observations of unknowns, distances) and a free"
+            " network's inner constraints only")
     if problem.initial.warp is not None:  # its blocks have no columns for a board's warp
         if solver == "schur":
             raise ValueError("solver 'schur' does not adjust a board warp (kx, ky): take "

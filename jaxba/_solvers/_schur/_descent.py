@@ -17,17 +17,10 @@ from .._trust_region import (
     LevenbergMarquardt,
     normal_equations_result,
 )
-from ._bundle import (
-    BundleNormalEquations,
-    BundleStructure,
-    _at_columns,
-    _reduced_vector,
-    _to_parameters,
-    bundle_normal_equations,
-    bundle_structure,
-    solve_bundle_damped,
-    zero_normal_equations,
-)
+from ._assembly import BundleNormalEquations, bundle_normal_equations, zero_normal_equations
+from ._columns import at_columns, reduced_vector, to_parameters
+from ._reduced_solve import solve_bundle_damped
+from ._structure import BundleStructure, bundle_structure
 
 
 def bundle_predicted_reduction(
@@ -35,12 +28,12 @@ def bundle_predicted_reduction(
 ) -> Scalar:
     """δᵀJᵀe + ½ δᵀJᵀJδ for the step δ (a Parameters tree): the Gauss-Newton model's change
     of ½|e|², with δᵀJᵀJδ = δ_rᵀUδ_r + Σ δ_eᵀVδ_e + 2 Σ_i δ_r,iᵀ W_i δ_e,i."""
-    x_r = _reduced_vector(structure, step)
+    x_r = reduced_vector(structure, step)
     x_e = step.points[structure.eliminated_points]
     x_r_padded = jnp.append(x_r, jnp.zeros((), x_r.dtype))
     x_e_padded = jnp.concatenate([x_e, jnp.zeros((1, 3), x_e.dtype)])
     # One einsum (as in `_normal.predicted_reduction`: gathered products summed run slowly).
-    coupled = jnp.einsum("ncm,nm,nc->", normal.coupling, _at_columns(structure, x_r_padded),
+    coupled = jnp.einsum("ncm,nm,nc->", normal.coupling, at_columns(structure, x_r_padded),
                          x_e_padded[structure.image_point])
     quadratic = (
         x_r @ (normal.reduced_hessian @ x_r)
@@ -87,14 +80,14 @@ class BundleSchurDescent(
         normal equations were finite (fixed unknowns have zero gradient and step)."""
         normal, result = state
         held = None if self.gauge is None else (
-            _reduced_vector(self.structure, self.gauge).astype(normal.reduced_gradient.dtype)
+            reduced_vector(self.structure, self.gauge).astype(normal.reduced_gradient.dtype)
             * (damping == 0))
         x_r, x_e = solve_bundle_damped(self.structure, normal, damping, held)
         decrement = x_r @ normal.reduced_gradient + jnp.sum(x_e * normal.point_gradient)
         return self._parameters(-x_r, -x_e), decrement, result
 
     def _parameters(self, x_r, x_e) -> Parameters:
-        step = _to_parameters(self.structure, self.problem.initial, x_r, x_e)
+        step = to_parameters(self.structure, self.problem.initial, x_r, x_e)
         return jax.tree.map(lambda s, f: jnp.where(f, s, 0.0), step, self.problem.free)
 
     def predicted_reduction(self, y_diff: Parameters, state) -> Scalar:

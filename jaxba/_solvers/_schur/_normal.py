@@ -4,7 +4,7 @@ sums and products of many tiny matrices.
 Performance notes (XLA on CPU): per-observation products are accumulated a chunk at a
 time (`jax.lax.scan` + scatter-add) so that they never exist for all observations at
 once, and products of tiny matrices are written as short sums of broadcast products
-(`_matmul`), which fuse, instead of batched `dot_general`s, which do not.
+(`matmul`), which fuse, instead of batched `dot_general`s, which do not.
 """
 
 import jax
@@ -53,7 +53,7 @@ def pair_block_sums(
         rhs = rhs.reshape(rows, -1, right.shape[-1])
         # A sum of broadcast products, not an einsum: 20 ms against 29 ms per S on
         # Dubrovnik-16 (XLA's batched dot of tiny matrices is slow on the CPU).
-        products = _matmul(lhs.transpose(0, 2, 1), rhs)
+        products = matmul(lhs.transpose(0, 2, 1), rhs)
         return total.at[block].add(products, mode="drop", indices_are_sorted=True), None
 
     zero = jnp.zeros((n_blocks, left.shape[-1], right.shape[-1]), left.dtype)
@@ -61,7 +61,7 @@ def pair_block_sums(
     return total
 
 
-def _matmul(a: Float[Array, "n i k"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
+def matmul(a: Float[Array, "n i k"], b: Float[Array, "n k j"]) -> Float[Array, "n i j"]:
     """a[n] @ b[n] for many small matrices, the short sum over k written out.
 
     XLA on CPU runs batched `dot_general`s of tiny matrices slowly; a sum of k
@@ -70,12 +70,12 @@ def _matmul(a: Float[Array, "n i k"], b: Float[Array, "n k j"]) -> Float[Array, 
     return sum(a[:, :, k, None] * b[:, None, k, :] for k in range(a.shape[-1]))
 
 
-def _matvec(a: Float[Array, "n i k"], v: Float[Array, "n k"]) -> Float[Array, "n i"]:
-    """a[n] @ v[n] for many small matrices (see `_matmul`)."""
+def matvec(a: Float[Array, "n i k"], v: Float[Array, "n k"]) -> Float[Array, "n i"]:
+    """a[n] @ v[n] for many small matrices (see `matmul`)."""
     return sum(a[:, :, k] * v[:, k, None] for k in range(a.shape[-1]))
 
 
-def _small_inverse(a: Float[Array, "n m m"]) -> Float[Array, "n m m"]:
+def small_inverse(a: Float[Array, "n m m"]) -> Float[Array, "n m m"]:
     """Inverses of many small symmetric positive definite matrices.
 
     Gauss-Jordan elimination without pivoting (safe for SPD), unrolled over the static
@@ -103,12 +103,12 @@ def singular_points(point_hessian: Float[Array, "n 3 3"]) -> Array:
 
 
 def point_inverse(point_hessian: Float[Array, "n 3 3"]) -> Float[Array, "n 3 3"]:
-    """V_p⁻¹ of every point (`_small_inverse`); the pseudo-inverse where V_p is singular
+    """V_p⁻¹ of every point (`small_inverse`); the pseudo-inverse where V_p is singular
     (`singular_points`). The direction N does not determine is then the point's own (moving
     it along its rays moves no residual, so W_p is 0 along it too), and S = U - W V⁺ Wᵀ is
     the S of the other unknowns, which stay determined. The eigen-decompositions run only
     where a block's reciprocal condition, estimated as 1 / (‖V‖_F ‖V⁻¹‖_F), is small."""
-    inverse = _small_inverse(point_hessian)
+    inverse = small_inverse(point_hessian)
     estimate = 1.0 / (jnp.linalg.norm(point_hessian, axis=(1, 2))
                       * jnp.linalg.norm(inverse, axis=(1, 2)))
     suspect = ~(estimate > 10 * POINT_RCOND)  # NaN (a singular elimination) included
@@ -123,7 +123,7 @@ def point_inverse(point_hessian: Float[Array, "n 3 3"]) -> Float[Array, "n 3 3"]
     return jax.lax.cond(suspect.any(), pseudo, lambda _: inverse, None)
 
 
-def _add_diagonal(
+def add_diagonal(
     matrices: Float[Array, "m n n"], diagonals: Float[Array, "m n"]
 ) -> Float[Array, "m n n"]:
     """matrices[i] + diag(diagonals[i]) for every i."""
