@@ -1,5 +1,5 @@
 """The Schur backend: the damped step of a `BundleProblem` by the Schur complement of its
-normal equations (`_bundle.py`) and the model's predicted reduction, inside jaxba's
+normal equations (`_assembly.py`) and the model's predicted reduction, inside jaxba's
 Levenberg-Marquardt (`jaxba._solvers._solve.solve` runs it)."""
 
 from typing import ClassVar
