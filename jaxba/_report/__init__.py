@@ -20,5 +20,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
                 "check_targets", "html_path", "report_paths"),
     "._text": ("out_text", "res_text", "sigma_text"),
     "._uncertainty": ("write_uncertainty",),
-    "._write": ("write_reports",),
+    "._write": ("write_batch_reports", "write_reports"),
 })
