@@ -497,9 +497,13 @@ def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple
 def point_ellipsoids(project: Project, result: Adjustment):
     """1σ error ellipsoids of the object points: semi-axes (n, 3) descending, object units;
     directions (n, 3, 3) with the unit axis k in column k; `has` (n,) True for points with
-    a free (estimated) coordinate."""
-    axes, directions = error_ellipsoids(point_covariances(result))
+    a free (estimated) coordinate, the only ones computed (NaN for the others: the fixed
+    targets of a calibration have none)."""
     has = np.asarray(project.problem.free.points).any(axis=1)
+    n = has.size
+    axes, directions = np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan)
+    if has.any():
+        axes[has], directions[has] = error_ellipsoids(point_covariances(result)[has])
     return axes, directions, has
 
 
