@@ -19,7 +19,8 @@ fresh process with OPENBLAS_NUM_THREADS=1 and a warm persistent compilation cach
   CALIB_ZERO_TANGENT_DIST, Zhang's initialisation), writing
   nothing.
 
-Prints the wall times, the throughput ratio and the largest difference between the two
+Prints the wall and CPU times (user + system, worker processes included: on a shared machine
+the steadier figure), the throughput ratio and the largest difference between the two
 estimates of fx, fy, cx, cy (px) over all projects.
 """
 
@@ -27,6 +28,7 @@ import argparse
 import csv
 import os
 import pathlib
+import resource
 import shutil
 import subprocess
 import sys
@@ -106,12 +108,17 @@ def write_projects(root: pathlib.Path, n: int, seed: int = 0, noise: float = 0.5
     return paths
 
 
-def timed(command: list[str], home: pathlib.Path, stdin: str = "") -> tuple[float, str]:
+def timed(command: list[str], home: pathlib.Path, stdin: str = "") -> tuple[float, float, str]:
+    """Wall s, CPU s (user + system of the process and its worker processes) and stdout."""
     env = dict(os.environ, HOME=str(home), OPENBLAS_NUM_THREADS="1")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, check=True, env=env, input=stdin, capture_output=True,
                           text=True)
-    return time.perf_counter() - start, done.stdout
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return wall, cpu, done.stdout
 
 
 def main():
@@ -125,17 +132,16 @@ def main():
         root = args.keep or pathlib.Path(tmp)
         home = pathlib.Path(tmp) / "home"
         paths = [str(p) for p in write_projects(root / "projects", args.n)]
-        cold, _ = timed([jaxba_cli, "batch", *paths, "--out", str(root / "cold")], home)
+        cold = timed([jaxba_cli, "batch", *paths, "--out", str(root / "cold")], home)[:2]
         batch, alone, opencv = [], [], []
         for r in range(args.repeat):
             out = root / f"batch{r}"
-            batch.append(timed([jaxba_cli, "batch", *paths, "--out", str(out)], home)[0])
+            batch.append(timed([jaxba_cli, "batch", *paths, "--out", str(out)], home)[:2])
             alone.append(timed([jaxba_cli, "batch", *paths, "--out", str(root / f"one{r}"),
-                                "--jobs", "1"], home)[0])
+                                "--jobs", "1"], home)[:2])
             estimates = pathlib.Path(tmp) / "opencv.npy"
-            seconds, _ = timed([sys.executable, "-c", OPENCV_LOOP, *paths], home,
-                               stdin=f"{estimates}\n")
-            opencv.append(seconds)
+            opencv.append(timed([sys.executable, "-c", OPENCV_LOOP, *paths], home,
+                                stdin=f"{estimates}\n")[:2])
         with open(out / "summary.csv", newline="") as file:
             rows = list(csv.DictReader(file))
         ours = np.array([[float(row[f"C1.opencv.{n}"]) for n in ("fx", "fy", "cx", "cy")]
@@ -144,15 +150,16 @@ def main():
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     print(f"{args.n} Zhang-size projects (5 images x 256 points), warm cache, best of"
           f" {args.repeat}")
-    print("| command | wall s | projects/s |")
-    print("|---|---|---|")
-    print(f"| jaxba batch (cold cache) | {cold:.1f} | {args.n / cold:.1f} |")
-    print(f"| jaxba batch (default: a worker process per CPU) | {min(batch):.1f} |"
-          f" {args.n / min(batch):.1f} |")
-    print(f"| jaxba batch --jobs 1 (one process) | {min(alone):.1f} | {args.n / min(alone):.1f} |")
-    print(f"| OpenCV loop (calibrateCameraExtended, 1 thread, reads the files) |"
-          f" {min(opencv):.1f} | {args.n / min(opencv):.1f} |")
-    print(f"throughput ratio jaxba / OpenCV: {min(opencv) / min(batch):.2f}")
+    print("| command | wall s | projects/s | CPU s | CPU ms per project |")
+    print("|---|---|---|---|---|")
+    rows = [("jaxba batch (cold cache)", cold),
+            ("jaxba batch (default: a worker process per CPU)", min(batch)),
+            ("jaxba batch --jobs 1 (one process)", min(alone)),
+            ("OpenCV loop (calibrateCameraExtended, 1 thread, reads the files)", min(opencv))]
+    for name, (wall, cpu) in rows:
+        print(f"| {name} | {wall:.1f} | {args.n / wall:.1f} | {cpu:.1f} |"
+              f" {1000 * cpu / args.n:.1f} |")
+    print(f"throughput ratio jaxba / OpenCV: {min(opencv)[0] / min(batch)[0]:.2f}")
     print(f"largest |jaxba - OpenCV| of fx, fy, cx, cy: {difference:.2e} px")
 
 

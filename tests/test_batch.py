@@ -17,9 +17,12 @@ from jaxba._adjust._batch import adjust_batch
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
 from jaxba._adjust._padding import pad_problems
 from jaxba._cli import _batch_run
+from jaxba._cli._batch_read import finished_results, read_batch
 from jaxba._cli._batch_run import run_batch
+from jaxba._cli._batch_solve import Chunk, solve_chunk
 from jaxba._cli._main import main
 from jaxba._models._cameras import CAMERA_MODELS
+from jaxba._report import write_reports
 from jaxba._statistics._summary import variance_test
 
 BATCH_RTOL = 1e-8  # each batch result equals the single adjustment to 1e-8 relative
@@ -201,6 +204,26 @@ def test_summary_names_parameters_by_model_and_tests_the_variance_factor(
                 assert row[f"{camera_id}.{model}.{name}"] == pytest.approx(
                     value, rel=BATCH_RTOL, abs=1e-12)
         assert not [key for key in row if key.startswith("C1.") and key.count(".") < 2]
+
+
+def test_batch_reports_are_those_of_one_project_s_writer(projects, tmp_path):
+    """Every report `run_batch` writes for a project (`write_batch_reports`: not checked
+    again, not flushed file by file) is byte for byte what `write_reports` writes for the
+    same adjustment (its chunk solved again alike), and nothing else is left beside them."""
+    _, paths, built = projects
+    run_batch(paths, tmp_path / "batch")
+    outcomes = solve_chunk(Chunk(tuple(built), size=len(built)))
+    for project, outcome in zip(built, outcomes):
+        single = write_reports(project, outcome.result, tmp_path / "single" / project.spec.name)
+        folder = tmp_path / "batch" / project.spec.name
+        assert sorted(path.name for path in folder.iterdir()) == sorted(p.name for p in single)
+        for path in single:
+            assert (folder / path.name).read_bytes() == path.read_bytes(), path.name
+    # --resume trusts all five reports, none empty (what a system crash can leave of them).
+    entries = read_batch(paths, tmp_path / "batch")
+    assert all(finished_results(entry) is not None for entry in entries)
+    (tmp_path / "batch" / "p1" / "p1.out").write_bytes(b"")
+    assert [finished_results(entry) is None for entry in entries] == [False, True, False]
 
 
 @pytest.mark.slow  # two worker processes, each starting jax

@@ -274,7 +274,8 @@ def test_interrupt_dropped_in_a_finaliser_is_silent_and_still_stops_the_run(caps
     assert sys.unraisablehook is hook_before
 
 
-def test_replace_files_keeps_the_old_files_when_writing_fails(tmp_path, monkeypatch):
+@pytest.mark.parametrize("durable", [True, False])
+def test_replace_files_keeps_the_old_files_when_writing_fails(tmp_path, monkeypatch, durable):
     old = {tmp_path / "a.txt": "old a", tmp_path / "b.txt": "old b"}
     for path, text in old.items():
         path.write_text(text)
@@ -289,9 +290,25 @@ def test_replace_files_keeps_the_old_files_when_writing_fails(tmp_path, monkeypa
 
     monkeypatch.setattr(os, "fdopen", full_disk_on_second)
     with pytest.raises(OSError, match="No space"):
-        replace_files({path: "new" for path in old})
+        replace_files({path: "new" for path in old}, durable=durable)
     assert {path: path.read_text() for path in old} == old
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]  # no temporary
+
+
+@pytest.mark.parametrize("durable", [True, False])
+def test_replace_files_flushes_each_file_only_when_durable(tmp_path, monkeypatch, durable):
+    """`durable`: one fsync per file before the renames; without it none. Either way every
+    file is replaced with the permissions 0o666 less the umask (read, not set, to find it)."""
+    synced = []
+    monkeypatch.setattr(os, "fsync", synced.append)
+    umask = os.umask(0o027)
+    try:
+        replace_files({tmp_path / "a.txt": "a", tmp_path / "b.bin": b"b"}, durable=durable)
+    finally:
+        os.umask(umask)
+    assert len(synced) == (2 if durable else 0)
+    assert (tmp_path / "a.txt").read_text() == "a" and (tmp_path / "b.bin").read_bytes() == b"b"
+    assert {path.stat().st_mode & 0o777 for path in tmp_path.iterdir()} == {0o640}
 
 
 @pytest.mark.slow  # starts jax and compiles

@@ -83,11 +83,12 @@ RESUMED_KEYS = {"converged", "message", "sigma0", "redundancy", "cameras"}
 
 def finished_results(entry: BatchEntry) -> dict | None:
     """The results.json of `entry`'s earlier run when all its reports exist (they are
-    written together, so all or none) and results.json can be read; None otherwise."""
+    written together, so all or none), none is empty (what a system crash can leave of
+    reports not flushed to disk) and results.json can be read; None otherwise."""
     if entry.spec is None:
         return None
     paths = report_paths(entry.spec, entry.out_dir)
-    if not all(path.is_file() for path in paths.values()):
+    if not all(path.is_file() and path.stat().st_size > 0 for path in paths.values()):
         return None
     try:
         results = json.loads(paths["json"].read_text(encoding="utf-8"))

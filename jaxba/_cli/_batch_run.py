@@ -195,7 +195,7 @@ def _solve(run, chunks, say, finished, total: int) -> None:
     (XLA, file writes and fsync release the GIL; `WRITERS` threads, so that one formats
     while another waits for the disk); what each project became is said here, in order, as
     its reports are done."""
-    from .._report import write_reports
+    from .._report import write_batch_reports
 
     done = 0
     writer = concurrent.futures.ThreadPoolExecutor(WRITERS, thread_name_prefix="jaxba-reports")
@@ -232,7 +232,7 @@ def _solve(run, chunks, say, finished, total: int) -> None:
                     reason = f"{type(outcomes).__name__}: {outcomes}".strip()
                     outcomes = [Outcome("single" if chunk.single else "", reason=reason)]
                 written.append((members, writer.submit(_record_all, members, outcomes,
-                                                       write_reports)))
+                                                       write_batch_reports)))
                 report(block=False)
             report(block=True)
             chunks = again

@@ -9,14 +9,17 @@ import threading
 from collections.abc import Mapping
 
 
-def replace_files(texts: Mapping[pathlib.Path, str | bytes]) -> None:
+def replace_files(texts: Mapping[pathlib.Path, str | bytes], *, durable: bool = True) -> None:
     """Write every text (UTF-8) or bytes to its path, the folders existing.
 
-    Every file is first written and flushed to disk under a temporary name beside its
-    target; only then are they renamed over the targets, with Ctrl-C held back until the
-    last rename. A failure while writing (a full disk, an interrupt) removes the temporary
-    files and leaves the old files as they were, never a partial one. The files get the
-    usual permissions (0o666 less the umask).
+    Every file is first written in full, and with `durable` flushed to disk (fsync), under
+    a temporary name beside its target; only then are they renamed over the targets, with
+    Ctrl-C held back until the last rename. A failure while writing (a full disk, an
+    interrupt) removes the temporary files and leaves the old files as they were, never a
+    partial one. Without `durable` that holds for everything but a crash of the system
+    itself (power loss), after which a renamed file may be empty: for reports that a run
+    can write again (`jaxba batch`, whose `--resume` checks them), at a fraction of the
+    cost. The files get the usual permissions (0o666 less the umask).
     """
     mode = 0o666 & ~_umask()
     temporary: dict[pathlib.Path, pathlib.Path] = {}
@@ -28,7 +31,8 @@ def replace_files(texts: Mapping[pathlib.Path, str | bytes]) -> None:
                 file.write(text if isinstance(text, bytes) else text.encode("utf-8"))
                 file.flush()
                 os.fchmod(file.fileno(), mode)
-                os.fsync(file.fileno())
+                if durable:
+                    os.fsync(file.fileno())
     except BaseException:
         for name in temporary.values():
             name.unlink(missing_ok=True)
@@ -39,6 +43,16 @@ def replace_files(texts: Mapping[pathlib.Path, str | bytes]) -> None:
 
 
 def _umask() -> int:
+    """The process's umask, read from /proc where it can be: setting it to read it (the
+    fallback) would, for an instant, give files and folders that another thread makes
+    meanwhile (the batch's writer threads) the permissions of umask 0."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
     mask = os.umask(0)
     os.umask(mask)
     return mask

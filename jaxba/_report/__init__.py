@@ -18,5 +18,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "._outputs": ("OBSERVATIONS_FILE", "check_outputs", "html_path", "report_paths"),
     "._text": ("out_text", "res_text", "sigma_text"),
     "._uncertainty": ("write_uncertainty",),
-    "._write": ("write_reports",),
+    "._write": ("write_batch_reports", "write_reports"),
 })

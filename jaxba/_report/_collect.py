@@ -154,7 +154,7 @@ def shared_tables():
         _tables.memo = outer
 
 
-def _shared(function):
+def shared(function):
     """`function(project, result)`, memoised while `shared_tables` is open."""
 
     @functools.wraps(function)
@@ -192,7 +192,7 @@ def _status_table(estimated, sigma: list[tuple]) -> np.ndarray:
     return names[estimated * (1 + weighted)]
 
 
-@_shared
+@shared
 def camera_tables(project: Project, result: Adjustment) -> dict[str, ParameterTable]:
     """One single-row table per camera: every parameter of its model, value and σ, then
     the model's constants (status "constant", σ 0)."""
@@ -246,7 +246,7 @@ def _composed_image_table(project: Project, result: Adjustment) -> ParameterTabl
     return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.image_ids), values, stds, status)
 
 
-@_shared
+@shared
 def image_table(project: Project, result: Adjustment) -> ParameterTable:
     """EOPs of all images; omega, phi, kappa and their σ in decimal degrees (with rigs each
     composed from its frame's and its camera's: `_composed_image_table`)."""
@@ -262,7 +262,7 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
     return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.image_ids), values, stds, status)
 
 
-@_shared
+@shared
 def point_table(project: Project, result: Adjustment) -> ParameterTable:
     """Object points used by the adjustment (those observed in images or by distances)."""
     sigma = [project.spec.points[pid].sigma for pid in project.point_ids]
@@ -276,7 +276,7 @@ def point_table(project: Project, result: Adjustment) -> ParameterTable:
     )
 
 
-@_shared
+@shared
 def datum_text(project: Project, result: Adjustment) -> str:
     """The one description of the datum that NAME.out and results.json give: a dependent
     relative orientation by the image and coordinates it fixes (its bundle holds only fixed
@@ -290,7 +290,7 @@ def datum_text(project: Project, result: Adjustment) -> str:
             f"{datum['image']} fixed, {scale}")
 
 
-@_shared
+@shared
 def variance_check(project: Project, result: Adjustment) -> VarianceTest | None:
     """The χ² test of the variance factor (`variance_test`), shared by NAME.out and
     results.json."""
@@ -298,7 +298,7 @@ def variance_check(project: Project, result: Adjustment) -> VarianceTest | None:
     return variance_test(result)
 
 
-@_shared
+@shared
 def outlier_check(project: Project, result: Adjustment) -> OutlierSummary | None:
     """|w| above the critical value: `outlier_summary` named by the project's IDs."""
     return outlier_summary(result, project_ids(project), group_statistics(project, result))
@@ -320,7 +320,7 @@ def observation_ids(project: Project, group, row: int, coordinate: int) -> dict[
     return ids_of_observation(project_ids(project), group, row, coordinate)
 
 
-@_shared
+@shared
 def group_statistics(project: Project, result: Adjustment) -> list[GroupStatistics]:
     """v, r, w and outlier flags of every entry of every observation group of the result
     (`jaxba._statistics._observation_statistics.group_statistics`, shared)."""
@@ -328,7 +328,7 @@ def group_statistics(project: Project, result: Adjustment) -> list[GroupStatisti
     return statistics_of_groups(result)
 
 
-@_shared
+@shared
 def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
     """All image residuals, one row per measured image point (removed ones included)."""
     rows = image_point_rows(group_statistics(project, result))
@@ -388,7 +388,7 @@ def in_pixel_frame(project: Project, residuals: ImageResiduals) -> ImageResidual
     return dataclasses.replace(residuals, xy=xy, v=v, v_px=v, units=units)
 
 
-@_shared
+@shared
 def other_observations(project: Project, result: Adjustment) -> list[ScalarObservation]:
     """Every scalar observation that is not an image coordinate, group by group.
 
@@ -431,7 +431,7 @@ def rejections(project: Project, result: Adjustment) -> list[dict]:
     ]
 
 
-@_shared
+@shared
 def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySummary | None:
     """Min/mean/sum of the redundancy numbers and the largest |w|, overall and per group.
 
@@ -485,7 +485,7 @@ def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySumm
     )
 
 
-@_shared
+@shared
 def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple[list, np.ndarray]]:
     """Per camera: the names of its estimated IOPs and their correlation matrix ρ."""
     return {
@@ -494,13 +494,17 @@ def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple
     }
 
 
-@_shared
+@shared
 def point_ellipsoids(project: Project, result: Adjustment):
     """1σ error ellipsoids of the object points: semi-axes (n, 3) descending, object units;
     directions (n, 3, 3) with the unit axis k in column k; `has` (n,) True for points with
-    a free (estimated) coordinate."""
-    axes, directions = error_ellipsoids(point_covariances(result))
+    a free (estimated) coordinate, the only ones computed (NaN for the others: the fixed
+    targets of a calibration have none)."""
     has = np.asarray(project.problem.free.points).any(axis=1)
+    n = has.size
+    axes, directions = np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan)
+    if has.any():
+        axes[has], directions[has] = error_ellipsoids(point_covariances(result)[has])
     return axes, directions, has
 
 
@@ -520,79 +524,3 @@ def project_units(project: Project) -> str:
 def _pixel_size(project: Project, camera_id: str) -> tuple[float, float]:
     grid = project.pixel_grids.get(camera_id)
     return (math.nan, math.nan) if grid is None else tuple(grid.pixel_size)
-
-
-def residual_summary(residuals: ImageResiduals, codes: np.ndarray, names: list[str]) -> dict:
-    """Per name: n and RMS of vx, vy in mm and in pixels over its rows (those with
-    `codes` (n,) == its index) not removed by data snooping (`n_removed` of them were).
-
-    The mm RMS is NaN when a row is in pixels (pixel-unit model), the pixel RMS when a row has
-    no pixel size; both are NaN for no rows.
-    """
-    used, k = ~residuals.removed, len(names)
-
-    def total(weights: np.ndarray) -> np.ndarray:
-        return np.bincount(codes[used], weights=weights, minlength=k)
-
-    n = np.bincount(codes[used], minlength=k)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms_mm = np.sqrt([total(residuals.v[used, j] ** 2) / n for j in (0, 1)])
-        rms_px = np.sqrt([total(residuals.v_px[used, j] ** 2) / n for j in (0, 1)])
-    rms_mm[:, total((residuals.units[used] != MM).astype(float)) > 0] = math.nan
-    n_removed = np.bincount(codes[residuals.removed], minlength=k)
-    return {
-        name: {
-            "n": int(n[c]),
-            "n_removed": int(n_removed[c]),
-            "rms_x_mm": float(rms_mm[0, c]),
-            "rms_y_mm": float(rms_mm[1, c]),
-            "rms_x_px": float(rms_px[0, c]),
-            "rms_y_px": float(rms_px[1, c]),
-        }
-        for c, name in enumerate(names)
-    }
-
-
-def residual_summaries(residuals: ImageResiduals) -> dict:
-    """Overall, per-camera and per-image residual summaries (see `residual_summary`); cameras
-    and images with rows only, in the order of the rows (sorted by image)."""
-    _, first, image_codes = np.unique(residuals.image, return_index=True, return_inverse=True)
-    image_cameras = residuals.camera_ids[first].tolist()
-    cameras = list(dict.fromkeys(image_cameras))
-    camera_codes = np.array([cameras.index(c) for c in image_cameras], dtype=int).reshape(-1)
-    everything = np.zeros(len(residuals.image), dtype=int)
-    return {
-        "all": residual_summary(residuals, everything, ["all"])["all"],
-        "cameras": residual_summary(residuals, camera_codes[image_codes], cameras),
-        "images": residual_summary(residuals, image_codes, residuals.image_ids[first].tolist()),
-    }
-
-
-@_shared
-def image_residual_summaries(project: Project, result: Adjustment) -> dict:
-    """`residual_summaries` of the result's image residuals (gathered once per write)."""
-    return residual_summaries(image_residuals(project, result))
-
-
-@_shared
-def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
-    """Per observation group (per part: `AbstractObservationGroup.parts`, the image points of
-    each camera): its number of observations and its part vᵀPv of the total.
-
-    P = σ0² Σ⁻¹ with the a priori σ0 of the project, so vᵀPv = σ0² Σ (v/σ)² over the group's
-    real observations; the parts add up to σ̂0² · r.
-    """
-    prior = project.spec.settings.sigma0
-    summaries = {}
-    camera_ids = project_ids(project).cameras
-    for group, residual in zip(result.problem.groups, result.residuals):
-        sigma = np.asarray(group.sigma(), dtype=float)
-        mask = np.isfinite(sigma)  # `group.mask()`, without a jax call
-        sigma = np.where(mask, sigma, 1.0)
-        normalised = np.where(mask, np.asarray(residual, dtype=float) / sigma, 0.0)
-        for name, rows in named_parts(group, camera_ids):
-            summaries[name] = {
-                "n": int(np.count_nonzero(mask[rows])),
-                "vtpv": float(prior**2 * np.sum(normalised[rows] ** 2)),
-            }
-    return summaries

@@ -26,7 +26,9 @@ COLUMNS = TEXT_COLUMNS + NUMBER_COLUMNS + FLAG_COLUMNS
 
 def _field(text: str) -> str:
     """`text` as one CSV field: quoted when it holds a comma, a quote or a line break."""
-    return text if not any(c in text for c in ',"\n\r') else '"' + text.replace('"', '""') + '"'
+    if "," in text or '"' in text or "\n" in text or "\r" in text:
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> str:

@@ -2,6 +2,7 @@
 
 import json
 import math
+from json.encoder import encode_basestring_ascii as _string
 
 import numpy as np
 
@@ -16,8 +17,6 @@ from ._collect import (
     camera_tables,
     camera_units,
     datum_text,
-    group_summaries,
-    image_residual_summaries,
     image_table,
     outlier_check,
     point_ellipsoids,
@@ -31,6 +30,7 @@ from ._collect import (
 from ._no_sigma import no_sigma_entries
 from ._outputs import OBSERVATIONS_FILE
 from ._rigs import frame_table, mount_correlations, mounts_tree, rigs_tree
+from ._summaries import group_summaries, image_residual_summaries
 
 
 def _number(value) -> float | None:
@@ -52,11 +52,13 @@ def _entries(table: ParameterTable, row: int) -> dict[str, dict]:
 
 def _nulls(tree):
     """Replace non-finite floats anywhere in nested dicts and lists by None."""
+    if isinstance(tree, float):  # np.float64 too
+        return float(tree) if math.isfinite(tree) else None
     if isinstance(tree, dict):
         return {key: _nulls(value) for key, value in tree.items()}
-    if isinstance(tree, list | tuple):
+    if isinstance(tree, (list, tuple)):
         return [_nulls(value) for value in tree]
-    if isinstance(tree, float | np.floating):
+    if isinstance(tree, np.floating):
         return _number(tree)
     return tree
 
@@ -102,7 +104,7 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     finite = np.isfinite(values).all(axis=1) & np.isfinite(stds).all(axis=1)
     finite &= ~has | np.isfinite(ellipsoid).all(axis=1)
     inner, leaf = indent + "  ", indent + "    "
-    names = [json.dumps(name).replace("%", "%%") for name in points.names]
+    names = [_string(name).replace("%", "%%") for name in points.names]
     fields = [f'{name}: {{"value": %r, "std": %r, "status": %s}}' for name in names]
     axes_text = "[" + ", ".join(["%r"] * axes.shape[1]) + "]"
     direction_text = "[" + ", ".join([axes_text] * axes.shape[1]) + "]"
@@ -112,8 +114,8 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
         for lines in (fields, [*fields, with_ellipsoid])
     ]
     status = np.asarray(points.status, dtype=object)
-    encoded = {name: json.dumps(name) for name in set(status.ravel().tolist())}
-    columns = [[json.dumps(pid) for pid in points.ids]]
+    encoded = {name: _string(name) for name in set(status.ravel().tolist())}
+    columns = [list(map(_string, points.ids))]
     for j in range(values.shape[1]):
         columns += [values[:, j].tolist(), stds[:, j].tolist(),
                     [encoded[name] for name in status[:, j].tolist()]]
@@ -328,16 +330,21 @@ def _results_tree(project: Project, result: Adjustment, points) -> dict:
     return tree
 
 
+# json.dumps(value, allow_nan=False) without a new encoder per call; `_string` is json.dumps
+# of a str (the keys and IDs).
+_STRICT = json.JSONEncoder(allow_nan=False)
+
+
 def _layout(value, depth: int, indent: str = "") -> str:
     """JSON text of `value`: dicts and lists indented by two spaces down to `depth` levels,
     each deeper value on one line (json's C encoder, fast for thousands of points)."""
     if isinstance(value, _Deferred):
         return value.render(depth, indent)
     if depth == 0 or not isinstance(value, dict | list) or not value:
-        return json.dumps(value, allow_nan=False)
+        return _STRICT.encode(value)
     inner = indent + "  "
     if isinstance(value, dict):
-        items = [f"{json.dumps(k)}: {_layout(v, depth - 1, inner)}" for k, v in value.items()]
+        items = [f"{_string(k)}: {_layout(v, depth - 1, inner)}" for k, v in value.items()]
         opening, closing = "{", "}"
     else:
         items = [_layout(v, depth - 1, inner) for v in value]

@@ -25,8 +25,6 @@ from ._collect import (
     datum_text,
     describe,
     group_statistics,
-    group_summaries,
-    image_residual_summaries,
     image_residuals,
     image_table,
     in_pixel_frame,
@@ -37,12 +35,12 @@ from ._collect import (
     project_units,
     rejections,
     reliability_summary,
-    residual_summaries,
     variance_check,
 )
 from ._no_sigma import no_sigma_lines
 from ._numbers import fixed_cells
 from ._rigs import frame_table, mount_correlations, mount_table, rig_baselines
+from ._summaries import group_summaries, image_residual_summaries, residual_summaries
 
 _MM_DECIMALS = 6  # image coordinates and residuals in mm (1 nm)
 _PX_DECIMALS = 3  # residuals in pixels

@@ -9,7 +9,7 @@ from .._statistics._adjustment import Adjustment
 from ._collect import shared_tables
 from ._csv import observations_csv
 from ._json import results_json
-from ._outputs import check_outputs
+from ._outputs import check_outputs, report_paths
 from ._text import out_text, res_text, sigma_text
 
 
@@ -23,16 +23,33 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
     as they were. Returns the paths.
     """
     paths = check_outputs(project.spec, out_dir)
+    _replace(report_texts(project, result, paths), out_dir, durable=True)
+    return list(paths.values())
+
+
+def write_batch_reports(project: Project, result: Adjustment, out_dir) -> None:
+    """`write_reports` for a project of `jaxba batch`, whose outputs were all checked before
+    anything was computed (`read_batch`): the same files, not checked again, replaced
+    together but not flushed to disk one by one (`replace_files` without `durable`)."""
+    _replace(report_texts(project, result, report_paths(project.spec, out_dir)), out_dir,
+             durable=False)
+
+
+def report_texts(project: Project, result: Adjustment,
+                 paths: dict[str, pathlib.Path]) -> dict[pathlib.Path, str]:
+    """The text of every report, by its path (`report_paths`)."""
     # The residuals, statistics and point tables gathered once; the collector paused while
     # hundreds of thousands of rows are formatted (none of them in a cycle).
     with shared_tables(), paused_gc():
-        texts = {
+        return {
             paths["out"]: out_text(project, result),
             paths["res"]: res_text(project, result),
             paths["sigma"]: sigma_text(project, result),
             paths["json"]: results_json(project, result),
             paths["observations"]: observations_csv(project, result),
         }
+
+
+def _replace(texts: dict[pathlib.Path, str], out_dir, *, durable: bool) -> None:
     pathlib.Path(out_dir).mkdir(parents=True, exist_ok=True)
-    replace_files(texts)
-    return list(paths.values())
+    replace_files(texts, durable=durable)
