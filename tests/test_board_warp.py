@@ -234,6 +234,8 @@ def test_schur_refuses_and_auto_takes_dense(bent):
     assert not use_schur(project.problem, "auto")
     with pytest.raises(ValueError, match="solver 'schur' does not adjust a board warp"):
         jaxba.adjust_project(project, solver="schur")
+    with pytest.raises(ValueError, match="Schur backend does not adjust a board warp"):
+        jaxba.solve(project.problem, jaxba.advanced.Schur())  # the backend named directly
     with pytest.raises(ValueError, match="board warp"):
         pad_problems([project.problem])
 

@@ -134,12 +134,6 @@ def test_affine_formula(xy):
     np.testing.assert_allclose(got, affine_np(a, xy), rtol=FORMULA_RTOL, atol=FORMULA_ATOL)
 
 
-def test_distortion_parameter_names():
-    assert RadialSmac.parameter_names == ("K0", "K1", "K2", "K3")
-    assert DecenteringSmac.parameter_names == ("P1", "P2", "P3")
-    assert Affine.parameter_names == ("A1", "A2")
-
-
 @pytest.mark.parametrize("xy", REDUCED_POINTS.tolist())
 def test_refraction_term_in_image_point(xy):
     """Only refraction on: image_point - (xp - c U/W) = k x̄ (1 + r²/c²)."""
@@ -159,8 +153,25 @@ def test_refraction_term_in_image_point(xy):
 # --------------------------------------------------------------------------- SmacCamera
 
 
-def test_smac_parameter_names():
+def test_smac_parameter_names_name_the_vector_entries():
+    """`parameter_names[i]` names entry i of the parameter vector (the names project files
+    and reports use): entry i alone set to 1 sets the camera's (or its distortion part's)
+    field of that name to 1 and no other."""
     assert SmacCamera.parameter_names == PARAMETER_NAMES
+
+    def fields(camera):
+        parts = (camera, camera.radial, camera.decentering, camera.affine)
+        return {name: float(getattr(part, name)) for part in parts
+                for name in PARAMETER_NAMES if hasattr(part, name)}
+
+    for i, name in enumerate(PARAMETER_NAMES):
+        values = np.zeros(len(PARAMETER_NAMES))
+        values[i] = 1.0
+        named = fields(SmacCamera.from_parameters(jnp.asarray(values)))
+        assert sorted(named) == sorted(PARAMETER_NAMES)
+        assert named == {n: float(n == name) for n in PARAMETER_NAMES}, name
+    parts = RadialSmac, DecenteringSmac, Affine
+    assert sum((part.parameter_names for part in parts), ()) == PARAMETER_NAMES[3:]
 
 
 def test_smac_parameters_round_trip():

@@ -127,9 +127,13 @@ def bundle_structure(
     how the cofactors are formed (`_schur_precision._observation_cofactors`), None: by the
     work each takes (`PAIRWISE_ADVANTAGE`). The split depends on `problem.free`
     (`iop_columns`): rebuild it when the free mask changes. Raises `ValueError` for an
-    observation group that is not row-local (no `row_blocks`: inner constraints).
+    observation group that is not row-local (no `row_blocks`: inner constraints), and for
+    a board warp (`Parameters.warp`: no columns for it here; the dense backend adjusts it).
     """
     initial = problem.initial
+    if initial.warp is not None:
+        raise ValueError("the Schur backend does not adjust a board warp (kx, ky): take the"
+                         " dense backend, a calibration's size")
     models = tuple(sorted(initial.cameras))
     offsets, column = [], 0
     for model in models:
