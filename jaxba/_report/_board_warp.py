@@ -11,7 +11,7 @@ from .._models._cameras import CAMERA_MODELS
 from .._problem._parameters import WARP_PARAMETER_NAMES, flatten, unflatten
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
-from ._collect import _shared
+from ._collect import shared
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,7 +27,7 @@ class BoardWarp:
     cameras: dict[str, tuple[list[str], np.ndarray]]
 
 
-@_shared
+@shared
 def board_warp(project: Project, result: Adjustment) -> BoardWarp | None:
     """The boards' warp (`BoardWarp`), None where no board is warped."""
     params = result.parameters

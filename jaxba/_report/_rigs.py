@@ -9,7 +9,7 @@ from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, flatten, 
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
 from .._statistics._rigs import baseline
-from ._collect import ParameterTable, _shared, _status_table, frame_sigma
+from ._collect import ParameterTable, _status_table, frame_sigma, shared
 
 _ANGLES = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
 
@@ -20,7 +20,7 @@ def _in_degrees(values: np.ndarray) -> np.ndarray:
     return values
 
 
-@_shared
+@shared
 def frame_table(project: Project, result: Adjustment) -> ParameterTable:
     """The poses of the images block's rows (the frames; the images without rigs), angles
     and their σ in decimal degrees."""
@@ -30,7 +30,7 @@ def frame_table(project: Project, result: Adjustment) -> ParameterTable:
                           _in_degrees(result.precision.std.images), status)
 
 
-@_shared
+@shared
 def mount_table(project: Project, result: Adjustment) -> ParameterTable:
     """Every rig camera's pose in its rig's frame (rows "<rig>/<camera>"; the reference's
     identity left out), angles and σ in decimal degrees."""
@@ -42,14 +42,14 @@ def mount_table(project: Project, result: Adjustment) -> ParameterTable:
                           _in_degrees(result.precision.std.mounts)[1:], status)
 
 
-@_shared
+@shared
 def rig_baselines(project: Project, result: Adjustment) -> dict[str, tuple[float, float]]:
     """"<rig>/<camera>" -> (baseline, σ) in object units (`jaxba._statistics._rigs.baseline`)."""
     return {mid: baseline(result.parameters, result.precision, row)
             for row, mid in enumerate(project.rigs.mount_ids) if row > 0}
 
 
-@_shared
+@shared
 def mount_correlations(project: Project, result: Adjustment) -> dict[str, tuple[list, np.ndarray]]:
     """"<rig>/<camera>" -> the names of its estimated relative-pose parameters and their
     correlation matrix ρ."""
