@@ -19,8 +19,6 @@ from ._collect import (
     FIXED,
     camera_tables,
     group_statistics,
-    group_summaries,
-    image_residual_summaries,
     image_table,
     is_measurement,
     observation_ids,
@@ -30,6 +28,7 @@ from ._collect import (
     reliability_summary,
 )
 from ._rigs import frame_table, mount_table, rig_baselines
+from ._summaries import group_summaries, image_residual_summaries
 
 MAX_POINT_ROWS = 1000  # rows of the points table; all of them are in results.json and NAME.sigma
 LARGEST_RESIDUALS = 20  # rows of the table of the largest normalised residuals
