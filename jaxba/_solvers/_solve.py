@@ -59,10 +59,7 @@ def solve(
     under a transformation).
     """
     backend = choose_backend(problem, backend) if isinstance(backend, str) else backend
-    tolerances = Tolerances(
-        rtol=backend.tolerance if rtol is None else rtol,
-        atol=backend.tolerance if atol is None else atol,
-        step=step_tolerance, function=function_tolerance)
+    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance)
     adjoint = optx.ImplicitAdjoint() if adjoint is None else adjoint
     if _traced(problem):  # nested in the caller's program as a call of its own
         return _compiled(problem, backend, tolerances, max_steps, adjoint)
@@ -73,20 +70,31 @@ def solve(
     return program(*arguments)
 
 
-def lower_solve(problem: BundleProblem, backend: Backend | str = "auto", *,
-                max_steps: int = 50, **tolerances):
+def lower_solve(
+    problem: BundleProblem,
+    backend: Backend | str = "auto",
+    *,
+    max_steps: int = 50,
+    rtol: float | None = None,
+    atol: float | None = None,
+    step_tolerance: float = STEP_TOLERANCE,
+    function_tolerance: float = 0.0,
+):
     """`solve`'s compiled program for `problem` lowered, and its arguments: `lowered.compile()
-    (*arguments)` is `solve(problem, backend, max_steps=..., **tolerances)` (rtol, atol,
-    step_tolerance, function_tolerance), for timing compilation apart from the run."""
+    (*arguments)` is `solve(problem, backend, ...)` with the same settings, for timing
+    compilation apart from the run."""
     backend = choose_backend(problem, backend) if isinstance(backend, str) else backend
-    tolerances = Tolerances(
-        rtol=tolerances.get("rtol", backend.tolerance),
-        atol=tolerances.get("atol", backend.tolerance),
-        step=tolerances.get("step_tolerance", STEP_TOLERANCE),
-        function=tolerances.get("function_tolerance", 0.0))
+    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance)
     program, arguments = _program(problem, backend.ready(problem), tolerances, max_steps,
                                   optx.ImplicitAdjoint())
     return program.lower(*arguments), arguments
+
+
+def _tolerances(backend: Backend, rtol, atol, step_tolerance, function_tolerance) -> Tolerances:
+    """The stopping rules, rtol and atol defaulting to the backend's `tolerance`."""
+    return Tolerances(rtol=backend.tolerance if rtol is None else rtol,
+                      atol=backend.tolerance if atol is None else atol,
+                      step=step_tolerance, function=function_tolerance)
 
 
 def _program(problem, backend, tolerances, max_steps, adjoint):
@@ -112,7 +120,7 @@ def choose_backend(problem: BundleProblem, name: str = "auto") -> Backend:
     if name == "dense":
         return Dense()
     try:  # the values under jax.grad, a tracer's error under jit / vmap (after its checks)
-        schur = use_schur(_stop_gradient(problem), name)
+        schur = use_schur(stop_gradient(problem), name)
     except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
         schur = name == "schur"
     return Schur() if schur else Dense()
@@ -125,7 +133,9 @@ def _traced(problem: BundleProblem) -> bool:
                for leaf in jax.tree.leaves(eqx.filter(problem, eqx.is_array)))
 
 
-def _stop_gradient(tree):
+def stop_gradient(tree):
+    """`tree` with `jax.lax.stop_gradient` on its inexact arrays (its other leaves as they
+    are): a problem whose values count but whose derivatives do not."""
     dynamic, static = eqx.partition(tree, eqx.is_inexact_array)
     return eqx.combine(jax.lax.stop_gradient(dynamic), static)
 

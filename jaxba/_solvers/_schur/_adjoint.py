@@ -44,7 +44,7 @@ from optimistix.internal import implicit_jvp
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
-from .._solve import solve
+from .._solve import solve, stop_gradient
 from .._trust_region import STEP_TOLERANCE
 from ._assembly import bundle_normal_equations, schur_complement
 from ._columns import add_at_columns, at_columns, free_masks, reduced_vector, to_parameters
@@ -192,11 +192,6 @@ def _optimality(y: Parameters, _, inputs) -> Parameters:
     return jax.tree.map(jnp.where, problem.free, jax.grad(cost)(y), y)
 
 
-def _stop_gradient(tree):
-    dynamic, static = eqx.partition(tree, eqx.is_inexact_array)
-    return eqx.combine(jax.lax.stop_gradient(dynamic), static)
-
-
 @eqx.filter_jit
 def schur_adjusted(
     problem: BundleProblem,
@@ -216,7 +211,7 @@ def schur_adjusted(
     Cauchy test, `step_tolerance`: its statistical test); the adjoint's CG stops at `cg_rtol` in N's
     metric and fails after `cg_max_steps` iterations (an error under differentiation).
     """
-    fixed = _stop_gradient(problem)
+    fixed = stop_gradient(problem)
     solution = solve(fixed, Schur(structure), max_steps=max_steps, rtol=rtol, atol=atol,
                      step_tolerance=step_tolerance)
     optimum = solution.parameters
