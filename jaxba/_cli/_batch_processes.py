@@ -14,11 +14,16 @@ not safe.
 
 import concurrent.futures
 import dataclasses
+import math
 import multiprocessing
 import queue as queue_module
+import time
 from collections.abc import Callable
 
 from ._batch_read import BatchEntry
+
+# Seconds to wait, once every share has returned, for messages still on their way.
+LAST_MESSAGES = 10.0
 
 _queue = None  # a worker's channel to the parent (set by `_start_worker`)
 
@@ -64,14 +69,18 @@ def run_on_processes(
             initargs=(channel,)) as pool:
         futures = {pool.submit(_adjust_share, Share(_portable(part), chunk_size),
                                adjust_entries): part for part in parts}
-        pending = set(futures)
-        while pending:
-            _relay(channel, say, finished, timeout=0.1)
+        # A share's result can reach the pool before its last messages reach the channel
+        # (a queue's feeder thread): relay until every share that returned said it was done.
+        # (A worker killed in between never says so: wait for it at most LAST_MESSAGES s.)
+        pending, shares_done, returned, last = set(futures), 0, 0, math.inf
+        while pending or (shares_done < returned and time.monotonic() < last):
+            shares_done += _relay(channel, say, finished, timeout=0.1)
             done = {future for future in pending if future.done()}
             for future in done:
-                _record(futures[future], future)
+                returned += _record(futures[future], future)
             pending -= done
-        _relay(channel, say, finished, timeout=0.0)
+            if not pending and last == math.inf:
+                last = time.monotonic() + LAST_MESSAGES
 
 
 def _portable(part: list[BatchEntry]) -> list[BatchEntry]:
@@ -79,29 +88,37 @@ def _portable(part: list[BatchEntry]) -> list[BatchEntry]:
     return [dataclasses.replace(entry, project=None, result=None) for entry in part]
 
 
-def _relay(channel, say, finished, timeout: float) -> None:
-    """Pass the workers' messages on, waiting at most `timeout` s for the first one."""
+def _relay(channel, say, finished, timeout: float) -> int:
+    """Pass the workers' messages on, waiting at most `timeout` s for the first one; the
+    number of shares they said were done."""
+    shares_done = 0
     try:
-        message = channel.get(timeout=timeout) if timeout else channel.get_nowait()
+        message = channel.get(timeout=timeout)
         while True:
             kind, text = message
             if kind == "say":
                 say(text)
-            else:
+            elif kind == "finished":
                 finished()
+            else:
+                shares_done += 1
             message = channel.get_nowait()
     except queue_module.Empty:
-        return
+        return shares_done
 
 
-def _record(part: list[BatchEntry], future: concurrent.futures.Future) -> None:
+def _record(part: list[BatchEntry], future: concurrent.futures.Future) -> bool:
+    """The share's outcomes into its entries; whether its worker returned them."""
+    returned = True
     try:
         outcomes = future.result()
     except concurrent.futures.process.BrokenProcessPool as error:
+        returned = False
         outcomes = [("failed", f"its worker process ended unexpectedly ({error})", "", None)
                     for _ in part]
     for entry, (status, reason, mode, row) in zip(part, outcomes):
         entry.status, entry.reason, entry.mode, entry.row = status, reason, mode, row
+    return returned
 
 
 def _start_worker(channel) -> None:
@@ -118,4 +135,5 @@ def _adjust_share(share: Share, adjust_entries: Callable) -> list[tuple]:
     row) of each, in order."""
     adjust_entries(share.entries, lambda line: _queue.put(("say", line)),
                    lambda: _queue.put(("finished", "")), share.chunk_size)
+    _queue.put(("done", ""))  # after this share's messages: the channel keeps their order
     return [(entry.status, entry.reason, entry.mode, entry.row) for entry in share.entries]
