@@ -16,12 +16,21 @@ and qualified name, jaxba's version and a digest of its source, the versions of 
 jaxlib, equinox, optimistix, lineax and numpy, the platform, jax's options that change a
 trace (`_OPTIONS`: `jax_enable_x64`, ...), the structure of the arguments (pytree node types
 and their static data, the non-array leaves), every array leaf's shape, dtype and weak type,
-and the static arguments. Classes and functions are named by module and qualified name, only
-those of jaxba and the libraries (`_KNOWN`). Arguments whose structure holds anything else (a
-user's class, a lambda, an arbitrary object) get no key: the program is traced as usual.
+the static arguments, and the classes of the registries that traces look up by name
+(`register_lookup`: the camera models). Classes and functions are named by module and
+qualified name, only those of jaxba and the libraries (`_KNOWN`). Arguments or registries
+that hold anything else (a user's class, a lambda, an arbitrary object) get no key: the
+program is traced as usual.
+
+The output's structure cannot come from the export (its pytree nodes are equinox Modules):
+the first process pickles the output with an empty array in place of each array (its
+"skeleton", checked to unpickle to the same structure) and a later process rebuilds the
+output from it and the export's flat results.
 
 File: `<jax cache folder>/jaxba-programs/<name>-<key>.export`, a 32-byte BLAKE2b digest of the
-rest, then `Exported.serialize()`'s bytes; written to a temporary file and renamed (atomic).
+rest, the skeleton's pickle (8 bytes of length first), then `Exported.serialize()`'s bytes;
+written to a temporary file and renamed (atomic). The files are jaxba's own, like jax's
+compiled executables beside them: whoever may write them may change what a process runs.
 
 Safe by design: without jax's compilation cache folder (`jax_compilation_cache_dir` unset,
 the cache or jit disabled) or the flatbuffers package (jax's serialization needs it) nothing
@@ -39,10 +48,11 @@ import importlib.metadata
 import importlib.util
 import os
 import pathlib
+import pickle
 import sys
 import tempfile
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import equinox as eqx
 import jax
@@ -50,6 +60,7 @@ import numpy as np
 
 FOLDER = "jaxba-programs"  # inside jax's cache folder; jax's own entries end in "-cache"
 _DIGEST = 32  # bytes of BLAKE2b at the head of a stored file
+_LENGTH = 8  # bytes of the skeleton pickle's length after it
 _LIBRARIES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
 # Modules whose code a key may name by qualified name: jaxba's (its source is in the key), the
 # libraries' (their versions are), Python's own. A class or function of any other module (a
@@ -58,53 +69,79 @@ _KNOWN = frozenset(("jaxba", *_LIBRARIES, "builtins", "abc", "collections", "typ
 # jax's options that change a trace (the others change compilation, which jax keys itself).
 _OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
             "jax_numpy_dtype_promotion")
-_loaded: dict[str, Callable] = {}  # key: the export's call, jitted, for this process
+_loaded: dict[str, tuple] = {}  # key: (the export's call jitted, output tree, rest), this process
 _traced: set[str] = set()  # keys of programs that could not be exported, in this process
+_lookups: list[Callable[[], Iterable]] = []  # `register_lookup`'s registries
 
 
 class _NoKey(Exception):
     """The arguments hold something without a faithful textual form."""
 
 
-def call_stored(name: str, program: Callable, args: tuple, static: tuple, outline: Callable,
-                code: tuple = ()):
+def register_lookup(entries: Callable[[], Iterable]) -> None:
+    """Name a registry that traces look classes up in by name (camera models by their
+    `model` string): `entries()` lists the classes it holds now. Every key holds them all,
+    and nothing is stored while one of them is neither jaxba's nor a library's (a user's
+    camera model)."""
+    _lookups.append(entries)
+
+
+def stored(name: str) -> Callable[[Callable], Callable]:
+    """Decorator: the jitted `program` called through `call_stored` under `name`."""
+
+    def decorate(program: Callable) -> Callable:
+        @functools.wraps(program)
+        def call(*args):
+            return call_stored(name, program, args)
+
+        return call
+
+    return decorate
+
+
+def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
     """`program(*args, *static)`, called through its stored export where one can be used.
 
     - `name`: the program's name in file names (letters, digits, "_");
-    - `program`: a jitted function (`eqx.filter_jit`) of jaxba's (only jaxba's source is in
-      the key) of pytrees of arrays `args` and static arguments `static`;
-    - `outline(*args)`: a pytree shaped like the program's output (its array leaves of any
-      value, its other leaves and static data as the output's), built without tracing. The
-      first process checks it against the traced output and stores nothing on a mismatch;
-    - `code`: classes and functions the trace runs that the arguments only name (camera
-      models named by strings): no key, and the program traced as usual, unless all are
-      jaxba's or the libraries'.
+    - `program`: a jitted function (`eqx.filter_jit`, `solver_jit`) of jaxba's (only jaxba's
+      source is in the key) of pytrees of arrays `args` and static arguments `static`. A
+      program compiled with options of its own (`solver_jit`) gives its function jitted
+      without them as `nested` (the export traces that) and its options as
+      `compiler_options()` (the stored program's call is compiled with them);
 
-    Returns what `program(*args, *static)` returns.
+    The output's structure (its pytree nodes and non-array leaves) is stored beside the
+    export, pickled with empty arrays in place of its arrays: a later process rebuilds the
+    output without tracing. Returns what `program(*args, *static)` returns.
     """
     arrays, rest = eqx.partition(args, eqx.is_array)
     leaves, tree = jax.tree.flatten(arrays)
     folder = _folder()
-    try:
-        key = None if folder is None else _key(name, program, tree, leaves, rest,
-                                                (static, code))
-    except _NoKey:
-        key = None
+    key = None if folder is None else _key(name, program, tree, leaves, rest, static)
     if key is None or key in _traced:
         return program(*args, *static)
-    out_arrays, out_rest = eqx.partition(outline(*args), eqx.is_array)
-    out_tree = jax.tree.structure(out_arrays)
     path = folder / f"{name}-{key}.export"
-    call = _loaded.get(key)
-    if call is None:
-        exported = _load(path, leaves, out_tree.num_leaves)
-        if exported is None:
-            exported = _export(program, tree, rest, static, leaves, out_tree, out_rest)
-            if exported is None:  # not exportable, or `outline` is wrong: store nothing
-                _traced.add(key)  # and try no more in this process
+    loaded = _loaded.get(key)
+    if loaded is None:
+        stored = _load(path, leaves)
+        if stored is None:
+            stored = _export(getattr(program, "nested", program), tree, rest, static, leaves)
+            if stored is None or _key(name, program, tree, leaves, rest, static) != key:
+                # not exportable, its output not picklable, or the trace looked up a class
+                # by a name never resolved before (a registry changed): no file
+                _traced.add(key)  # and no second try in this process
                 return program(*args, *static)
-            _store(path, exported)
-        call = _loaded[key] = jax.jit(exported.call)
+            _store(path, *stored)
+        exported, skeleton = stored
+        options = getattr(program, "compiler_options", None)
+        out_arrays, out_rest = eqx.partition(skeleton, eqx.is_array)
+        # One sharding for every input: an export's outputs are committed to their device,
+        # NumPy inputs are not, and jit compiled the call again for each mix of the two.
+        device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+        loaded = _loaded[key] = (
+            jax.jit(exported.call, in_shardings=device,
+                    compiler_options=None if options is None else options()),
+            jax.tree.structure(out_arrays), out_rest)
+    call, out_tree, out_rest = loaded
     try:
         flat = call(*leaves)
     except Exception:  # a stale or broken export: trace as usual, drop the file
@@ -159,13 +196,22 @@ def _environment() -> bytes:
     return digest.digest()
 
 
-def _key(name: str, program: Callable, tree, leaves: list, rest, static: tuple) -> str:
-    """The hex digest naming the export of `name` for these arguments; raises _NoKey."""
+def _key(name: str, program: Callable, tree, leaves: list, rest, static: tuple) -> str | None:
+    """The hex digest naming the export of `name` for these arguments; None where they or a
+    registry hold something without a faithful textual form."""
+    try:
+        return _digest(name, program, tree, leaves, rest, static)
+    except _NoKey:
+        return None
+
+
+def _digest(name: str, program: Callable, tree, leaves: list, rest, static: tuple) -> str:
     code = getattr(program, "__wrapped__", program)
     parts = [name, getattr(code, "__module__", None), getattr(code, "__qualname__", None),
              jax.default_backend(), *(_canonical(getattr(jax.config, option)) for option in
                                        _OPTIONS), _describe(tree),
-             _canonical(jax.tree.leaves(rest)), _canonical(static)]
+             _canonical(jax.tree.leaves(rest)), _canonical(static),
+             [_canonical(entry) for entries in _lookups for entry in entries()]]
     parts += [(np.shape(leaf), np.dtype(leaf.dtype).str, bool(getattr(leaf, "weak_type", False)))
               for leaf in leaves]
     digest = hashlib.blake2b(_environment(), digest_size=20)
@@ -214,9 +260,9 @@ def _qualified(code) -> str:
     return f"{code.__module__}.{code.__qualname__}"
 
 
-def _load(path: pathlib.Path, leaves: list, n_out: int):
-    """The stored export at `path`, or None where there is none or it is unusable (a
-    digest, deserialization or signature mismatch)."""
+def _load(path: pathlib.Path, leaves: list):
+    """(export, output skeleton) stored at `path`, or None where there is none or it is
+    unusable (a digest, unpickling, deserialization or signature mismatch)."""
     try:
         blob = path.read_bytes()
     except OSError:
@@ -224,21 +270,27 @@ def _load(path: pathlib.Path, leaves: list, n_out: int):
     head, body = blob[:_DIGEST], blob[_DIGEST:]
     if hashlib.blake2b(body, digest_size=_DIGEST).digest() != head:
         return None
+    size = int.from_bytes(body[:_LENGTH], "little")
     try:
-        exported = jax.export.deserialize(bytearray(body))
+        skeleton = pickle.loads(body[_LENGTH:_LENGTH + size])
+        exported = jax.export.deserialize(bytearray(body[_LENGTH + size:]))
     except Exception:  # any failure to read it: trace and store anew
         return None
     signature = [(tuple(np.shape(leaf)), np.dtype(leaf.dtype)) for leaf in leaves]
+    n_out = jax.tree.structure(eqx.filter(skeleton, eqx.is_array)).num_leaves
     if ([(tuple(a.shape), np.dtype(a.dtype)) for a in exported.in_avals] != signature
             or len(exported.out_avals) != n_out):
         return None
-    return exported
+    return exported, skeleton
 
 
-def _export(program, tree, rest, static, leaves, out_tree, out_rest):
-    """`program` exported as a function of the flat array leaves of its arguments; None
-    where jax cannot export it or its output is not shaped like the outline (`out_tree`,
-    `out_rest`)."""
+def _export(program, tree, rest, static, leaves):
+    """(`program` exported as a function of the flat array leaves of its arguments, its
+    output's skeleton: the output with an empty array for each array); None where jax
+    cannot export or serialize it or the skeleton does not survive pickling unchanged.
+    The export is the one deserialized from its bytes, as a later process reads it: its
+    call lowers to the same module, so both find the same compiled executable in jax's
+    cache (the freshly traced export's did not: every program compiled twice)."""
     traced = {}
 
     def flat(*leaves):
@@ -251,19 +303,24 @@ def _export(program, tree, rest, static, leaves, out_tree, out_rest):
                                   weak_type=bool(getattr(leaf, "weak_type", False)))
              for leaf in leaves]
     try:
-        exported = jax.export.export(jax.jit(flat))(*specs)
-    except Exception:  # not exportable: the caller traces as usual
+        exported = jax.export.deserialize(jax.export.export(jax.jit(flat))(*specs).serialize())
+        empty = [np.empty(0, aval.dtype) for aval in exported.out_avals]
+        skeleton = eqx.combine(jax.tree.unflatten(traced["tree"], empty), traced["rest"])
+        arrays, rest = eqx.partition(pickle.loads(pickle.dumps(skeleton)), eqx.is_array)
+    except Exception:  # not exportable or not picklable: the caller traces as usual
         return None
-    if traced["tree"] != out_tree or not eqx.tree_equal(traced["rest"], out_rest):
+    if jax.tree.structure(arrays) != traced["tree"] or not eqx.tree_equal(rest, traced["rest"]):
         return None
-    return exported
+    return exported, skeleton
 
 
-def _store(path: pathlib.Path, exported) -> None:
-    """Write `exported` to `path` (digest, then the serialized export) atomically; nothing
-    where it cannot be serialized or the folder cannot be written."""
+def _store(path: pathlib.Path, exported, skeleton) -> None:
+    """Write `path`: a digest of the rest, the skeleton's pickle (its length first), the
+    serialized export; atomically. Nothing where it cannot be serialized or the folder
+    cannot be written."""
     try:
-        body = bytes(exported.serialize())
+        pickled = pickle.dumps(skeleton)
+        body = len(pickled).to_bytes(_LENGTH, "little") + pickled + bytes(exported.serialize())
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     except Exception:  # not serializable, a read-only folder: skip

@@ -32,10 +32,6 @@ def _program(box: Box, y, power: int):
     return Box(box.x * box.scale + y**power, box.scale), jnp.sum(jnp.sin(y))
 
 
-def _outline(box: Box, y):
-    return Box(np.zeros(()), box.scale), np.zeros(())
-
-
 _TESTS = Box.__module__.partition(".")[0]
 
 
@@ -50,8 +46,8 @@ def folder(tmp_path, monkeypatch):
     return tmp_path / _programs.FOLDER
 
 
-def _call(box, y, power=2, outline=_outline, program=_program):
-    return _programs.call_stored("test_box", program, (box, y), (power,), outline)
+def _call(box, y, power=2, program=_program):
+    return _programs.call_stored("test_box", program, (box, y), (power,))
 
 
 def _equal(a, b) -> bool:
@@ -69,7 +65,7 @@ def _close(a, b) -> bool:
 def _usable(path, box, y) -> bool:
     """A stored export that fits `_call(box, y)`'s arguments (digest, signature)."""
     leaves = jax.tree.leaves(eqx.filter((box, y), eqx.is_array))
-    return _programs._load(path, leaves, 2) is not None
+    return _programs._load(path, leaves) is not None
 
 
 def _box(n=5, scale=1.5, dtype=np.float64):
@@ -158,19 +154,21 @@ def test_a_failing_call_falls_back_and_drops_the_file(folder, monkeypatch):
         raise RuntimeError("an export that cannot run")
 
     key = next(iter(_programs._loaded))
-    _programs._loaded[key] = broken
+    _programs._loaded[key] = (broken, *_programs._loaded[key][1:])
     assert _equal(_call(box, y), _program(box, y, 2))
     assert not path.exists() and key not in _programs._loaded
 
 
-def test_no_export_where_none_can_be_made_or_used(folder):
+def test_no_export_where_none_can_be_made_or_used(folder, monkeypatch):
     """No file, the traced results: with jit disabled, for arguments without a faithful key
-    (a function in a static field), for code from outside jaxba and its libraries (a user's
-    camera model: here a class of pathlib), for a program jax cannot export (a host
-    callback) and for an outline that does not match the output."""
+    (a function in a static field), while a registry that traces look classes up in holds
+    one from outside jaxba and its libraries (a user's camera model: here a class of
+    pathlib), for a program jax cannot export (a host callback) and for an output that
+    cannot be pickled (a function made inside the program)."""
     y = jax.device_put(np.linspace(-1.0, 2.0, 5))
-    user = _programs.call_stored("test_box", _program, (_box(), y), (2,), _outline,
-                                 code=(pathlib.PurePath,))
+    with monkeypatch.context() as patch:  # a registry holding a user's class
+        patch.setattr(_programs, "_lookups", [*_programs._lookups, lambda: (pathlib.PurePath,)])
+        user = _programs.call_stored("test_box", _program, (_box(), y), (2,))
     assert _equal(user, _program(_box(), y, 2)) and not _programs._loaded
     with jax.disable_jit():
         assert _equal(_call(_box(), y), _program(_box(), y, 2))
@@ -180,8 +178,7 @@ def test_no_export_where_none_can_be_made_or_used(folder):
         f: object = eqx.field(static=True)
 
     odd = WithFunction(y, np.sin)
-    plus_one = _programs.call_stored("test_odd", eqx.filter_jit(lambda w: w.x + 1), (odd,), (),
-                                     lambda w: np.zeros(()))
+    plus_one = _programs.call_stored("test_odd", eqx.filter_jit(lambda w: w.x + 1), (odd,))
     assert np.array_equal(plus_one, np.asarray(y) + 1)
 
     traces = []
@@ -193,14 +190,19 @@ def test_no_export_where_none_can_be_made_or_used(folder):
         return Box(box.x + host, box.scale), jnp.sum(y)
 
     box = _box()
-    called = _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+    called = _programs.call_stored("test_callback", with_callback, (box, y), (2,))
     assert _equal(called, with_callback(box, y, 2))
     first = len(traces)
     for _ in range(2):  # no second try at exporting it in this process
-        _programs.call_stored("test_callback", with_callback, (box, y), (2,), _outline)
+        _programs.call_stored("test_callback", with_callback, (box, y), (2,))
     assert len(traces) == first
-    wrong = _call(box, y, outline=lambda box, y: (np.zeros(()), np.zeros(())))
-    assert _equal(wrong, _program(box, y, 2))
+
+    @eqx.filter_jit
+    def unpicklable(box, y, power):
+        return WithFunction(box.x * y**power, lambda v: v)
+
+    local = _programs.call_stored("test_local", unpicklable, (box, y), (2,))
+    assert np.array_equal(local.x, unpicklable(box, y, 2).x)
     assert not folder.exists() or not list(folder.iterdir())
 
 
@@ -216,7 +218,7 @@ def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
     ]
     batch = _batch.pad_problems(problems)
     stored = _batch.adjust_padded(batch, max_steps=30)
-    assert len(list(folder.iterdir())) == 1
+    assert len(list(folder.glob("batch_adjust-*"))) == 1
     _programs._loaded.clear()
     monkeypatch.setattr(_programs, "_export", None)  # an export now would fail the test
     loaded = _batch.adjust_padded(batch, max_steps=30)
@@ -231,3 +233,58 @@ def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
     for results in (stored, loaded):
         for result, reference in zip(results, traced, strict=True):
             assert _close(arrays(result), arrays(reference))
+
+
+@pytest.mark.parametrize("backend", ["dense", "schur"])
+def test_an_adjustment_is_stored_then_loaded(folder, tmp_path, monkeypatch, backend):
+    """`jaxba.adjust` with every step reported (as the command line runs it): the first call
+    stores its programs (the steps among them), a later process reads them and exports
+    nothing; both equal the traced programs' estimates, σ and residuals to `EXPORT_RTOL`."""
+    project = jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
+        tmp_path / "p", name="p", seed=7, n_images=6, n_targets=20).project_file))
+    heard = []
+
+    def adjust():
+        heard.append([])
+        return jaxba.adjust(project.problem, solver=backend, on_iteration=heard[-1].append)
+
+    def arrays(result):
+        return (jaxba.advanced.flatten(result.parameters),
+                jaxba.advanced.flatten(result.precision.std), result.precision.sigma0_squared,
+                *result.residuals)
+
+    stored = adjust()
+    names = {path.name.rpartition("-")[0] for path in folder.iterdir()}
+    assert {"lm_init", "lm_step", "solve_setup" if backend == "dense" else "normal_equations",
+            "whitened_residuals" if backend == "dense" else "schur_statistics"} <= names
+    _programs._loaded.clear()
+    monkeypatch.setattr(_programs, "_export", None)  # an export now would fail the test
+    loaded = adjust()
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    traced = adjust()
+    assert traced.converged and traced.backend == backend
+    assert stored.steps == loaded.steps == traced.steps
+    assert len(heard[0]) == len(heard[1]) == len(heard[2]) > 1
+    for result in (stored, loaded):
+        assert _close(arrays(result), arrays(traced))
+
+
+def test_a_registry_changed_by_the_trace_stores_nothing(folder, monkeypatch):
+    """A trace that resolves a class by a new name (a camera model first named in it)
+    changes what a key holds: nothing is stored under the key made before; the next call,
+    the registry settled, stores its export."""
+    entries = []
+    monkeypatch.setattr(_programs, "_lookups", [*_programs._lookups, lambda: tuple(entries)])
+
+    @eqx.filter_jit
+    def resolving(box, y, power):
+        if Box not in entries:
+            entries.append(Box)
+        return _program(box, y, power)
+
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    first = _programs.call_stored("test_resolving", resolving, (box, y), (2,))
+    assert _equal(first, _program(box, y, 2))
+    assert entries == [Box] and (not folder.exists() or not list(folder.iterdir()))
+    second = _programs.call_stored("test_resolving", resolving, (box, y), (2,))
+    assert _equal(second, _program(box, y, 2)) and len(list(folder.iterdir())) == 1

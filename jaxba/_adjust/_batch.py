@@ -18,7 +18,6 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
-from .._models._cameras import CAMERA_MODELS
 from .._problem._bundle import (
     BundleProblem,
     observation_mask,
@@ -189,13 +188,6 @@ def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, ch
     return _each(one, problem, plan, n_free, chunk_size)
 
 
-def _adjust_outline(problem, plan, n_free) -> tuple[Solution, BatchStatistics]:
-    """The structure of `_adjust_program`'s output (leaves of no meaning), without tracing."""
-    zero = np.zeros(())
-    return (Solution(problem.initial, zero, zero, zero, zero, optx.RESULTS.successful),
-            BatchStatistics(zero, zero, zero, zero, zero))
-
-
 @eqx.filter_jit
 def _screen_program(problem, plan, n_free, datum_rtol):
     return _each(lambda problem, plan, n: _datum_suspect(problem, plan, n, datum_rtol),
@@ -285,8 +277,7 @@ def adjust_padded(
     solution, stats = jax.device_get(call_stored(
         "batch_adjust", _adjust_program,
         (batch.problem, batch.plan, jax.device_put(batch.n_free)),
-        (max_steps, rtol, atol, datum_rtol, chunk_size), _adjust_outline,
-        code=tuple(CAMERA_MODELS[model] for model in batch.problem.initial.cameras)))
+        (max_steps, rtol, atol, datum_rtol, chunk_size)))
     layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
     results = []
     for k, problem in enumerate(batch.problems):

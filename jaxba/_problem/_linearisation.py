@@ -27,6 +27,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
+from .._programs import stored
 from ._bundle import (
     BundleProblem,
     free_indices,
@@ -59,6 +60,7 @@ class LinearisationPlan(eqx.Module):
         return self.free_index.shape[-1]
 
 
+@stored("local_positions")
 @eqx.filter_jit
 def _local_positions_jit(problem: BundleProblem, positions: Parameters) -> tuple:
     return tuple(group.local_values(positions) for group in problem.groups)
@@ -290,6 +292,7 @@ def dense_jacobian(
     return np.asarray(jacobian)[rows], np.asarray(residuals)[rows]
 
 
+@stored("dense_jacobian")
 @eqx.filter_jit
 def _dense_jacobian(problem, params, index, columns):
     n = index.shape[0]

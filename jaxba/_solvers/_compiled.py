@@ -58,3 +58,13 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
 
     def lower(self, *args, **kwargs):
         return self._compiled().lower(*args, **kwargs)
+
+    @functools.cached_property
+    def nested(self):
+        """`fn` jitted without the options, to trace inside another program (an export:
+        `jaxba._programs.call_stored` compiles that with `compiler_options()`)."""
+        return eqx.filter_jit(self._fn)
+
+    @staticmethod
+    def compiler_options() -> dict[str, str]:
+        return solver_compiler_options()

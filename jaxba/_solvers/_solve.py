@@ -19,6 +19,7 @@ import jax
 import optimistix as optx
 
 from .._problem._bundle import BundleProblem
+from .._programs import call_stored, stored
 from ._backend import Backend, Tolerances
 from ._compiled import solver_jit
 from ._dense import Dense
@@ -67,7 +68,7 @@ def solve(
     if on_step is not None:
         return _stepwise(problem, backend.for_steps(), tolerances, max_steps, on_step)
     program, arguments = _program(problem, backend, tolerances, max_steps, adjoint)
-    return program(*arguments)
+    return call_stored("solve", program, arguments)
 
 
 def lower_solve(
@@ -172,9 +173,10 @@ def _solution(problem, backend: Backend, args, solution: optx.Solution) -> Solut
     )
 
 
+@stored("solve_setup")
 @eqx.filter_jit
 def _setup(problem, backend, tolerances):
     return backend.least_squares(problem, tolerances)
 
 
-_read_solution = eqx.filter_jit(_solution)
+_read_solution = stored("solve_solution")(eqx.filter_jit(_solution))

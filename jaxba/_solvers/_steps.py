@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._memory import release_free_memory
+from .._programs import stored
 from .._timing import CompileLog
 from ._compiled import solver_jit
 
@@ -59,6 +60,7 @@ def _terminate(fn, solver, y, args, state):
     return terminate, result, result != optx.RESULTS.successful
 
 
+@stored("lm_init")
 @solver_jit
 def _init(fn, solver, y0, args):
     f_struct, aux_struct = jax.eval_shape(fn, y0, args)
@@ -66,6 +68,7 @@ def _init(fn, solver, y0, args):
     return state, *_terminate(fn, solver, y0, args, state)
 
 
+@stored("lm_step")
 @solver_jit
 def _step(fn, solver, y, args, state):
     new_y, state, aux = solver.step(fn, y, args, {}, state, frozenset())

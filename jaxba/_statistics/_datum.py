@@ -12,6 +12,7 @@ from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices, tie_source
 from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from .._programs import stored
 from ._causes import intersection_cause, nonfinite_observations
 
 SIMILARITY_NAMES = (
@@ -185,7 +186,7 @@ def check_datum(
 
 
 # `BundleProblem.whitened` as one compiled program (op by op it compiled ~60 small ones).
-whitened_residuals = eqx.filter_jit(BundleProblem.whitened)
+whitened_residuals = stored("whitened_residuals")(eqx.filter_jit(BundleProblem.whitened))
 
 
 def nonfinite_start_error(problem: BundleProblem, labels: list[str]) -> DatumError | None:

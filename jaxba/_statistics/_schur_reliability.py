@@ -24,6 +24,7 @@ from jaxtyping import Array
 
 from .._problem._bundle import BundleProblem, observation_mask
 from .._problem._parameters import Parameters
+from .._programs import stored
 from .._solvers._schur._assembly import compiled_normal_equations
 from .._solvers._schur._columns import free_masks, row_columns, row_points
 from .._solvers._schur._jacobians import image_blocks, row_jacobians
@@ -98,6 +99,7 @@ def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
     return 1.0 - leverage[real], whitened[real]
 
 
+@stored("schur_statistics")
 @eqx.filter_jit
 def _statistics(problem, structure, params, normal, reduced, point_inverse, sigma0,
                 redundancy):

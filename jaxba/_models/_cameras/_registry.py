@@ -2,6 +2,7 @@
 
 import functools
 
+from ..._programs import register_lookup
 from ._abstract import AbstractCamera
 from ._bal import BalCamera
 from ._fisheye import FisheyeCamera
@@ -27,6 +28,9 @@ class _CameraModels(dict):
         return _resolved(name)
 
 
+_RESOLVED: dict[str, type[AbstractCamera]] = {}  # the names `_resolved` resolved so far
+
+
 @functools.cache
 def _resolved(name: str) -> type[AbstractCamera]:
     """A camera behind a ray refraction ("smac+flat_port") or a user model
@@ -34,8 +38,11 @@ def _resolved(name: str) -> type[AbstractCamera]:
     lens = lens_model(name)
     if lens != name:
         refraction = RAY_REFRACTION_MODELS[name.removeprefix(lens + REFRACTION_SEPARATOR)]
-        return refracted_camera(CAMERA_MODELS[lens], refraction, name)
-    return load_camera_model(name)
+        camera = refracted_camera(CAMERA_MODELS[lens], refraction, name)
+    else:
+        camera = load_camera_model(name)
+    _RESOLVED[name] = camera
+    return camera
 
 
 CAMERA_MODELS: dict[str, type[AbstractCamera]] = _CameraModels({
@@ -47,3 +54,6 @@ CAMERA_MODELS: dict[str, type[AbstractCamera]] = _CameraModels({
 user model ("package.module:ClassName" or an entry point of the group "jaxba.cameras") and a
 camera behind a ray refraction ("smac+flat_port"), and raises `CameraModelError` (a
 ValueError) for a name it cannot resolve."""
+
+# Traces look cameras up by their model name: a stored program's key holds every model.
+register_lookup(lambda: (*CAMERA_MODELS.values(), *_RESOLVED.values()))

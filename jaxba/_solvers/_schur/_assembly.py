@@ -29,6 +29,7 @@ from jaxtyping import Array, Float, Int
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
+from ..._programs import stored
 from ._columns import add_at_columns, free_masks, row_columns, row_points
 from ._jacobians import gram, image_blocks, row_jacobians, transposed_product
 from ._normal import add_diagonal, marquardt_diagonal, matmul, pair_block_sums, small_inverse
@@ -148,7 +149,7 @@ def _normal_and_reduced(problem, structure, params):
 # the solution), which would otherwise each compile the normal equations inside theirs:
 # `bundle_normal_equations` at `params`, S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r) and V⁻¹
 # (n_e, 3, 3). (The datum check's S was a second program, 0.2 s to load in every process.)
-compiled_normal_equations = jax.jit(_normal_and_reduced)
+compiled_normal_equations = stored("normal_equations")(jax.jit(_normal_and_reduced))
 
 
 def dense_from_blocks(
