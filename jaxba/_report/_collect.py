@@ -17,10 +17,10 @@ import threading
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
 from .._problem._observations import named_parts, part_name
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
 from .._statistics._ids import Ids

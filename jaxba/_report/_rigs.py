@@ -4,8 +4,8 @@ camera's (σ propagated from their covariance, `jaxba._statistics._rigs`)."""
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, flatten, unflatten
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
 from .._statistics._rigs import baseline

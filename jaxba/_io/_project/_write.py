@@ -16,8 +16,8 @@ import tomllib
 
 from ..._files._atomic import replace_files
 from ..._files._paths import OutputError, check_folder, check_targets
-from ._errors import ProjectError
-from ._spec import ProjectSpec
+from ..._project._errors import ProjectError
+from ..._project._spec import ProjectSpec
 
 _ANGLES = slice(3, 6)
 
