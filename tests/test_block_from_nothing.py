@@ -167,7 +167,7 @@ def test_planted_blunders_are_flagged_or_deferred(weak, tmp_path):
 def test_a_deferred_point_the_adjusted_block_cannot_intersect_is_left_out_and_named(weak):
     """A deferred point with a blunder on one of its 2 rays: its rays do not meet even from
     the adjusted block; left out, named with the image and the miss."""
-    from jaxba._io._project._deferred import intersect_deferred
+    from jaxba._adjust._deferred import intersect_deferred
 
     completion = weak["completion"]
     pending = completion.pending

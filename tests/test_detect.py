@@ -267,6 +267,35 @@ def test_opencv_sample_approximations(left):
     assert abs(start["cx"] - values["cx"]) < 15 and abs(start["cy"] - values["cy"]) < 15
 
 
+def _settings(path: pathlib.Path) -> dict[str, list[str]]:
+    """A project file's lines by table, comments (whole lines and after values) left out."""
+    tables: dict[str, list[str]] = {}
+    table = ""
+    for line in path.read_text(encoding="utf-8").splitlines():
+        line = line.partition("  #")[0]
+        if line.startswith("["):
+            table = line
+        elif line and not line.startswith("#"):
+            tables.setdefault(table, []).append(line)
+    return tables
+
+
+def test_one_project_file_for_every_writer(left, tmp_path):
+    """`jaxba detect`, `jaxba init` (the detected project copied) and `jaxba import colmap`
+    write the same project file for the same content: the same lines, in the same order,
+    comments aside; the rig files and points table COLMAP adds aside."""
+    detected = _settings(left[0] / "left.toml")
+    assert _run("init", str(left[0] / "left.toml"), "--out", str(tmp_path / "init")) == 0
+    assert _settings(tmp_path / "init" / "left.toml") == detected
+    colmap_dir = HERE / "data" / "colmap_rig" / "text"
+    jaxba.write_colmap_project(colmap_dir, tmp_path / "colmap", name="left", warn=print)
+    imported = _settings(tmp_path / "colmap" / "left.toml")
+    assert imported["[project]"] == detected["[project]"] == ['name = "left"',
+                                                              'image_units = "pixel"']
+    assert imported["[adjustment]"] == detected["[adjustment]"]
+    assert imported["[files]"][:3] == detected["[files]"][:3]
+
+
 def test_board_warp_of_the_sample(left, tmp_path):
     """`--board-warp`: `board_warp = true` and every board point written; the warp adjusted
     with the camera. The printed board of OpenCV's sample is bent: kx 0.0065 ± 0.0012, ky

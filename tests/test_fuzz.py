@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from test_readers import DEFAULTS
 
 from jaxba._io._bal import BalFormatError, read_bal
-from jaxba._io._project import ProjectError, read_project
+from jaxba._io._project import read_project
+from jaxba._project import ProjectError
 
 # Derandomised: the same examples every run, so CI never fails on a draw it has not seen
 # before (hypothesis' database keeps any failure found locally).

@@ -1,9 +1,11 @@
 """The package's layers: one folder per layer, imports pointing down only.
 
-models < problem < solvers < statistics < adjust (orchestration) < io (project files,
-importers, exporters) < report (the reports of an io `Project`) < cli (the commands, and
-batches of project files end to end). A module imports from its own folder or from a lower
-rank: io never imports report nor cli, report never imports cli. Only cli may also use the
+models < problem < solvers < statistics < project (the project model: the specs of a
+project's files, built into a problem with the IDs of its rows) < adjust (orchestration:
+completing, adjusting) < io (project files, importers, exporters) < report (the reports of a
+`Project`) < cli (the commands, and batches of project files end to end). A module imports
+from its own folder or from a lower rank: the project model never imports adjust nor io, io
+never imports report nor cli, report never imports cli. Only cli may also use the
 public face `jaxba` (which re-exports every room: through it, io could reach report). The
 closed-form approximations (`_approximations`) sit beside the statistics, under the block
 initialisation that uses them. A handful of shared
@@ -23,9 +25,9 @@ BASE = {"_lazy", "_custom_types", "_float64", "_timing", "_gc", "_memory", "_jax
         "_dask", "_programs"}
 LAYERS = {
     "_models": 1, "_problem": 2, "_solvers": 3, "_statistics": 4, "_approximations": 4,
-    "_adjust": 5, "_io": 6, "_report": 7, "_cli": 8,
+    "_project": 5, "_adjust": 6, "_io": 7, "_report": 8, "_cli": 9,
 }
-PUBLIC_FACE = 9
+PUBLIC_FACE = 10
 
 
 def _modules() -> dict[str, pathlib.Path]:
@@ -100,6 +102,9 @@ def test_imports_point_down(module):
     ("jaxba._io._project.bad", "import jaxba\n"),
     ("jaxba._report.bad", "from .._cli._batch_run import run_batch\n"),
     ("jaxba._io.bad", "from .. import _report\n"),
+    ("jaxba._project.bad", "from .._adjust._complete import complete_project\n"),
+    ("jaxba._project._build", "from .._io._project import read_project\n"),
+    ("jaxba._statistics.bad", "from .._project._build import Project\n"),
 ])
 def test_the_check_sees_an_upward_import(tmp_path, module, source):
     bad = tmp_path / "bad.py"
@@ -110,5 +115,8 @@ def test_the_check_sees_an_upward_import(tmp_path, module, source):
 def test_the_check_lets_imports_point_down(tmp_path):
     good = tmp_path / "good.py"
     good.write_text("from ..._files import replace_files\nfrom ..._adjust import _pipeline\n"
-                    "from ._build import Project\nfrom ... import __version__\n")
+                    "from ..._project._build import Project\nfrom ... import __version__\n")
     assert _upward("jaxba._io._project.good", good) == []
+    adjust = tmp_path / "adjust.py"
+    adjust.write_text("from .._project._spec import ProjectSpec\nfrom ._initialise import x\n")
+    assert _upward("jaxba._adjust.good", adjust) == []

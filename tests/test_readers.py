@@ -4,9 +4,9 @@ import pathlib
 
 import pytest
 
-from jaxba._io._project._errors import ProjectError
 from jaxba._io._project._readers import read_project
-from jaxba._io._project._spec import AdjustmentSettings
+from jaxba._project._errors import ProjectError
+from jaxba._project._spec import AdjustmentSettings
 
 PROJECT = """\
 [project]

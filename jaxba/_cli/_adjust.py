@@ -94,7 +94,8 @@ def _read_checked(args: argparse.Namespace):
     """Read the project and check the output folder, without jax: bad input is reported
     within a fraction of a second. Returns the spec, the output folder and the seconds."""
     from jaxba._files import OutputError, check_targets
-    from jaxba._io._project import ProjectError, read_project
+    from jaxba._io._project import read_project
+    from jaxba._project import ProjectError
     from jaxba._report import check_outputs, html_path
 
     start = time.perf_counter()

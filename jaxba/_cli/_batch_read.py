@@ -10,8 +10,9 @@ import json
 import pathlib
 
 from .._files._paths import check_folder, check_targets, resolved
-from .._io._project import ProjectError, read_project
-from .._io._project._spec import ProjectSpec
+from .._io._project import read_project
+from .._project import ProjectError
+from .._project._spec import ProjectSpec
 from .._report._outputs import check_outputs, report_paths
 
 

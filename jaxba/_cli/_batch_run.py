@@ -34,8 +34,8 @@ import numpy as np
 from .._adjust._padding import batch_kind, batch_shape
 from .._dask import check_scheduler, executor
 from .._files._atomic import replace_files
-from .._io._project import ProjectError, build_project
 from .._models._cameras import CAMERA_MODELS
+from .._project import ProjectError, build_project
 from .._statistics._summary import variance_test
 from ._batch_processes import run_on_processes
 from ._batch_read import BatchEntry, finished_results, read_batch, summary_paths

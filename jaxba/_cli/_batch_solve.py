@@ -14,10 +14,10 @@ import dataclasses
 import math
 
 from .._adjust._adjust import NotConvergedError
+from .._adjust._adjust_project import adjust_project
 from .._adjust._batch import adjust_padded
 from .._adjust._padding import BatchShape, pad_problems
-from .._io._project import adjust_project
-from .._io._project._build import Project
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._datum import DatumError
 

@@ -29,8 +29,9 @@ def add_init(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxba._files import OutputError, output_lock
-    from jaxba._io._project import ProjectError, read_project
+    from jaxba._io._project import read_project
     from jaxba._io._project._write import project_paths
+    from jaxba._project import ProjectError
 
     try:  # before jax: bad input and an unusable folder are reported at once
         spec = read_project(args.project)
@@ -43,8 +44,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_locked(args: argparse.Namespace, spec) -> int:
-    from jaxba._io._project import ProjectError
     from jaxba._io._project._write import write_project
+    from jaxba._project import ProjectError
 
     completed, image_methods, point_methods, deferred = spec, None, None, {}
     if spec.complete:

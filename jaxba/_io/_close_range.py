@@ -26,6 +26,7 @@ import pathlib
 
 import numpy as np
 
+from ._project._project_file import project_toml
 from ._synthetic import (
     DEFAULT_CAMERA,
     FIELD_CENTRE,
@@ -244,12 +245,11 @@ def write_close_range_project(
     files = {"cameras": "cameras.toml", "images": "orientation.txt",
              "image_points": "image_coordinates.txt", "points": "ground_points.txt"}
     project_file = directory / f"{name}.toml"
-    project_file.write_text("\n".join([
-        f"# Synthetic close-range block (jaxba.write_close_range_project, seed {seed}).",
-        "[project]", f"name = {json.dumps(name)}", 'image_units = "mm"', "", "[files]",
-        *(f"{key} = {json.dumps(value)}" for key, value in files.items()), "",
-        "[adjustment]", "sigma0 = 1.0", f"image_sigma = {toml_float(noise)}  # mm",
-        "max_iterations = 100", f"datum = {json.dumps(datum)}", ""]))
+    project_file.write_text(project_toml(
+        name, "mm", files, {"sigma0": 1.0, "image_sigma": float(toml_float(noise)),
+                            "max_iterations": 100, "datum": datum},
+        comment=[f"Synthetic close-range block (jaxba.write_close_range_project, seed {seed})."],
+        notes={"image_sigma": "mm"}), encoding="utf-8")
     return SyntheticTruth(
         cameras={"C1": {p: float(CAMERA[p]) for p in IOP_NAMES}},
         images=truth_eops,

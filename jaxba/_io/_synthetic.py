@@ -21,6 +21,7 @@ import pathlib
 import numpy as np
 
 from .._models._rotation_numpy import matrix_to_opk, opk_to_matrix
+from ._project._project_file import project_toml
 
 IOP_NAMES = ("xp", "yp", "c", "K0", "K1", "K2", "K3", "P1", "P2", "P3", "A1", "A2")
 # The BASC lab camera: mm, SMAC distortion with r in mm; about -5 % radial distortion at
@@ -410,25 +411,11 @@ def write_synthetic_project(
         lines += [f"free = {json.dumps(list(free))}", ""]
     (directory / "cameras.toml").write_text("\n".join(lines))
     project_file = directory / f"{name}.toml"
-    project_file.write_text(
-        "\n".join(
-            [
-                f"# Synthetic self-calibration block (jaxba.write_synthetic_project, seed {seed}).",
-                "[project]",
-                f"name = {json.dumps(name)}",
-                f"image_units = {json.dumps(image_units)}",
-                "",
-                "[files]",
-                *(f"{key} = {json.dumps(value)}" for key, value in files.items()),
-                "",
-                "[adjustment]",
-                "sigma0 = 1.0",
-                f"image_sigma = {toml_float(image_sigma)}  # {unit}",
-                "max_iterations = 50",
-                "",
-            ]
-        )
-    )
+    project_file.write_text(project_toml(
+        name, image_units, files,
+        {"sigma0": 1.0, "image_sigma": float(toml_float(image_sigma)), "max_iterations": 50},
+        comment=[f"Synthetic self-calibration block (jaxba.write_synthetic_project, seed {seed})."],
+        notes={"image_sigma": unit}), encoding="utf-8")
     return SyntheticTruth(
         cameras=cameras,
         images=eops,

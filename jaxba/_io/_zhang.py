@@ -19,6 +19,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .._models._rotation_numpy import matrix_to_opk
+from ._project._project_file import project_toml
 
 N_IMAGES = 5
 SENSOR = (640, 480)
@@ -191,25 +192,14 @@ def write_zhang_project(
     (out_dir / "cameras.toml").write_text("\n".join(lines) + "\n")
 
     project_file = out_dir / f"{name}.toml"
-    project_file.write_text("\n".join([
-        "# Zhang's planar calibration data (MSR-TR-98-71): 5 images of 256 target corners.",
-        "# Published: fx 832.5, fy 832.53, skew 0.204494, cx 303.959, cy 206.585,",
-        "# k1 -0.228601, k2 0.190353.",
-        "[project]",
-        f"name = {json.dumps(name)}",
-        'image_units = "pixel"',
-        "",
-        "[files]",
-        'cameras = "cameras.toml"',
-        'images = "orientation.txt"',
-        'image_points = "image_coordinates.txt"',
-        'points = "target_points.txt"',
-        "",
-        "[adjustment]",
-        "sigma0 = 1.0",
-        "image_sigma = 1.0  # pixel",
-        "max_iterations = 100",
-        "",
-    ]))
+    project_file.write_text(project_toml(
+        name, "pixel", {"cameras": "cameras.toml", "images": "orientation.txt",
+                        "image_points": "image_coordinates.txt", "points": "target_points.txt"},
+        {"sigma0": 1.0, "image_sigma": 1.0, "max_iterations": 100},
+        comment=["Zhang's planar calibration data (MSR-TR-98-71): 5 images of 256 target"
+                 " corners.",
+                 "Published: fx 832.5, fy 832.53, skew 0.204494, cx 303.959, cy 206.585,",
+                 "k1 -0.228601, k2 0.190353."],
+        notes={"image_sigma": "pixel"}), encoding="utf-8")
     closed_form = {"fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2], "skew": k[0, 1]}
     return ZhangProject(project_file, {p: float(v) for p, v in closed_form.items()}, images)

@@ -6,9 +6,9 @@ import dataclasses
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
 from .._problem._parameters import WARP_PARAMETER_NAMES, flatten, unflatten
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
 from ._collect import shared

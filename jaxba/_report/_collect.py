@@ -17,10 +17,10 @@ import threading
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
 from .._problem._observations import named_parts, part_name
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
 from .._statistics._ids import Ids
@@ -182,9 +182,10 @@ def _tied(source: tuple[str, str]) -> str:
     return f"{TIED} {source[0]}.{source[1]}"
 
 
-def _status_table(estimated, sigma: list[tuple]) -> np.ndarray:
-    """`_status` of every entry of a table at once: `estimated` (n, k) bools, `sigma` n tuples
-    of k file σ (None free, 0 fixed, > 0 weighted). An (n, k) object array of str."""
+def status_table(estimated, sigma: list[tuple]) -> np.ndarray:
+    """The status (FIXED, FREE or WEIGHTED) of every entry of a `ParameterTable` at once:
+    `estimated` (n, k) bools, `sigma` n tuples of k file σ (None free, 0 fixed, > 0
+    weighted). An (n, k) object array of str."""
     estimated = np.asarray(estimated, dtype=bool)
     with np.errstate(invalid="ignore"):
         weighted = np.array(sigma, dtype=float).reshape(estimated.shape) > 0  # None: NaN
@@ -238,7 +239,7 @@ def _composed_image_table(project: Project, result: Adjustment) -> ParameterTabl
                      for f, m in zip(frames.tolist(), mounts.tolist())]).reshape(-1, 6)
     free = (np.asarray(project.problem.free.images)[frames]
             | np.asarray(project.problem.free.mounts)[mounts])
-    frame_status = _status_table(project.problem.free.images, frame_sigma(project))[frames]
+    frame_status = status_table(project.problem.free.images, frame_sigma(project))[frames]
     status = np.where(mounts[:, None] == 0, frame_status,
                       np.where(free, FREE, FIXED).astype(object))
     angles = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
@@ -258,7 +259,7 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
     values[:, angles] = np.degrees(values[:, angles])
     stds[:, angles] = np.degrees(stds[:, angles])
     sigma = [project.spec.images[iid].eop_sigma for iid in project.image_ids]
-    status = _status_table(project.problem.free.images, sigma)
+    status = status_table(project.problem.free.images, sigma)
     return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.image_ids), values, stds, status)
 
 
@@ -266,7 +267,7 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
 def point_table(project: Project, result: Adjustment) -> ParameterTable:
     """Object points used by the adjustment (those observed in images or by distances)."""
     sigma = [project.spec.points[pid].sigma for pid in project.point_ids]
-    status = _status_table(project.problem.free.points, sigma)
+    status = status_table(project.problem.free.points, sigma)
     return ParameterTable(
         POINT_PARAMETER_NAMES,
         list(project.point_ids),

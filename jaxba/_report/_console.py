@@ -3,7 +3,7 @@ the warnings a user must not miss."""
 
 import math
 
-from .._io._project._build import Project
+from .._project._build import Project
 from .._solvers._progress import Iteration
 from .._statistics._adjustment import Adjustment
 from .._statistics._summary import outlier_summary, variance_test

@@ -14,7 +14,7 @@ import pathlib
 
 import numpy as np
 
-from .._io._project._build import Project
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import ScalarObservation, image_residuals, other_observations
 

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._problem._observations import part_name
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._board_warp import BoardWarp, board_warp
 from ._collect import (

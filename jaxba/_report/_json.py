@@ -6,8 +6,8 @@ from json.encoder import encode_basestring_ascii as _string
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import camera_covariance
 from ._board_warp import board_warp_tree

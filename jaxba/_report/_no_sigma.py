@@ -1,6 +1,6 @@
 """The unknowns without a σ (`Adjustment.no_sigma`) as the reports name them."""
 
-from .._io._project._build import Project
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 
 LISTED = 10

@@ -5,7 +5,7 @@ import pathlib
 from collections.abc import Iterable
 
 from .._files._paths import check_folder, check_targets, resolved
-from .._io._project._spec import ProjectSpec
+from .._project._spec import ProjectSpec
 
 OBSERVATIONS_FILE = "observations.csv"
 

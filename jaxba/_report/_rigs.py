@@ -4,12 +4,12 @@ camera's (σ propagated from their covariance, `jaxba._statistics._rigs`)."""
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, flatten, unflatten
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
 from .._statistics._rigs import baseline
-from ._collect import ParameterTable, _status_table, frame_sigma, shared
+from ._collect import ParameterTable, frame_sigma, shared, status_table
 
 _ANGLES = [IMAGE_PARAMETER_NAMES.index(name) for name in ANGLE_NAMES]
 
@@ -24,7 +24,7 @@ def _in_degrees(values: np.ndarray) -> np.ndarray:
 def frame_table(project: Project, result: Adjustment) -> ParameterTable:
     """The poses of the images block's rows (the frames; the images without rigs), angles
     and their σ in decimal degrees."""
-    status = _status_table(project.problem.free.images, frame_sigma(project))
+    status = status_table(project.problem.free.images, frame_sigma(project))
     return ParameterTable(IMAGE_PARAMETER_NAMES, list(project.frame_ids),
                           _in_degrees(result.parameters.images),
                           _in_degrees(result.precision.std.images), status)
@@ -36,7 +36,7 @@ def mount_table(project: Project, result: Adjustment) -> ParameterTable:
     identity left out), angles and σ in decimal degrees."""
     rigs = project.rigs
     sigma = np.where(np.isfinite(rigs.mount_sigma), rigs.mount_sigma, np.nan)
-    status = _status_table(project.problem.free.mounts, sigma.tolist())[1:]
+    status = status_table(project.problem.free.mounts, sigma.tolist())[1:]
     return ParameterTable(IMAGE_PARAMETER_NAMES, rigs.mount_ids[1:],
                           _in_degrees(result.parameters.mounts)[1:],
                           _in_degrees(result.precision.std.mounts)[1:], status)

@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 
-from .._io._project._build import Project
 from .._problem._observations import named_parts
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import MM, ImageResiduals, image_residuals, project_ids, shared
 

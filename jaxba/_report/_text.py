@@ -9,7 +9,7 @@ import operator
 
 import numpy as np
 
-from .._io._project._build import Project
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._summary import aligned, statistical_items
 from ._board_warp import board_warp

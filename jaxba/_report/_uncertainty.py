@@ -14,8 +14,8 @@ import numpy as np
 
 from .._files._atomic import replace_files
 from .._files._paths import check_targets
-from .._io._project._build import Project
 from .._models._cameras import CAMERA_MODELS
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._projection import (
     ProjectionUncertainty,

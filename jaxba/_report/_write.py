@@ -4,7 +4,7 @@ import pathlib
 
 from .._files._atomic import replace_files
 from .._gc import paused_gc
-from .._io._project._build import Project
+from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import shared_tables
 from ._csv import observations_csv

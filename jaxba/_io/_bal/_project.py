@@ -10,13 +10,13 @@ two rays). Plain NumPy; no jax.
 """
 
 import dataclasses
-import json
 import os
 import pathlib
 
 import numpy as np
 
 from ..._models._rotation_numpy import matrix_to_opk
+from .._project._project_file import project_toml
 from ._reader import BalProblem, read_bal
 
 
@@ -93,12 +93,11 @@ def write_bal_project(
             for c, p, (x, y) in zip(bal.camera_index[keep], bal.point_index[keep],
                                    bal.observed[keep])))
     project_file = out_dir / f"{name}.toml"
-    project_file.write_text("\n".join([
-        f"# BAL problem {source} (jaxba import bal): one bal camera per image, no control.",
-        "[project]", f"name = {json.dumps(name)}", 'image_units = "pixel"', "",
-        "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
-        'image_points = "image_coordinates.txt"', 'points = "points.txt"', "",
-        "[adjustment]", "image_sigma = 1.0  # pixel", 'datum = "dependent"', "",
-    ]))
+    project_file.write_text(project_toml(
+        name, "pixel", {"cameras": "cameras.toml", "images": "orientation.txt",
+                        "image_points": "image_coordinates.txt", "points": "points.txt"},
+        {"image_sigma": 1.0, "datum": "dependent"},
+        comment=[f"BAL problem {source} (jaxba import bal): one bal camera per image, no control."],
+        notes={"image_sigma": "pixel"}), encoding="utf-8")
     return BalProject(project_file, len(cameras), len(points), int(keep.sum()),
                       int(np.count_nonzero((rays > 0) & (rays < 2))))

@@ -10,6 +10,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
+from .._project._project_file import project_toml
 from ._cameras import PIXEL_ORIGIN_SHIFT, camera_to_jaxba
 from ._model import COLMAP_CAMERA_MODELS
 from ._read import read_colmap_model
@@ -102,11 +103,11 @@ def write_colmap_project(
 
     used_cameras = {image.camera_id for image in used_images}
     _write_cameras(out_dir / "cameras.toml", model, used_cameras, free)
-    files = ['cameras = "cameras.toml"', 'images = "orientation.txt"',
-             'image_points = "image_coordinates.txt"', 'points = "points.txt"']
+    files = {"cameras": "cameras.toml", "images": "orientation.txt",
+             "image_points": "image_coordinates.txt", "points": "points.txt"}
     if rigs.rigs:
         _write_rigs(out_dir, rigs, {image.id: image.name for image in used_images})
-        files += ['rigs = "rigs.toml"', 'frames = "frames.txt"']
+        files |= {"rigs": "rigs.toml", "frames": "frames.txt"}
 
     eops = [rigs.poses[image.id] for image in used_images]
     in_rig = {sid for _, mounts in rigs.rigs.values() for sid in mounts}
@@ -138,21 +139,11 @@ def write_colmap_project(
     (out_dir / "image_coordinates.txt").write_text("\n".join(rows) + "\n")
 
     project_file = out_dir / f"{name}.toml"
-    project_file.write_text("\n".join([
-        f"# COLMAP model {pathlib.Path(colmap_dir).name} as a jaxba project.",
-        "[project]",
-        f"name = {json.dumps(name)}",
-        'image_units = "pixel"',
-        "",
-        "[files]",
-        *files,
-        "",
-        "[adjustment]",
-        "sigma0 = 1.0",
-        f"image_sigma = {float(image_sigma)!r}  # pixel",
-        "max_iterations = 100",
-        "",
-    ]))
+    project_file.write_text(project_toml(
+        name, "pixel", files,
+        {"sigma0": 1.0, "image_sigma": float(image_sigma), "max_iterations": 100},
+        comment=[f"COLMAP model {pathlib.Path(colmap_dir).name} as a jaxba project."],
+        notes={"image_sigma": "pixel"}), encoding="utf-8")
     return ColmapProject(project_file, len(used_cameras), len(used_images),
                          len(observed_points), len(observations), len(rigs.rigs),
                          len(set(rigs.frames.values())))

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
+from .._project._project_file import project_toml
 from ._camera import DbatCamera, read_cameras
 from ._geometry import intersect, planar_resection
 from ._script import DbatScript, read_script
@@ -351,31 +352,18 @@ def write_dbat_project(
     base = project_file.parent
     sigmas = [s for m in script.marks for s in m.sigma]
     default_sigma = max(set(sigmas), key=sigmas.count)
-    datum = []
+    datum = {}
     if datum_image is not None:
-        datum = ['datum = "dependent"',
-                 f"datum_image = {json.dumps(script.images[datum_image])}  # DBAT's ref_cam"]
-    project_file.write_text("\n".join([
-        f"# DBAT script {where} (Börlin & Grussenmeyer, DBAT), imported by jaxba.",
-        "[project]",
-        f"name = {json.dumps(name)}",
-        'image_units = "pixel"',
-        "",
-        "[files]",
-        f"cameras = {json.dumps(_relative(out_dir / 'cameras.toml', base))}",
-        f"images = {json.dumps(_relative(out_dir / 'orientation.txt', base))}",
-        f"image_points = {json.dumps(_relative(out_dir / 'image_coordinates.txt', base))}",
-        f"points = {json.dumps(_relative(out_dir / 'points.txt', base))}",
-        "",
-        "[adjustment]",
-        "sigma0 = 1.0",
-        f"image_sigma = {default_sigma!r}  # pixel, per coordinate (DBAT's sxy)",
-        "max_iterations = 100",
-        "rtol = 1e-10",
-        "atol = 1e-10",
-        *datum,
-        "",
-    ]))
+        datum = {"datum": "dependent", "datum_image": script.images[datum_image]}
+    files = {"cameras": "cameras.toml", "images": "orientation.txt",
+             "image_points": "image_coordinates.txt", "points": "points.txt"}
+    project_file.write_text(project_toml(
+        name, "pixel", {key: _relative(out_dir / file, base) for key, file in files.items()},
+        {"sigma0": 1.0, "image_sigma": default_sigma, "max_iterations": 100, "rtol": 1e-10,
+         "atol": 1e-10, **datum},
+        comment=[f"DBAT script {where} (Börlin & Grussenmeyer, DBAT), imported by jaxba."],
+        notes={"image_sigma": "pixel, per coordinate (DBAT's sxy)",
+               "datum_image": "DBAT's ref_cam"}), encoding="utf-8")
     return DbatProject(
         project_file=project_file,
         camera=camera,

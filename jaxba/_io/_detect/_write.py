@@ -11,7 +11,7 @@ import pathlib
 
 from ..._files._atomic import replace_files
 from ..._models._cameras._names import CAMERA_PARAMETER_NAMES
-from .._project._write import _toml
+from .._project._project_file import project_toml, toml_text
 from .._zhang import table_text
 from ._project import DetectedProject
 from ._sheet import contact_sheet
@@ -37,7 +37,7 @@ def _cameras_toml(project: DetectedProject) -> str:
         lines += [
             f"[{camera}]  # {n_used} images; approximations: {start.method}",
             'model = "opencv"  # pixels, distortion applied forward (computer-vision convention)',
-            f"sensor = {_toml(list(project.sizes[camera]))}",
+            f"sensor = {toml_text(list(project.sizes[camera]))}",
             *(f"{p} = {float(values.get(p, 0.0))!r}" for p in CAMERA_PARAMETER_NAMES["opencv"]),
             f"free = {json.dumps(list(FREE))}",
             "",
@@ -48,7 +48,7 @@ def _cameras_toml(project: DetectedProject) -> str:
 def _rigs_toml(project: DetectedProject) -> str:
     reference = next(iter(project.starts))
     lines = [f"# The rig's frame is {reference}'s; approximations: the mean relative pose of the"
-             " images of common frames", f"[{project.rig}]", f"reference = {_toml(reference)}"]
+             " images of common frames", f"[{project.rig}]", f"reference = {toml_text(reference)}"]
     for camera, pose in project.relative.items():
         lines += ["", f"[{project.rig}.{camera}]"]
         lines += [f"{name} = {float(value)!r}" for name, value in zip(RIG_FREE, pose)]
@@ -59,25 +59,14 @@ def _rigs_toml(project: DetectedProject) -> str:
 def _project_toml(project: DetectedProject, name: str, files: dict[str, str],
                   board_warp: bool) -> str:
     n_used = len(project.used())
-    return "\n".join([
-        f"# Written by jaxba detect: board {project.board.text()}, {n_used} of"
-        f" {len(project.images)} images used ({DETECTIONS_FILE}, {SHEET_FILE}).",
-        f"# Board points in {_unit(project)}, fixed; image points in pixels.",
-        "[project]",
-        f"name = {_toml(name)}",
-        'image_units = "pixel"',
-        "",
-        "[files]",
-        *(f"{key} = {_toml(file)}" for key, file in files.items()),
-        "",
-        "[adjustment]",
-        "sigma0 = 1.0",
-        f"image_sigma = {IMAGE_SIGMA!r}  # pixel",
-        "max_iterations = 100",
-        *(["board_warp = true  # the board's warp kx, ky estimated (its points bent along Z)"]
-          if board_warp else []),
-        "",
-    ])
+    comment = [f"Written by jaxba detect: board {project.board.text()}, {n_used} of"
+               f" {len(project.images)} images used ({DETECTIONS_FILE}, {SHEET_FILE}).",
+               f"Board points in {_unit(project)}, fixed; image points in pixels."]
+    adjustment = {"sigma0": 1.0, "image_sigma": IMAGE_SIGMA, "max_iterations": 100,
+                  **({"board_warp": True} if board_warp else {})}
+    notes = {"image_sigma": "pixel",
+             "board_warp": "the board's warp kx, ky estimated (its points bent along Z)"}
+    return project_toml(name, "pixel", files, adjustment, comment=comment, notes=notes)
 
 
 def project_texts(project: DetectedProject, name: str, *, board_warp: bool = False

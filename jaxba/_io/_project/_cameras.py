@@ -15,10 +15,10 @@ from ..._models._cameras._names import (
     PRINCIPAL_DISTANCES,
     lens_model,
 )
-from ._errors import ProjectError
+from ..._project._errors import ProjectError
+from ..._project._spec import CameraSpec, InputFile
 from ._port import read_refraction
 from ._rigs import read_platform_mount
-from ._spec import CameraSpec, InputFile
 from ._ties import TIE_KEYS, read_camera_ties, resolve_ties
 from ._toml import (
     check_keys,

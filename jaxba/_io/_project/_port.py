@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..._models._cameras._names import RAY_REFRACTION_PARAMETER_NAMES
-from ._errors import ProjectError
+from ..._project._errors import ProjectError
 from ._toml import check_keys, check_not_weighted, name_list, prior_table, toml_float
 
 _PORT_KEYS = ("model", "distance", "thickness", "n_air", "n_glass", "n_medium", "normal",

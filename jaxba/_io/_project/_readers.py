@@ -1,4 +1,5 @@
-"""Read a project file and its tables (docs/project-files.md) into the records of `_spec.py`.
+"""Read a project file and its tables (docs/project-files.md) into the project model's
+records (`jaxba._project._spec`).
 
 Plain Python, no jax. Every problem with the input raises `ProjectError` naming the file and,
 where there is one, the line and the column or key. The project file itself (`[project]`,
@@ -11,10 +12,10 @@ import os
 import pathlib
 
 from ..._gc import paused_gc
+from ..._project._errors import ProjectError
+from ..._project._spec import AdjustmentSettings, InputFile, ProjectSpec
 from ._cameras import read_cameras
-from ._errors import ProjectError
 from ._rigs import FRAME_COLUMNS, read_frames, read_rigs
-from ._spec import AdjustmentSettings, InputFile, ProjectSpec
 from ._tables import (
     check_consistency,
     missing_points,

@@ -9,11 +9,10 @@ this module checks what they say. Angles stay in degrees, as in the files.
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from ._errors import ProjectError
-from ._spec import CameraSpec, ImageSpec, MountSpec, RigSpec
+from ..._project._errors import ProjectError
+from ..._project._spec import MOUNT_NAMES, CameraSpec, ImageSpec, MountSpec, RigSpec
 from ._toml import check_keys, check_not_weighted, prior_table, toml_float
 
-MOUNT_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 FRAME_COLUMNS = ("image_id", "frame_id")
 _RIG_KEYS = ("reference",)
 _MOUNT_KEYS = (*MOUNT_NAMES, "free", "sigma")

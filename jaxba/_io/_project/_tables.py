@@ -1,13 +1,13 @@
 """The text tables of a project (docs/project-files.md): images, points, image points and
-distances, each read by one reader into the records of `_spec.py`, with the checks that span
-them.
+distances, each read by one reader into the records of `jaxba._project._spec`, with the
+checks that span them.
 
 Values are not converted: angles stay in decimal degrees and image coordinates (and their σ)
 in the project's `image_units`. A σ is `None` (free / no observation), `0.0` (fixed) or a
 positive number (weighted); image points have no fixed state: their σ pair is `None` (use the
 project's `image_sigma`) or two positive numbers.
 
-Missing approximations are read as such (`_spec.py`): `-` in all six EOP columns of an image
+Missing approximations are read as such (`ProjectSpec`): `-` in all six EOP columns of an image
 (`ImageSpec.eop` None; its σ columns must then be `-`), and a point measured in the image
 points but absent from the points table (a tie point, `PointSpec.xyz` None, appended to the
 points in the order of first measurement).
@@ -19,8 +19,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ._errors import ProjectError
-from ._spec import (
+from ..._project._errors import ProjectError
+from ..._project._spec import (
     CameraSpec,
     DistanceSpec,
     ImagePointTable,

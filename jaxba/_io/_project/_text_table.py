@@ -15,8 +15,8 @@ from collections.abc import Callable, Container, Hashable, Iterator, Sequence
 
 import numpy as np
 
-from ._errors import ProjectError
-from ._spec import InputFile
+from ..._project._errors import ProjectError
+from ..._project._spec import InputFile
 
 # The largest magnitude of a number in a text table (coordinates, angles, image points,
 # distances): anything larger is a typo or a unit mistake, and would overflow the model

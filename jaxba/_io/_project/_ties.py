@@ -10,8 +10,8 @@ the camera ("C1@img01", ...) that shares all estimated parameters but the listed
 import dataclasses
 from collections.abc import Mapping
 
-from ._errors import ProjectError
-from ._spec import CameraSpec, ImageSpec
+from ..._project._errors import ProjectError
+from ..._project._spec import CameraSpec, ImageSpec
 
 TIE_KEYS = ("ties", "share", "per_image")
 PER_IMAGE_SEPARATOR = "@"

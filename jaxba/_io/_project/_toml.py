@@ -7,7 +7,7 @@ import tomllib
 from collections.abc import Container, Mapping
 from typing import Any
 
-from ._errors import ProjectError
+from ..._project._errors import ProjectError
 
 
 def load_toml(path: pathlib.Path, name: str) -> dict:

@@ -10,14 +10,14 @@ Never over an input: `project_paths` is checked against the project's input file
 anything is computed, and the files are replaced together (`replace_files`).
 """
 
-import json
 import pathlib
 import tomllib
 
 from ..._files._atomic import replace_files
 from ..._files._paths import OutputError, check_folder, check_targets
-from ._errors import ProjectError
-from ._spec import ProjectSpec
+from ..._project._errors import ProjectError
+from ..._project._spec import ProjectSpec
+from ._project_file import project_toml
 
 _ANGLES = slice(3, 6)
 
@@ -117,33 +117,15 @@ def _project_toml(spec: ProjectSpec, paths, n_images: int, n_points: int) -> str
     """The project file: [project] and [adjustment] as the input's, [files] the names."""
     with spec.path.open("rb") as stream:
         adjustment = tomllib.load(stream).get("adjustment", {})
-    lines = [f"# Written by jaxba init from {spec.path}"]
+    comment = [f"Written by jaxba init from {spec.path}"]
     if n_images or n_points:
-        lines.append(f"# with the approximations of {n_images} images and {n_points} points"
-                     " computed.")
-    lines += ["[project]", f"name = {_toml(spec.name)}", f"image_units = {_toml(spec.image_units)}",
-              "", "[files]"]
-    lines += [f"{key} = {_toml(path.name)}" for key, path in paths.items() if key != "project"]
-    if adjustment:
-        lines += ["", "[adjustment]"]
-        lines += [f"{key} = {_toml(value)}" for key, value in adjustment.items()]
-    text = "\n".join(lines) + "\n"
+        comment.append(f"with the approximations of {n_images} images and {n_points} points"
+                       " computed.")
+    files = {key: path.name for key, path in paths.items() if key != "project"}
+    text = project_toml(spec.name, spec.image_units, files, adjustment, comment=comment)
     if tomllib.loads(text).get("adjustment", {}) != adjustment:  # a bug, not bad input
         raise RuntimeError(f"{spec.path.name}: [adjustment] did not survive being rewritten")
     return text
-
-
-def _toml(value) -> str:
-    """A TOML value: string, bool, integer, finite float or list of them."""
-    if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, list):
-        return "[" + ", ".join(map(_toml, value)) + "]"
-    raise TypeError(f"no TOML for {value!r}")
 
 
 def _lines(path: pathlib.Path) -> list[str]:

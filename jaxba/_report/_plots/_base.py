@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from .._collect import PIXEL, camera_units
 
 

@@ -1,6 +1,6 @@
 """Heat map of the correlation matrix of a camera's estimated IOPs."""
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from .._collect import camera_correlations
 from ._base import new_figure

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from .._collect import PIXEL, camera_units, image_residuals
 from ._base import draw_outline, new_figure, sensor_frame

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from ..._io._project._build import Project
 from ..._models._cameras import CAMERA_MODELS
 from ..._models._cameras._names import DISTORTION_TERMS
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from ..._statistics._distortion import KINDS, distortion_profiles
 from .._collect import MM, camera_units, image_residuals

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from ..._statistics._derived import point_covariances
 from ._base import new_figure, nice

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from .._collect import group_statistics, is_measurement
 from ._base import new_figure

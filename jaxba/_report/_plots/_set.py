@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..._io._project._build import Project
+from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from ._correlation import plot_correlation
 from ._coverage import plot_coverage

@@ -3,11 +3,11 @@ project's side of the pipeline (`jaxba._adjust._pipeline`)."""
 
 from collections.abc import Callable
 
-from ..._adjust._pipeline import adjust_pipeline
-from ..._solvers._progress import Iteration
-from ..._statistics._adjustment import Adjustment
-from ..._timing import Timings
-from ._build import Project
+from .._project._build import Project
+from .._solvers._progress import Iteration
+from .._statistics._adjustment import Adjustment
+from .._timing import Timings
+from ._pipeline import adjust_pipeline
 
 
 def adjust_project(

@@ -20,12 +20,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..._adjust._initialise import initialise_block
-from ..._adjust._initialise._blunders import familywise
-from ..._adjust._initialise._state import INLIER_K
-from ..._models._cameras import CAMERA_MODELS
-from ..._statistics._adjustment import Adjustment
-from ._build import Project, build_project
+from .._models._cameras import CAMERA_MODELS
+from .._project._build import Project, build_project
+from .._project._spec import ProjectSpec
+from .._statistics._adjustment import Adjustment
+from ._adjust_project import adjust_project
 from ._complete import (
     LISTED,
     Completion,
@@ -34,8 +33,9 @@ from ._complete import (
     named,
     without_points,
 )
-from ._run import adjust_project
-from ._spec import ProjectSpec
+from ._initialise import initialise_block
+from ._initialise._blunders import familywise
+from ._initialise._state import INLIER_K
 
 DEFERRED_MIN_ANGLE = np.radians(0.1)
 """The smallest intersection angle of a deferred point's rays in the adjusted block: with

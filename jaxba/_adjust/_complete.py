@@ -1,6 +1,6 @@
 """Compute a project's missing approximations: `complete_project`.
 
-A project may leave approximations out (`_spec.py`): `-` in an image's six EOP columns, or a
+A project may leave approximations out (`ProjectSpec`): `-` in an image's six EOP columns, or a
 tie point measured but absent from the points table. `complete_project` turns the spec into
 the plain arrays of `initialise_block` (the image points in each camera model's units, one
 camera instance per camera of cameras.toml, the given EOPs in radians, every given point
@@ -24,11 +24,11 @@ import re
 import jax.numpy as jnp
 import numpy as np
 
-from ..._adjust._initialise import BlockInitialisation, initialise_block
-from ..._models._cameras import CAMERA_MODELS
-from ._build import measurements, pixel_grid, used_points
-from ._errors import ProjectError
-from ._spec import ProjectSpec
+from .._models._cameras import CAMERA_MODELS
+from .._project._build import measurements, pixel_grid, used_points
+from .._project._errors import ProjectError
+from .._project._spec import ProjectSpec
+from ._initialise import BlockInitialisation, initialise_block
 
 LISTED = 10
 """The most images, points or suspects a message names."""

@@ -10,13 +10,13 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ..._models._board_warp import board_extent, warp_shape
-from ..._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
-from ..._models._robust import RobustLoss
-from ..._problem._bundle import BundleProblem
-from ..._problem._observations import Distances, ImagePoints, ParameterObservations
-from ..._problem._parameters import Parameters, flatten, parameter_labels, unflatten
-from ..._statistics._free_network import inner_constraints
+from .._models._board_warp import board_extent, warp_shape
+from .._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefraction, PixelGrid
+from .._models._robust import RobustLoss
+from .._problem._bundle import BundleProblem
+from .._problem._observations import Distances, ImagePoints, ParameterObservations
+from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from .._statistics._free_network import inner_constraints
 from ._errors import ProjectError
 from ._frames import RigLayout, rig_layout
 from ._spec import ProjectSpec

@@ -15,10 +15,9 @@ import dataclasses
 
 import numpy as np
 
-from ..._models._rotation_numpy import matrix_to_opk, opk_to_matrix
+from .._models._rotation_numpy import matrix_to_opk, opk_to_matrix
 from ._errors import ProjectError
-from ._rigs import MOUNT_NAMES
-from ._spec import ProjectSpec
+from ._spec import MOUNT_NAMES, ProjectSpec
 
 # The identity mount (row 0): every rig's reference camera and every image outside a rig.
 REFERENCE_MOUNT = "reference"

@@ -6,8 +6,8 @@ Nothing here touches jax: the readers fill these records, `_build.py` turns them
 
 A missing approximation is explicit: an image whose six EOP columns are `-` has `eop`
 None, and a tie point that is measured but absent from the points table is a `PointSpec`
-with `xyz` None. `_complete.py` computes them (`complete_project`); `build_project` refuses
-a spec that still misses some.
+with `xyz` None. `complete_project` (`jaxba._adjust._complete`) computes them;
+`build_project` refuses a spec that still misses some.
 """
 
 import dataclasses
@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..._models._cameras._names import REFRACTION_SEPARATOR
+from .._models._cameras._names import REFRACTION_SEPARATOR
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,6 +190,10 @@ class DistanceSpec:
     distance: float
     sigma: float
     line: int
+
+
+MOUNT_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
+"""The six values of a rig camera's pose in its rig (`MountSpec.values`), in order."""
 
 
 @dataclasses.dataclass(frozen=True)
