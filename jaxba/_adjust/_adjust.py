@@ -104,7 +104,7 @@ def adjust(
         if error is not None:
             raise error
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
-    converged = result == optx.RESULTS.successful
+    converged = bool(solution.converged)  # read in its program: an `==` here compiles one
     message = "converged" if converged else _stop_reason(result, max_steps)
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
