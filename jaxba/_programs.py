@@ -138,7 +138,7 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
         # NumPy inputs are not, and jit compiled the call again for each mix of the two.
         device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
         loaded = _loaded[key] = (
-            jax.jit(exported.call, in_shardings=device,
+            jax.jit(_named(exported.call, name), in_shardings=device,
                     compiler_options=None if options is None else options()),
             jax.tree.structure(out_arrays), out_rest)
     call, out_tree, out_rest = loaded
@@ -150,6 +150,16 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
             path.unlink(missing_ok=True)
         return program(*args, *static)
     return eqx.combine(jax.tree.unflatten(out_tree, flat), out_rest)
+
+
+def _named(call: Callable, name: str) -> Callable:
+    """`call` under `name`: jax's compile logs and events name the program by it."""
+
+    def program(*leaves):
+        return call(*leaves)
+
+    program.__name__ = program.__qualname__ = name
+    return program
 
 
 def _folder() -> pathlib.Path | None:
