@@ -4,8 +4,12 @@
   in the navigation (mkdocs.yml's `validation` turns these into warnings, strict into errors).
 - Nothing points outside the repository (the team's internal documents) or at private modules.
 - The Python examples marked `<!-- run -->` run, in order, as one session per page.
+- Every console and file excerpt marked `<!-- excerpt: NAME -->` is what a fresh run of the
+  documented commands prints or writes (tests/doc_excerpts.py, which also rewrites them).
 - The command-line page names every subcommand and option the program prints in its --help,
-  each option in its subcommand's section.
+  each option in its subcommand's section; the home page's table of commands names every
+  subcommand once.
+- The outputs page's table of results.json names every key of the lab's results.json once.
 - The API page names every public name; the project-files page every setting and every
   camera parameter.
 """
@@ -19,6 +23,7 @@ import re
 import subprocess
 import sys
 
+import doc_excerpts
 import pytest
 
 import jaxba
@@ -182,3 +187,92 @@ def test_project_files_page_names_every_setting_and_camera_parameter():
         if row is None or row.group(1).split() != list(camera.parameter_names):
             missing.append(f"camera model {model!r}: {' '.join(camera.parameter_names)}")
     assert not missing, f"not (or not so) on the project-files page: {missing}"
+
+
+# --- excerpts of real runs -------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def fresh_run(tmp_path_factory):
+    """The documented commands, run once for every excerpt (~15 s, most of it compiling)."""
+    return doc_excerpts.run_commands(tmp_path_factory.mktemp("excerpts"))
+
+
+@pytest.fixture(scope="module")
+def fresh_excerpts(fresh_run):
+    return doc_excerpts.excerpts(fresh_run)
+
+
+def test_excerpts_are_marked_and_shown():
+    """Every marker is followed by a fenced block, names an excerpt, and every excerpt is
+    shown on some page."""
+    names = []
+    for page in sorted(DOCS.rglob("*.md")):
+        blocks = doc_excerpts.marked_blocks(page)
+        assert page.read_text("utf-8").count("<!-- excerpt:") == len(blocks), (
+            f"{page.name}: an excerpt marker not followed by a fenced block")
+        names += [block.name for block in blocks]
+    assert set(names) <= set(doc_excerpts.EXCERPTS), set(names) - set(doc_excerpts.EXCERPTS)
+    assert set(doc_excerpts.EXCERPTS) <= set(names), set(doc_excerpts.EXCERPTS) - set(names)
+
+
+@pytest.mark.parametrize("page", doc_excerpts.pages(), ids=lambda p: p.name)
+def test_excerpts_match_a_fresh_run(page, fresh_excerpts):
+    stale = [doc_excerpts.difference(block, fresh_excerpts[block.name])
+             for block in doc_excerpts.marked_blocks(page)
+             if not doc_excerpts.same(block.text, fresh_excerpts[block.name])]
+    assert not stale, ("\n\n".join(stale)
+                       + "\n\nupdate them with: python tests/doc_excerpts.py --write")
+
+
+def test_excerpt_comparison_is_as_printed():
+    """Words and integers exactly, the last printed digit of a decimal within one unit, the
+    timings and compile notices not at all."""
+    same = doc_excerpts.same
+    assert same("iter 4 cost 1.2168e+03 sigma0^2 0.995782\n",
+                "iter 4 cost 1.2169e+03 sigma0^2 0.995783\n")
+    assert not same("iter 4 sigma0^2 0.995782\n", "iter 4 sigma0^2 0.995784\n")
+    assert not same("converged after 4 iterations\n", "converged after 5 iterations\n")
+    assert not same("datum: control\n", "datum: free\n")
+    assert not same("a\nb\n", "a\n")
+    assert same("seconds: read 0.06, solve 0.21; compile 2.21 (8 programs, 8 from the cache)\n",
+                "seconds: read 0.02, solve 1.74; compile 9.10 (8 programs, 0 from the cache)\n")
+    assert not same("seconds: compile 2.21 (8 programs, 8 from the cache)\n",
+                    "seconds: compile 2.21 (17 programs, 8 from the cache)\n")
+    assert same("adjusting lab\n  solve: compiling...\niter 0\n", "adjusting lab\niter 0\n")
+    assert same('{"sigma0": 0.9978887538834256}', '{"sigma0": 0.9978887538834226}')
+    assert not same('{"sigma0": 0.9978887538834256}', '{"sigma0": 0.9978897538834226}')
+
+
+def test_rewrite_replaces_only_stale_blocks(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("x\n<!-- excerpt: a -->\n```text\nold 1\n```\n<!-- excerpt: b -->\n```text\n"
+                    "same 0.5\n```\n", "utf-8")
+    assert doc_excerpts.rewrite(page, {"a": "new 2\n", "b": "same 0.6\n"})
+    assert page.read_text("utf-8") == ("x\n<!-- excerpt: a -->\n```text\nnew 2\n```\n"
+                                       "<!-- excerpt: b -->\n```text\nsame 0.5\n```\n")
+    assert not doc_excerpts.rewrite(page, {"a": "new 2\n", "b": "same 0.5\n"})
+    with pytest.raises(KeyError, match="no excerpt named 'a'"):
+        doc_excerpts.rewrite(page, {"b": ""})
+
+
+def test_outputs_page_names_every_results_key_once(fresh_run):
+    """Each top-level key of the lab's results.json has one row in the table of
+    outputs.md's results.json section (rows for keys the lab lacks, such as `rigs`, may
+    follow)."""
+    section = _section((DOCS / "outputs.md").read_text("utf-8"), "results.json")
+    rows = re.findall(r"^\| `([^`]+)`(?:, `([^`]+)`)* \|", section, re.M)
+    keys = [key for row in rows for key in row if key]
+    results = json.loads((fresh_run.folder / "out" / "lab" / "results.json").read_text())
+    missing = [key for key in results if key not in keys]
+    twice = sorted({key for key in keys if keys.count(key) > 1})
+    assert not missing and not twice, f"missing: {missing}, more than one row: {twice}"
+
+
+def test_home_page_lists_every_command_once():
+    """index.md's table of commands: one row per subcommand of `jaxba --help`, and no
+    command the program lacks."""
+    page = (DOCS / "index.md").read_text("utf-8")
+    rows = re.findall(r"^\| `jaxba ([a-z][\w-]*)", _section(page, "The commands"), re.M)
+    commands = _subcommands(_help())
+    assert sorted(rows) == sorted(commands), f"table {rows}, program {commands}"
