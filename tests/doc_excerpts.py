@@ -1,14 +1,15 @@
 """Console and file excerpts in docs/, produced by real runs of the documented commands.
 
 A fenced block right after a line `<!-- excerpt: NAME -->` holds the excerpt NAME of
-`EXCERPTS`: a function of one `Run` (the lab's input files, the lab adjusted as
-getting-started.md shows it and from Python as api.md does, its cameras exported, its
-incomplete copy adjusted). Run from the repository's root,
+`EXCERPTS`: a function of one `Run` of the commands of `RUNS`: "lab" (the lab's input files,
+the lab adjusted as getting-started.md shows it and from Python as api.md does, its cameras
+exported, its incomplete copy adjusted) or "close-range" (a close-range block from nothing,
+whose weak points wait for the adjusted block: ~40 s of CPU). Run from the repository's root,
 
     python tests/doc_excerpts.py --write
 
-adjusts once in a temporary folder and rewrites every marked block; tests/test_docs.py runs
-the same commands and fails on any difference, naming the page, the line and a diff.
+runs them once in a temporary folder and rewrites every marked block; tests/test_docs.py
+runs the same commands and fails on any difference, naming the page, the line and a diff.
 
 Compared as printed, except in three stated ways:
 - the run's timings are masked: every number of a `seconds: ...` phrase but the count of
@@ -92,8 +93,9 @@ def _incomplete_lab(folder: pathlib.Path) -> None:
                               if "- - -" not in line))
 
 
-def run_commands(folder: pathlib.Path) -> Run:
-    """The commands the excerpts show, in `folder` (relative paths, as a user types them)."""
+def run_lab(folder: pathlib.Path) -> Run:
+    """The lab's commands the excerpts show, in `folder` (relative paths, as a user types
+    them)."""
     shutil.copytree(LAB, folder / "configs" / "lab")
     _incomplete_lab(folder / "incomplete")
     with contextlib.chdir(folder):
@@ -112,6 +114,18 @@ def _summary(project_file: str) -> str:
 
     _fresh()
     return jaxba.adjust_project(jaxba.build_project(jaxba.read_project(project_file))).summary()
+
+
+def run_close_range(folder: pathlib.Path) -> Run:
+    """cli.md's block from nothing: `jaxba adjust` of a close-range project without
+    approximations, 8 images and 300 wall points (seed 0), in `folder`."""
+    import jaxba
+
+    jaxba.write_close_range_project(folder / "block", n_images=8, n_points=300,
+                                    approximations=False)
+    with contextlib.chdir(folder):
+        console = {"adjust": _jaxba("adjust", "block/close_range.toml", "--out", "out")}
+    return Run(folder, console)
 
 
 # --- selections --------------------------------------------------------------------------
@@ -210,7 +224,21 @@ def _observations_csv(run: Run) -> str:
     return _join(_lines(table, "type,", 2), _lines(table, "distances,", 1))
 
 
-EXCERPTS: dict[str, Callable[[Run], str]] = {
+def _deferral(run: Run) -> str:
+    """The line naming the deferred points (the first of them), the first adjustment's
+    first line, and the lines of the deferred points' turn."""
+    lines = run.console["adjust"].splitlines()
+    deferred = next(line for line in lines if line.startswith("  deferred "))
+    deferred = deferred[:deferred.index("; ", deferred.index("': "))] + "; ..."
+    turn = next(k for k, line in enumerate(lines) if line.startswith("intersecting the "))
+    again = next(k for k in range(turn, len(lines)) if lines[k].startswith("adjusting close"))
+    return _join([deferred], _lines(run.console["adjust"], "adjusting close", 1), ["..."],
+                 lines[turn:again + 1])
+
+
+RUNS: dict[str, Callable[[pathlib.Path], Run]] = {
+    "lab": run_lab, "close-range": run_close_range}
+EXCERPTS: dict[str, dict[str, Callable[[Run], str]]] = {"lab": {
     "lab.toml": lambda run: run.file("configs/lab/lab.toml"),
     "lab-cameras.toml": _cameras_toml,
     "lab-tables": _tables,
@@ -224,7 +252,9 @@ EXCERPTS: dict[str, Callable[[Run], str]] = {
     "lab-summary": lambda run: run.console["summary"],
     "incomplete-lab-console": lambda run: _join(
         _until(run.console["incomplete"], "adjusting lab:")),
-}
+}, "close-range": {
+    "close-range-deferral-console": _deferral,
+}}
 
 
 # --- the pages ---------------------------------------------------------------------------
@@ -251,8 +281,9 @@ def pages() -> list[pathlib.Path]:
     return [page for page in sorted(DOCS.rglob("*.md")) if MARKED.search(page.read_text("utf-8"))]
 
 
-def excerpts(run: Run) -> dict[str, str]:
-    return {name: make(run) for name, make in EXCERPTS.items()}
+def excerpts(kind: str, run: Run) -> dict[str, str]:
+    """The excerpts of the run of RUNS[kind]."""
+    return {name: make(run) for name, make in EXCERPTS[kind].items()}
 
 
 def _normalise(text: str) -> str:
@@ -281,9 +312,14 @@ def same(documented: str, fresh: str) -> bool:
     return len(numbers[0]) == len(numbers[1]) and all(map(_same_number, *numbers))
 
 
+def _shown(page: pathlib.Path) -> pathlib.Path:
+    """A page's path from the repository's root (another file's as it is)."""
+    return page.relative_to(ROOT) if page.is_relative_to(ROOT) else page
+
+
 def difference(block: Block, fresh: str) -> str:
     """What differs, as a diff of the page's block against the fresh excerpt."""
-    where = f"{block.page.relative_to(ROOT)}:{block.line}"
+    where = f"{_shown(block.page)}:{block.line}"
     diff = difflib.unified_diff(block.text.splitlines(), fresh.splitlines(),
                                 f"{where} (excerpt {block.name})", "a fresh run", lineterm="")
     return "\n".join(diff)
@@ -297,7 +333,7 @@ def rewrite(page: pathlib.Path, fresh: dict[str, str]) -> bool:
     def replace(match: re.Match) -> str:
         name, old = match.group(1), match.group(2)
         if name not in fresh:
-            raise KeyError(f"{page.relative_to(ROOT)}: no excerpt named {name!r}")
+            raise KeyError(f"{_shown(page)}: no excerpt named {name!r}")
         new = old if same(old, fresh[name]) else fresh[name]
         start, end = match.start(2) - match.start(0), match.end(2) - match.start(0)
         return match.group(0)[:start] + new + match.group(0)[end:]
@@ -313,11 +349,13 @@ def main(argv: list[str]) -> int:
         print(__doc__.split("\n\n")[1].strip(), file=sys.stderr)
         print("usage: python tests/doc_excerpts.py --write", file=sys.stderr)
         return 2
-    with tempfile.TemporaryDirectory(prefix="jaxba-doc-excerpts-") as folder:
-        fresh = excerpts(run_commands(pathlib.Path(folder)))
+    fresh = {}
+    for kind, run in RUNS.items():
+        with tempfile.TemporaryDirectory(prefix="jaxba-doc-excerpts-") as folder:
+            fresh |= excerpts(kind, run(pathlib.Path(folder)))
     for page in pages():
         if rewrite(page, fresh):
-            print(f"rewrote {page.relative_to(ROOT)}")
+            print(f"rewrote {_shown(page)}")
     return 0
 
 

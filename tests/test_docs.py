@@ -194,13 +194,21 @@ def test_project_files_page_names_every_setting_and_camera_parameter():
 
 @pytest.fixture(scope="module")
 def fresh_run(tmp_path_factory):
-    """The documented commands, run once for every excerpt (~15 s, most of it compiling)."""
-    return doc_excerpts.run_commands(tmp_path_factory.mktemp("excerpts"))
+    """The lab's documented commands, run once for all their excerpts (~15 s, most of it
+    compiling)."""
+    return doc_excerpts.run_lab(tmp_path_factory.mktemp("excerpts"))
 
 
-@pytest.fixture(scope="module")
-def fresh_excerpts(fresh_run):
-    return doc_excerpts.excerpts(fresh_run)
+def _stale_blocks(page: pathlib.Path, fresh: dict[str, str]) -> list[str]:
+    """The diff of every block of `page` that shows an excerpt of `fresh` and differs."""
+    return [doc_excerpts.difference(block, fresh[block.name])
+            for block in doc_excerpts.marked_blocks(page)
+            if block.name in fresh and not doc_excerpts.same(block.text, fresh[block.name])]
+
+
+def _assert_fresh(stale: list[str]) -> None:
+    assert not stale, ("\n\n".join(stale)
+                       + "\n\nupdate them with: python tests/doc_excerpts.py --write")
 
 
 def test_excerpts_are_marked_and_shown():
@@ -212,17 +220,20 @@ def test_excerpts_are_marked_and_shown():
         assert page.read_text("utf-8").count("<!-- excerpt:") == len(blocks), (
             f"{page.name}: an excerpt marker not followed by a fenced block")
         names += [block.name for block in blocks]
-    assert set(names) <= set(doc_excerpts.EXCERPTS), set(names) - set(doc_excerpts.EXCERPTS)
-    assert set(doc_excerpts.EXCERPTS) <= set(names), set(doc_excerpts.EXCERPTS) - set(names)
+    known = {name for excerpts in doc_excerpts.EXCERPTS.values() for name in excerpts}
+    assert set(names) <= known, set(names) - known
+    assert known <= set(names), known - set(names)
 
 
 @pytest.mark.parametrize("page", doc_excerpts.pages(), ids=lambda p: p.name)
-def test_excerpts_match_a_fresh_run(page, fresh_excerpts):
-    stale = [doc_excerpts.difference(block, fresh_excerpts[block.name])
-             for block in doc_excerpts.marked_blocks(page)
-             if not doc_excerpts.same(block.text, fresh_excerpts[block.name])]
-    assert not stale, ("\n\n".join(stale)
-                       + "\n\nupdate them with: python tests/doc_excerpts.py --write")
+def test_excerpts_match_a_fresh_run(page, fresh_run):
+    _assert_fresh(_stale_blocks(page, doc_excerpts.excerpts("lab", fresh_run)))
+
+
+@pytest.mark.slow  # ~30 s CPU: an initialisation and two adjustments of 1,070 image points
+def test_close_range_excerpts_match_a_fresh_run(tmp_path):
+    fresh = doc_excerpts.excerpts("close-range", doc_excerpts.run_close_range(tmp_path))
+    _assert_fresh([diff for page in doc_excerpts.pages() for diff in _stale_blocks(page, fresh)])
 
 
 def test_excerpt_comparison_is_as_printed():
