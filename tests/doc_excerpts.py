@@ -1,10 +1,12 @@
 """Console and file excerpts in docs/, produced by real runs of the documented commands.
 
 A fenced block right after a line `<!-- excerpt: NAME -->` holds the excerpt NAME of
-`EXCERPTS`: a function of one `Run` of the commands of `RUNS`: "lab" (the lab's input files,
-the lab adjusted as getting-started.md shows it and from Python as api.md does, its cameras
-exported, its incomplete copy adjusted) or "close-range" (a close-range block from nothing,
-whose weak points wait for the adjusted block: ~40 s of CPU). Run from the repository's root,
+`EXCERPTS`: a function of one `Run` of the commands of `RUNS`: "help" (`jaxba --help`
+and the usage each command's --help prints, wrapped at 100 columns), "lab" (the lab's
+input files, the lab adjusted as getting-started.md shows it and from Python as api.md does,
+its cameras exported, its incomplete copy adjusted) or "close-range" (a close-range block from
+nothing, whose weak points wait for the adjusted block: ~40 s of CPU). Run from the
+repository's root,
 
     python tests/doc_excerpts.py --write
 
@@ -27,6 +29,7 @@ import dataclasses
 import difflib
 import io
 import json
+import os
 import pathlib
 import re
 import shutil
@@ -126,6 +129,45 @@ def run_close_range(folder: pathlib.Path) -> Run:
     with contextlib.chdir(folder):
         console = {"adjust": _jaxba("adjust", "block/close_range.toml", "--out", "out")}
     return Run(folder, console)
+
+
+HELP_COLUMNS = "100"  # the width argparse wraps the usage to, whatever the terminal
+
+
+def _help(*command: str) -> str:
+    """What `jaxba COMMAND --help` prints, wrapped at HELP_COLUMNS."""
+    from jaxba._cli._main import main
+
+    before = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = HELP_COLUMNS  # argparse's width
+    text = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(text):
+            main([*command, "--help"])
+    finally:
+        if before is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = before
+    return text.getvalue()
+
+
+def commands(top_help: str) -> list[str]:
+    """The subcommands listed under "positional arguments" of `jaxba --help`."""
+    section = top_help.split("positional arguments:", 1)[1].split("\n\n", 1)[0]
+    return re.findall(r"^ {4}([a-z][\w-]*)\s", section, re.M)
+
+
+def run_help(folder: pathlib.Path) -> Run:
+    """`jaxba --help`, console "", and the usage (the first paragraph) of each command's
+    --help (`folder` is not used)."""
+    top = _help()
+    usage = {command: _help(command).split("\n\n", 1)[0] + "\n" for command in commands(top)}
+    return Run(folder, {"": top} | usage)
+
+
+def _usage(command: str) -> Callable[[Run], str]:
+    return lambda run: run.console[command]
 
 
 # --- selections --------------------------------------------------------------------------
@@ -237,8 +279,12 @@ def _deferral(run: Run) -> str:
 
 
 RUNS: dict[str, Callable[[pathlib.Path], Run]] = {
-    "lab": run_lab, "close-range": run_close_range}
-EXCERPTS: dict[str, dict[str, Callable[[Run], str]]] = {"lab": {
+    "help": run_help, "lab": run_lab, "close-range": run_close_range}
+EXCERPTS: dict[str, dict[str, Callable[[Run], str]]] = {"help": {
+    "help": lambda run: run.console[""],
+    **{f"usage-{command}": _usage(command) for command in (
+        "adjust", "init", "import", "detect", "batch", "bal", "export", "compare")},
+}, "lab": {
     "lab.toml": lambda run: run.file("configs/lab/lab.toml"),
     "lab-cameras.toml": _cameras_toml,
     "lab-tables": _tables,

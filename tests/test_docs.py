@@ -118,12 +118,6 @@ def _help(*command: str) -> str:
     return done.stdout
 
 
-def _subcommands(top_help: str) -> list[str]:
-    """The subcommands listed under "positional arguments" of `jaxba --help`."""
-    section = top_help.split("positional arguments:", 1)[1].split("\n\n", 1)[0]
-    return re.findall(r"^ {4}([a-z][\w-]*)\s", section, re.M)
-
-
 def _section(page: str, heading: str) -> str:
     """The text of `## heading` up to the next level-2 heading."""
     match = re.search(rf"^## {re.escape(heading)}[ \t]*\n(.*?)(?=^## |\Z)", page, re.M | re.S)
@@ -144,7 +138,7 @@ def test_cli_page_names_every_subcommand_and_option():
     command"), every choice of an option in its section, every subcommand a section."""
     page = (DOCS / "cli.md").read_text("utf-8")
     top = _help()
-    commands = _subcommands(top)
+    commands = doc_excerpts.commands(top)
     assert {"adjust", "batch", "bal"} <= set(commands)
     common = _table_rows(_section(page, "Options of every command"))
     missing = [option for option in sorted(set(OPTION.findall(top))) if not _named(option, common)]
@@ -227,7 +221,9 @@ def test_excerpts_are_marked_and_shown():
 
 @pytest.mark.parametrize("page", doc_excerpts.pages(), ids=lambda p: p.name)
 def test_excerpts_match_a_fresh_run(page, fresh_run):
-    _assert_fresh(_stale_blocks(page, doc_excerpts.excerpts("lab", fresh_run)))
+    fresh = doc_excerpts.excerpts("lab", fresh_run)
+    fresh |= doc_excerpts.excerpts("help", doc_excerpts.run_help(fresh_run.folder))
+    _assert_fresh(_stale_blocks(page, fresh))
 
 
 @pytest.mark.slow  # ~30 s CPU: an initialisation and two adjustments of 1,070 image points
@@ -285,5 +281,5 @@ def test_home_page_lists_every_command_once():
     command the program lacks."""
     page = (DOCS / "index.md").read_text("utf-8")
     rows = re.findall(r"^\| `jaxba ([a-z][\w-]*)", _section(page, "The commands"), re.M)
-    commands = _subcommands(_help())
+    commands = doc_excerpts.commands(_help())
     assert sorted(rows) == sorted(commands), f"table {rows}, program {commands}"
