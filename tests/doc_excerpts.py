@@ -1,4 +1,5 @@
-"""Console and file excerpts in docs/, produced by real runs of the documented commands.
+"""Console and file excerpts in docs/ and README.md, produced by real runs of the documented
+commands.
 
 A fenced block right after a line `<!-- excerpt: NAME -->` holds the excerpt NAME of
 `EXCERPTS`: a function of one `Run` of the commands of `RUNS`: "help" (`jaxba --help`
@@ -220,6 +221,14 @@ def _tables(run: Run) -> str:
     return _join(*[part + [""] for part in parts[:-1]], parts[-1])
 
 
+def _incomplete_tables(run: Run) -> str:
+    """The incomplete lab's images (the first two) and points tables."""
+    images = run.file("incomplete/orientation.txt").splitlines()
+    points = run.file("incomplete/ground_points.txt").splitlines()
+    return _join([f"# orientation.txt: {images[0].removeprefix('# ')}"], images[1:3], ["..."],
+                 [f"# ground_points.txt: {points[0].removeprefix('# ')}"], points[1:])
+
+
 def _lab_out(run: Run) -> str:
     out = run.file("out/lab/lab.out")
     return _join(
@@ -295,6 +304,7 @@ EXCERPTS: dict[str, dict[str, Callable[[Run], str]]] = {"help": {
     "lab-results.json": _results_json,
     "lab-observations.csv": _observations_csv,
     "lab-export-console": lambda run: run.console["export"],
+    "incomplete-lab-tables": _incomplete_tables,
     "lab-summary": lambda run: run.console["summary"],
     "incomplete-lab-console": lambda run: _join(
         _until(run.console["incomplete"], "adjusting lab:")),
@@ -324,7 +334,9 @@ def marked_blocks(page: pathlib.Path) -> list[Block]:
 
 
 def pages() -> list[pathlib.Path]:
-    return [page for page in sorted(DOCS.rglob("*.md")) if MARKED.search(page.read_text("utf-8"))]
+    """docs/ and README.md: those with a marked block."""
+    return [page for page in [*sorted(DOCS.rglob("*.md")), ROOT / "README.md"]
+            if MARKED.search(page.read_text("utf-8"))]
 
 
 def excerpts(kind: str, run: Run) -> dict[str, str]:

@@ -209,7 +209,7 @@ def test_excerpts_are_marked_and_shown():
     """Every marker is followed by a fenced block, names an excerpt, and every excerpt is
     shown on some page."""
     names = []
-    for page in sorted(DOCS.rglob("*.md")):
+    for page in [*sorted(DOCS.rglob("*.md")), ROOT / "README.md"]:
         blocks = doc_excerpts.marked_blocks(page)
         assert page.read_text("utf-8").count("<!-- excerpt:") == len(blocks), (
             f"{page.name}: an excerpt marker not followed by a fenced block")
