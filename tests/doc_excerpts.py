@@ -6,7 +6,7 @@ A fenced block right after a line `<!-- excerpt: NAME -->` holds the excerpt NAM
 and the usage each command's --help prints, wrapped at 100 columns), "lab" (the lab's
 input files, the lab adjusted as getting-started.md shows it and from Python as api.md does,
 its cameras exported, its incomplete copy adjusted) or "close-range" (a close-range block from
-nothing, whose weak points wait for the adjusted block: ~40 s of CPU). Run from the
+nothing, whose weak points wait for the adjusted block: ~20 s of CPU in the tests). Run from the
 repository's root,
 
     python tests/doc_excerpts.py --write
@@ -41,6 +41,7 @@ from collections.abc import Callable
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 LAB = ROOT / "configs" / "lab"
+REPORTS = ("lab.out", "lab.res", "lab.sigma", "results.json", "observations.csv")  # not copied
 MARKED = re.compile(r"^<!-- excerpt: ([\w.-]+) -->[ \t]*\n```\w*[ \t]*\n(.*?)^```[ \t]*$",
                     re.M | re.S)
 NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
@@ -53,8 +54,8 @@ ELIDED = "  ..."
 
 @dataclasses.dataclass(frozen=True)
 class Run:
-    """The documented commands run in `folder`, which holds `configs/lab/` and the outputs
-    under `out/`; `console`: each command's standard output and error, interleaved."""
+    """The documented commands run in `folder`, which holds their inputs and outputs;
+    `console`: each command's standard output and error, interleaved."""
 
     folder: pathlib.Path
     console: dict[str, str]
@@ -84,10 +85,11 @@ def _jaxba(*argv: str) -> str:
     return text.getvalue()
 
 
-def _incomplete_lab(folder: pathlib.Path) -> None:
-    """The lab with `-` for every EOP and only its control points (1, 10, 71) in the points
-    table: cli.md's example of missing approximations."""
-    shutil.copytree(LAB, folder)
+def incomplete_lab(folder: pathlib.Path) -> pathlib.Path:
+    """The lab copied into `folder` with `-` for every EOP and only its control points (1, 10,
+    71) in the points table: 18 images and 77 tie points without approximations, cli.md's
+    example. Returns its project file."""
+    shutil.copytree(LAB, folder, ignore=shutil.ignore_patterns(*REPORTS))
     images = folder / "orientation.txt"
     images.write_text("".join(
         line if line.startswith("#") else " ".join(line.split()[:2] + ["-"] * 6) + "\n"
@@ -95,13 +97,14 @@ def _incomplete_lab(folder: pathlib.Path) -> None:
     points = folder / "ground_points.txt"
     points.write_text("".join(line for line in points.read_text().splitlines(keepends=True)
                               if "- - -" not in line))
+    return folder / "lab.toml"
 
 
 def run_lab(folder: pathlib.Path) -> Run:
     """The lab's commands the excerpts show, in `folder` (relative paths, as a user types
     them)."""
-    shutil.copytree(LAB, folder / "configs" / "lab")
-    _incomplete_lab(folder / "incomplete")
+    shutil.copytree(LAB, folder / "configs" / "lab", ignore=shutil.ignore_patterns(*REPORTS))
+    incomplete_lab(folder / "incomplete")
     with contextlib.chdir(folder):
         console = {
             "adjust": _jaxba("adjust", "configs/lab/lab.toml", "--out", "out/lab"),

@@ -188,7 +188,7 @@ def test_project_files_page_names_every_setting_and_camera_parameter():
 
 @pytest.fixture(scope="module")
 def fresh_run(tmp_path_factory):
-    """The lab's documented commands, run once for all their excerpts (~15 s, most of it
+    """The lab's documented commands, run once for all their excerpts (~20 s CPU, most of it
     compiling)."""
     return doc_excerpts.run_lab(tmp_path_factory.mktemp("excerpts"))
 
@@ -226,7 +226,7 @@ def test_excerpts_match_a_fresh_run(page, fresh_run):
     _assert_fresh(_stale_blocks(page, fresh))
 
 
-@pytest.mark.slow  # ~30 s CPU: an initialisation and two adjustments of 1,070 image points
+@pytest.mark.slow  # ~20 s CPU: an initialisation and two adjustments of 1,070 image points
 def test_close_range_excerpts_match_a_fresh_run(tmp_path):
     fresh = doc_excerpts.excerpts("close-range", doc_excerpts.run_close_range(tmp_path))
     _assert_fresh([diff for page in doc_excerpts.pages() for diff in _stale_blocks(page, fresh)])
