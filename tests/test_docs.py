@@ -3,7 +3,8 @@
 - The site builds with `mkdocs build --strict`: every link and anchor resolves, every page is
   in the navigation (mkdocs.yml's `validation` turns these into warnings, strict into errors).
 - Nothing points outside the repository (the team's internal documents) or at private modules.
-- The Python examples marked `<!-- run -->` run, in order, as one session per page.
+- The Python examples marked `<!-- run -->` run, in order, as one session per page; a print
+  followed by `# → TEXT` prints TEXT.
 - Every console and file excerpt marked `<!-- excerpt: NAME -->` is what a fresh run of the
   documented commands prints or writes (tests/doc_excerpts.py, which also rewrites them).
 - The command-line page names every subcommand and option the program prints in its --help,
@@ -81,10 +82,52 @@ def test_examples_are_marked():
             f"{page.name}: a {RUN_MARK} line not followed by a ```python block")
 
 
+# `print(...)  # → TEXT`, or `# → TEXT` on the line after `print(...)`: the page says it prints
+# TEXT (compared as the excerpts are: doc_excerpts.same).
+PRINTS = re.compile(r"^(?P<indent>[ \t]*)print\((?P<args>.*)\)[ \t]+# → (?P<text>.*)$")
+PRINT = re.compile(r"^(?P<indent>[ \t]*)print\((?P<args>.*)\)[ \t]*$")
+SAYS = re.compile(r"^[ \t]*# → (?P<text>.*)$")
+
+
+def checked_prints(code: str, first_line: int) -> str:
+    """`code` with each print whose output the page states (PRINTS) calling
+    `_printed(TEXT, LINE)` instead, which prints and compares; as many lines as before."""
+    lines = code.splitlines()
+    for k, line in enumerate(lines):
+        match = PRINTS.match(line)
+        follows = SAYS.match(lines[k + 1]) if k + 1 < len(lines) else None
+        if match is None and follows is not None and (bare := PRINT.match(line)):
+            match = {**bare.groupdict(), "text": follows["text"]}
+        if match is not None:
+            lines[k] = (f"{match['indent']}_printed({match['text']!r}, {first_line + k})"
+                        f"({match['args']})")
+    return "\n".join(lines) + "\n"
+
+
+def test_checked_prints():
+    code = 'x = 1\nprint(x)  # → 1\nprint(f"{x:.2f}", (x))\n# → 1.00 1\nprint(x)  # one\n'
+    assert checked_prints(code, 10) == (
+        "x = 1\n_printed('1', 11)(x)\n_printed('1.00 1', 12)(f\"{x:.2f}\", (x))\n# → 1.00 1\n"
+        "print(x)  # one\n")
+
+
 _RUNNER = """
-import json, sys, traceback
+import io, json, sys, traceback
+sys.path.insert(0, sys.argv[3])
+from doc_excerpts import same
+
+def _printed(expected, line):
+    def check(*args, **kwargs):
+        text = io.StringIO()
+        print(*args, file=text, **kwargs)
+        sys.stdout.write(text.getvalue())
+        if not same(expected + "\\n", text.getvalue()):
+            raise AssertionError(f"{sys.argv[2]}:{line}: prints {text.getvalue().strip()!r},"
+                                 f" the page says {expected!r}")
+    return check
+
 blocks = json.load(open(sys.argv[1], encoding="utf-8"))
-namespace = {"__name__": "__main__"}
+namespace = {"__name__": "__main__", "_printed": _printed}
 for line, code in blocks:
     try:
         # Padded so that a traceback gives the line of the page.
@@ -98,15 +141,19 @@ for line, code in blocks:
 @pytest.mark.parametrize("page", pages_with_examples(), ids=lambda p: p.name)
 def test_examples_run(page, tmp_path):
     """The page's runnable blocks, in order, in one fresh interpreter (float64 on, as a user
-    must), from the repository's root (the examples read configs/)."""
+    must), from the repository's root (the examples read configs/); what a print prints is
+    what the page says where it says it (`# → TEXT`)."""
     blocks_file = tmp_path / "blocks.json"
-    blocks_file.write_text(json.dumps(runnable_blocks(page.read_text("utf-8"))), "utf-8")
+    blocks = [(line, checked_prints(code, line))
+              for line, code in runnable_blocks(page.read_text("utf-8"))]
+    blocks_file.write_text(json.dumps(blocks), "utf-8")
     runner = tmp_path / "run_blocks.py"
     runner.write_text(_RUNNER, "utf-8")
     environment = {**os.environ, "JAX_ENABLE_X64": "1", "OPENBLAS_NUM_THREADS": "1",
                    "MPLBACKEND": "Agg", "TMPDIR": str(tmp_path)}  # the examples' temp folders
     done = subprocess.run(
-        [sys.executable, str(runner), str(blocks_file), str(page.relative_to(ROOT))],
+        [sys.executable, str(runner), str(blocks_file), str(page.relative_to(ROOT)),
+         str(ROOT / "tests")],
         cwd=ROOT, env=environment, capture_output=True, text=True, timeout=EXAMPLES_TIMEOUT_S)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
 
