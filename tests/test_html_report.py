@@ -13,6 +13,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import scipy.stats
 
 import jaxba
 from jaxba._report._html import MAX_POINT_ROWS
@@ -76,6 +77,21 @@ def test_sections_and_sigma0(report):
     sigma = np.asarray(result.precision.std.cameras["smac"])[0, 2]
     digits = 1 - math.floor(math.log10(sigma))
     assert f"<td>{c:.{digits}f}</td><td>{sigma:.2g}</td><td>free</td>" in text
+
+
+def test_summary_shows_the_chi_square_test_the_datum_and_the_iterations(report):
+    """The χ² test of σ̂0 with its bounds computed here (a priori σ0 1), the lab's datum as
+    the project defines it, and the accepted iterations."""
+    _, result, _, page = report
+    r = result.precision.redundancy
+    low, high = scipy.stats.chi2.ppf([0.025, 0.975], r)
+    statistic = r * result.precision.sigma0_squared
+    test = page.text["variance-test"]
+    assert f"r sigma0^2/prior^2 = {statistic:.1f} in [{low:.1f}, {high:.1f}]" in test
+    assert ("passed" if low <= statistic <= high else "FAILED") in test
+    assert page.text["datum"] == (
+        "control: 3 control points (6 fixed, 0 weighted coordinates), 4 distances")
+    assert int(page.text["iterations"]) == len(result.iterations) - 1 > 0
 
 
 def test_offline_and_every_figure_embedded(report):

@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 import pytest
+from doc_excerpts import incomplete_lab
 
 import jaxba
 from jaxba._cli._main import main
@@ -36,20 +37,6 @@ def _run(*argv: str) -> tuple[int, str, str]:
 
 def _hashes(folder: pathlib.Path) -> dict[str, str]:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
-
-
-def _incomplete_lab(folder: pathlib.Path) -> pathlib.Path:
-    """The lab with `-` for every EOP and only the control points (1, 10, 71) in the points
-    table: 18 images and 77 tie points without approximations."""
-    shutil.copytree(LAB, folder, ignore=shutil.ignore_patterns(*OUTPUTS))
-    images = folder / "orientation.txt"
-    images.write_text("".join(
-        line if line.startswith("#") else " ".join(line.split()[:2] + ["-"] * 6) + "\n"
-        for line in images.read_text().splitlines(keepends=True)))
-    points = folder / "ground_points.txt"
-    points.write_text("".join(line for line in points.read_text().splitlines(keepends=True)
-                              if "- - -" not in line))
-    return folder / "lab.toml"
 
 
 def _data_lines(path: pathlib.Path) -> list[list[str]]:
@@ -76,7 +63,7 @@ def lab(tmp_path_factory):
     root = tmp_path_factory.mktemp("init")
     code, _, stderr = _run("adjust", str(LAB / "lab.toml"), "--out", str(root / "reference"))
     assert code == 0, stderr
-    project_file = _incomplete_lab(root / "incomplete")
+    project_file = incomplete_lab(root / "incomplete")
     inputs = _hashes(root / "incomplete")
     adjusted = _run("adjust", str(project_file), "--out", str(root / "adjusted"))
     initialised = _run("init", str(project_file), "--out", str(root / "completed"))
@@ -193,7 +180,7 @@ def _edit(path: pathlib.Path, old: str, new: str) -> None:
 
 
 def test_a_partial_eop_row_is_refused(tmp_path):
-    project_file = _incomplete_lab(tmp_path / "lab")
+    project_file = incomplete_lab(tmp_path / "lab")
     _edit(project_file.parent / "orientation.txt", "img02 C1 - - -", "img02 C1 1.0 2.0 3.0")
     for command in ("adjust", "init"):
         code, _, stderr = _run(command, str(project_file), "--out", str(tmp_path / command))
@@ -205,7 +192,7 @@ def test_a_partial_eop_row_is_refused(tmp_path):
 def test_an_image_that_cannot_be_oriented_is_refused(tmp_path):
     """An image with 3 image points cannot be resected, and a new tie point seen by it and
     one other image cannot be intersected: both named, with the reason, exit 2."""
-    project_file = _incomplete_lab(tmp_path / "lab")
+    project_file = incomplete_lab(tmp_path / "lab")
     with (project_file.parent / "orientation.txt").open("a") as stream:
         stream.write("img19 C1 - - - - - -\n")
     image_points = project_file.parent / "image_coordinates.txt"
@@ -221,7 +208,7 @@ def test_an_image_that_cannot_be_oriented_is_refused(tmp_path):
 
 
 def test_init_refuses_the_input_folder(tmp_path):
-    project_file = _incomplete_lab(tmp_path / "lab")
+    project_file = incomplete_lab(tmp_path / "lab")
     before = _hashes(tmp_path / "lab")
     code, _, stderr = _run("init", str(project_file), "--out", str(tmp_path / "lab"))
     assert code == 2
@@ -239,8 +226,8 @@ def test_init_refuses_the_input_folder(tmp_path):
 def test_input_errors_are_reported_before_jax_is_loaded(tmp_path):
     """Fail fast with missing approximations too: a partial `-` row (adjust, init) and the
     input folder as init's output end with exit 2, the file named, and jax never loaded."""
-    project_file = _incomplete_lab(tmp_path / "lab")
-    broken = _incomplete_lab(tmp_path / "broken")
+    project_file = incomplete_lab(tmp_path / "lab")
+    broken = incomplete_lab(tmp_path / "broken")
     _edit(broken.parent / "orientation.txt", "img05 C1 - - - - - -", "img05 C1 - - - - - 0")
     runs = [["adjust", str(broken), "--out", str(tmp_path / "out")],
             ["init", str(broken), "--out", str(tmp_path / "out")],

@@ -108,6 +108,19 @@ def test_pixel_camera_rows_down():
     y0, y1 = ax.get_ylim()
     assert y0 > y1  # row down
     assert "pixels" in figure._suptitle.get_text()
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("col (px)", "row (px)")
+
+
+def test_every_axis_carries_its_unit(lab):
+    """The lab's mm camera: residual vectors and coverage in x, y (mm); the point ellipses
+    in object units."""
+    project, result = lab
+    for figure in (jaxba.plot_image_residuals(project, result),
+                   jaxba.plot_coverage(project, result)):
+        assert {(ax.get_xlabel(), ax.get_ylabel()) for ax in figure.axes} == {("x (mm)", "y (mm)")}
+    ellipses = jaxba.plot_point_ellipses(project, result)
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in ellipses.axes] == [
+        ("X (object units)", "Y (object units)"), ("X (object units)", "Z (object units)")]
 
 
 def test_correlation_heat_map(lab):

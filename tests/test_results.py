@@ -160,6 +160,27 @@ def test_summary_names_the_facts(block):
     assert text.splitlines()[0].startswith("solver         converged after")
 
 
+def test_summary_lists_the_estimated_camera_parameters_with_sigma(block):
+    """Every free parameter of the project's camera with its value and σ (from the flat
+    unknowns; σ printed to 3 digits: within 0.6 %), no fixed one."""
+    project, result = block
+    lines = result.summary().splitlines()
+    model, row = project.camera_rows["C1"]
+    free = project.spec.cameras["C1"].free
+    first = lines.index(f"camera C1 ({model})")
+    assert [line.split()[0] for line in lines[first + 1:first + 1 + len(free)]] == [
+        name for name in jaxba.CAMERA_MODELS[model].parameter_names if name in free]
+    for line in lines[first + 1:first + 1 + len(free)]:
+        name, value, plus_minus, sigma = line.split()
+        assert plus_minus == "+/-"
+        k = jaxba.CAMERA_MODELS[model].parameter_names.index(name)
+        assert float(value) == pytest.approx(
+            float(np.asarray(result.parameters.cameras[model])[row, k]), rel=1e-8)
+        assert float(sigma) == pytest.approx(
+            float(np.asarray(result.precision.std.cameras[model])[row, k]), rel=6e-3)
+    assert first + 1 + len(free) == len(lines)
+
+
 def test_adjust_with_and_without_labels(block):
     project, result = block
     labelled = jaxba.adjust(project.problem, labels=project.labels)

@@ -14,10 +14,12 @@ import numpy as np
 from .._problem._observations import part_name
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
+from .._statistics._summary import variance_test
 from ._board_warp import BoardWarp, board_warp
 from ._collect import (
     FIXED,
     camera_tables,
+    datum_text,
     group_statistics,
     image_table,
     is_measurement,
@@ -142,7 +144,7 @@ def _summary(project: Project, result: Adjustment) -> str:
     sigma0 = math.sqrt(precision.sigma0_squared)
     rows = [
         ["status", _e("converged" if result.converged else "not converged: " + result.message)],
-        ["iterations", str(max(len(result.iterations) - 1, 0))],
+        ["iterations", f'<span id="iterations">{max(len(result.iterations) - 1, 0)}</span>'],
         ["backend", _e(result.backend)],
         ["images / points", f"{len(project.image_ids)} / {len(project.point_ids)}"],
         ["observations", str(precision.n_observations)],
@@ -150,6 +152,12 @@ def _summary(project: Project, result: Adjustment) -> str:
         ["redundancy", str(precision.redundancy)],
         ["σ0 a priori", f"{project.spec.settings.sigma0:.6g}"],
         ["σ̂0 a posteriori", f'<span id="sigma0">{sigma0:.6g}</span>'],
+    ]
+    test = variance_test(result)
+    rows += [
+        ["χ² test of σ̂0", '<span id="variance-test">'
+         + _e(test.text() if test is not None else "not available") + "</span>"],
+        ["datum", f'<span id="datum">{_e(datum_text(project, result))}</span>'],
     ]
     summary = image_residual_summaries(project, result)["all"]
     for unit, key in (("µm", "mm"), ("px", "px")):

@@ -127,5 +127,6 @@ class Adjustment:
 
     def summary(self) -> str:
         """A few lines: convergence, σ̂0 and its χ² test, redundancy, datum, backend,
-        outliers, timings (`jaxba._statistics._summary`)."""
+        outliers, timings, then every camera's estimated parameters with σ
+        (`jaxba._statistics._summary`)."""
         return brief_report(self, self._ids)

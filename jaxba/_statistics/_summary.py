@@ -1,5 +1,6 @@
 """What an adjustment says in a few lines, like Ceres' BriefReport: convergence, σ̂0 and its
-χ² test, redundancy, the datum, the backend, the outliers and the timings.
+χ² test, redundancy, the datum, the backend, the outliers, the timings and every camera's
+estimated parameters with their σ.
 
 The console, NAME.out and results.json report the same facts from these functions.
 """
@@ -173,6 +174,23 @@ def aligned(items: list[tuple[str, str]], prefix: str = "") -> list[str]:
     return [f"{prefix}{key.ljust(width)}  {value}" for key, value in items]
 
 
+def camera_lines(result) -> list[str]:
+    """`camera ID (model)` and a line `  name  value +/- σ` per estimated (free or weighted)
+    parameter of each camera of `result` (an `Adjustment`), in the model's order and units."""
+    lines = []
+    for cid, estimates in result.cameras.items():
+        shown = {name: e for name, e in estimates.items() if e.status != "fixed"}
+        if not shown:
+            continue
+        lines.append(f"camera {cid} ({estimates.model})")
+        width = max(len(name) for name in shown)
+        for name, estimate in shown.items():
+            sigma = "n/a" if estimate.sigma is None else f"{estimate.sigma:.2e}"
+            note = "" if estimate.status == "free" else f"  ({estimate.status})"
+            lines.append(f"  {name.ljust(width)}  {estimate.value: .8e} +/- {sigma}{note}")
+    return lines
+
+
 def brief_report(result, ids: Ids) -> str:
     """A few lines on `result` (an `Adjustment`): see the module docstring."""
     precision = result.precision
@@ -186,4 +204,4 @@ def brief_report(result, ids: Ids) -> str:
                          f" redundancy {precision.redundancy}"),
         *statistical_items(result, ids),
     ]
-    return "\n".join(aligned(items)) + "\n"
+    return "\n".join([*aligned(items), *camera_lines(result)]) + "\n"

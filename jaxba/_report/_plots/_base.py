@@ -51,6 +51,14 @@ def image_length(length: float, units: str) -> str:
     return f"{length * 1000:g} µm" if abs(length) < 1 else f"{length:g} mm"
 
 
+def label_image_axes(ax, project: Project, camera_id: str, row_down: bool) -> None:
+    """The axes of an image panel with their units: x, y (mm) for mm models, col, row (px)
+    for pixel models (`row_down`, as `sensor_frame` says)."""
+    units = "px" if camera_units(project, camera_id) == PIXEL else "mm"
+    ax.set_xlabel(f"{'col' if row_down else 'x'} ({units})", fontsize=8)
+    ax.set_ylabel(f"{'row' if row_down else 'y'} ({units})", fontsize=8)
+
+
 def draw_outline(ax, frame, *, cross: bool = True) -> None:
     """The sensor outline `frame` = (x0, x1, y0, y1) and, with `cross`, its centre lines."""
     x0, x1, y0, y1 = frame

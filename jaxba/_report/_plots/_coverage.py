@@ -6,8 +6,8 @@ import numpy as np
 
 from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
-from .._collect import PIXEL, camera_units, image_residuals
-from ._base import draw_outline, new_figure, sensor_frame
+from .._collect import image_residuals
+from ._base import draw_outline, label_image_axes, new_figure, sensor_frame
 
 COVERAGE_CELLS = 10  # the format is cut into 10 x 10 cells for the covered fraction
 
@@ -49,9 +49,7 @@ def plot_coverage(project: Project, result: Adjustment):
         ax.set_xlim(x0 - margin, x1 + margin)
         ax.set_ylim((y1 + margin, y0 - margin) if row_down else (y0 - margin, y1 + margin))
         ax.set_aspect("equal")
-        units = "px" if camera_units(project, cid) == PIXEL else "mm"
-        ax.set_xlabel(f"{'col' if row_down else 'x'} ({units})", fontsize=8)
-        ax.set_ylabel(f"{'row' if row_down else 'y'} ({units})", fontsize=8)
+        label_image_axes(ax, project, cid, row_down)
         ax.tick_params(labelsize=7)
         ax.set_title(
             f"camera {cid}: {image_codes.max() + 1} images, {len(xy)} points,"

@@ -53,8 +53,8 @@ def plot_point_ellipses(project: Project, result: Adjustment, *, scale: float | 
         ax.plot(stations[:, i], stations[:, j], "s", color="0.6", markersize=4,
                 label="camera stations")
         ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel("X", fontsize=8)
-        ax.set_ylabel("YZ"[j - 1], fontsize=8)
+        ax.set_xlabel("X (object units)", fontsize=8)
+        ax.set_ylabel(f"{'YZ'[j - 1]} (object units)", fontsize=8)
         ax.set_title(f"{name} ({'X-Y' if j == 1 else 'X-Z'})", fontsize=9)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=7, loc="upper right")

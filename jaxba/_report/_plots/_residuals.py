@@ -7,7 +7,7 @@ import numpy as np
 from ..._project._build import Project
 from ..._statistics._adjustment import Adjustment
 from .._collect import PIXEL, camera_units, image_residuals
-from ._base import draw_outline, image_length, new_figure, nice, sensor_frame
+from ._base import draw_outline, image_length, label_image_axes, new_figure, nice, sensor_frame
 
 _CELL = (3.2, 2.6)  # inches per image in the grid of all images
 _VECTOR_FRACTION = 0.06  # auto scale: the RMS residual is drawn this fraction of the format width
@@ -110,5 +110,6 @@ def _residual_panel(ax, project, camera_id, xy, v, outlier, scale, key, width):
         label = image_length(key, camera_units(project, camera_id))
         ax.quiverkey(arrows[0], x0 + 0.05 * (x1 - x0), below, key, label, coordinates="data",
                      labelpos="E", color="black", fontproperties={"size": 7})
+    label_image_axes(ax, project, camera_id, row_down)
     ax.tick_params(labelsize=7)
 
