@@ -41,6 +41,8 @@ def texts(strings: Sequence[str], codes: np.ndarray, *, width: int = 0) -> Cells
     table = table.reshape(len(encoded), most)
     lengths = np.fromiter(map(len, encoded), dtype=np.int64, count=len(encoded))
     codes = np.asarray(codes, dtype=np.int64)
+    if np.all(lengths == most):  # every cell as wide (ASCII IDs justified alike)
+        return whole(table[codes])
     return Cells(table[codes], np.arange(most) < lengths[codes][:, None])
 
 
@@ -48,6 +50,8 @@ def joined(columns: Sequence[Cells]) -> str:
     """The rows of `columns` (each of n cells), one after the other, as text: row i is cell i
     of every column in order."""
     n = len(columns[0].chars)
+    if all(len(c.keep) == 1 and c.keep.all() for c in columns):  # fixed width rows
+        return np.concatenate([c.chars for c in columns], axis=1).tobytes().decode("utf-8")
     parts = []
     for start in range(0, n, _CHUNK):
         rows = slice(start, start + _CHUNK)

@@ -9,15 +9,14 @@ an observation removed by data snooping).
 
 import csv
 import io
+import itertools
 import pathlib
 
 import numpy as np
 
 from .._io._project._build import Project
 from .._statistics._adjustment import Adjustment
-from ._cells import Cells, constant, joined, texts
 from ._collect import ScalarObservation, image_residuals, other_observations
-from ._numbers import general_cells
 
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
 NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
@@ -32,69 +31,66 @@ def _field(text: str) -> str:
     return text
 
 
-def _column(strings: list[str], codes: np.ndarray) -> Cells:
-    """The CSV fields of `strings[codes[i]]` (codes (n,) int)."""
-    return texts([_field(text) for text in strings], codes)
-
-
-def _lines(text_columns: list[Cells], numbers: np.ndarray, filled: tuple[str, ...]) -> str:
-    """CSV lines of n rows, each ending in a newline: the text columns (`_column`), then the
-    number and flag columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g` (flags
-    0/1 print as `%d` does), empty where not finite, the others empty; one pass for all."""
-    n = len(numbers)
-    if n == 0:
-        return ""
-    numbers = np.asarray(numbers, dtype=float).reshape(n, len(filled))
-    cells = general_cells(numbers, 10)
-    chars = cells.chars.reshape(n, len(filled), -1)
-    keep = cells.keep.reshape(n, len(filled), -1)
-    comma = constant(",", n)
-    columns = [cell for column in text_columns for cell in (column, comma)]
-    for name in NUMBER_COLUMNS + FLAG_COLUMNS:
-        if name in filled:
-            j = filled.index(name)
-            columns.append(Cells(chars[:, j], keep[:, j]))
-        columns.append(comma)
-    columns[-1] = constant("\n", n)
-    return joined(columns)
+def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> str:
+    """CSV lines of rows, each ending in a newline: the text fields `texts` (one list per
+    column, already CSV fields), then the number and flag columns, `filled` ones from
+    `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where not finite, the others
+    empty. Each of the two parts is one `%` over all rows."""
+    numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
+    fmt = ",".join(
+        "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
+        for name in NUMBER_COLUMNS + FLAG_COLUMNS
+    )
+    formatted = (fmt + "\n") * len(numbers) % tuple(numbers.ravel().tolist())
+    # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
+    formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
+    row = "%s," * len(texts) + "%s\n"
+    fields = zip(*texts, formatted.split("\n")[:-1])
+    return row * len(numbers) % tuple(itertools.chain.from_iterable(fields))
 
 
 def _image_point_lines(project: Project, result: Adjustment) -> str:
     """Rows of the image points, each named by its group's part ("image_points:<camera>")."""
     residuals = image_residuals(project, result)
     n = len(residuals.image)
-    cameras = [project.spec.images[i].camera for i in project.image_ids]
-    empty = constant("", n)
-    text_columns = [
-        _column(["image_points"], np.zeros(n, dtype=int)),
-        _column(list(residuals.parts), residuals.part_index),
-        _column(list(project.image_ids), residuals.image),
-        _column(list(project.point_ids), residuals.point),
+    image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
+    point_ids = np.array([_field(p) for p in project.point_ids], dtype=object)
+    cameras = np.array([_field(project.spec.images[i].camera) for i in project.image_ids],
+                       dtype=object)
+    empty = [""] * n
+    parts = np.array([_field(part) for part in residuals.parts], dtype=object)
+    texts = [
+        ["image_points"] * n,
+        parts[residuals.part_index].tolist(),
+        image_ids[residuals.image].tolist(),
+        point_ids[residuals.point].tolist(),
         empty,
-        _column(cameras, residuals.image),
+        cameras[residuals.image].tolist(),
         empty,
     ]
     numbers = np.column_stack([
         residuals.xy, residuals.v, residuals.redundancy, residuals.w, residuals.removed,
         residuals.outlier,
     ])
-    return _lines(text_columns, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
+    return _lines(texts, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
 
 
 def _scalar_lines(rows: list[ScalarObservation]) -> str:
     """Rows of the observations other than image points: their IDs, v, r, w and flags."""
-    columns = zip(*(
-        (row.kind, row.group, row.ids.get("image", ""),
-         row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
-         row.ids.get("camera", ""), row.ids.get("coordinate", ""))
-        for row in rows
-    ))
-    every = np.arange(len(rows))
+    texts = [
+        [_field(value) for value in column]
+        for column in zip(*(
+            (row.kind, row.group, row.ids.get("image", ""),
+             row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
+             row.ids.get("camera", ""), row.ids.get("coordinate", ""))
+            for row in rows
+        ))
+    ]
     filled = ("v", "r", "w") + FLAG_COLUMNS
     numbers = np.array(
         [[row.v, row.r, row.w, row.removed, row.outlier] for row in rows], dtype=float,
     ).reshape(len(rows), len(filled))
-    return _lines([_column(list(column), every) for column in columns], numbers, filled)
+    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers, filled)
 
 
 def observations_csv(project: Project, result: Adjustment) -> str:

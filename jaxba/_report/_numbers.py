@@ -1,16 +1,13 @@
-"""Floats printed in bulk, byte for byte as printf-style `%.Nf` and `%.Ng` print them.
+"""Floats printed in bulk, byte for byte as printf-style `%.Nf` prints them.
 
-Each value becomes one cell of ASCII codes, a row of an (n, width) uint8 array (`%.Nf` right
-aligned; `%.Ng` as `Cells`, with the bytes it prints marked); the table writers put these
-side by side and decode the rows once. Digits come from integer arithmetic on round(|x| ·
-10^k), four at a time from a table; a value whose scaled magnitude lies too near a rounding
-tie to decide in float64 (or beyond its exact integers, or whose 10^k is not an exact double)
-is printed by Python instead, so every cell is what `%` gives.
+Each value becomes one right-aligned cell of ASCII codes, a row of an (n, width) uint8 array;
+the table writers put these side by side and decode the rows once. Digits come from integer
+arithmetic on round(|x| · 10^k), four at a time from a table; a value whose scaled magnitude
+lies too near a rounding tie to decide in float64 (or beyond its exact integers) is printed
+by Python instead, so every cell is what `%` gives.
 """
 
 import numpy as np
-
-from ._cells import Cells
 
 _POWERS = 10 ** np.arange(19, dtype=np.int64)  # exact integers 10^0 .. 10^18
 _FLOAT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
@@ -90,70 +87,3 @@ def _put(cells: np.ndarray, where: np.ndarray, text, pad: bytes) -> None:
         if len(printed) > width:
             raise ValueError(f"{printed!r} is wider than its column ({width} characters)")
         cells[k] = np.frombuffer(printed.rjust(width, pad), dtype=np.uint8)
-
-
-def general_cells(values, digits: int) -> Cells:
-    """`"%.{digits}g" % x` of every value (n,) as `Cells`, `digits` 1 to 15 (more would be
-    beyond the exact integers); a non-finite value is an empty cell.
-
-    The cell of a value: its sign, "0.000" (the lead of 1e-4 <= |x| < 1), the `digits` digits
-    of round(|x| · 10^(digits - 1 - e)) each followed by a decimal point, and the exponent
-    "e+XXX"; the kept bytes make the value as `%g` writes it (trailing zeros of the fraction
-    and a bare point dropped; positional for -4 <= e < digits, else exponential).
-    """
-    x = np.asarray(values, dtype=float).ravel()
-    finite, zero = np.isfinite(x), x == 0
-    a = np.where(finite & ~zero, np.abs(x), 1.0)  # the others are not printed from digits
-    e = np.floor(np.log10(a)).astype(np.int64)
-    m, decided = _significand(a, e, digits)
-    # e too small (log10 rounded down, or the digits rounded up to 10^digits) or too large.
-    low, high = decided & (m < 10 ** (digits - 1)), decided & (m >= 10**digits)
-    e = e + high - low
-    m, decided = _significand(a, e, digits)
-    decided &= (m >= 10 ** (digits - 1)) & (m < 10**digits) & finite & ~zero
-    m = np.where(decided, m, 0)
-    e = np.where(decided, e, 0)
-    shown = np.full(x.size, 1)  # significant digits printed: trailing zeros dropped
-    ascii_digits = _digits(m)[:, _MOST_DIGITS - digits:]  # (n, digits)
-    nonzero = ascii_digits != ord("0")
-    shown[decided] = digits - np.argmax(nonzero[decided, ::-1], axis=1)
-    positional = (e >= -4) & (e < digits)
-    count = np.where(positional & (e >= 0), np.maximum(e + 1, shown), shown)
-    point = np.where(positional, e, 0)  # the digit the point follows (none for e < 0)
-    magnitude = np.abs(e)
-    exponent = np.stack([
-        np.full(x.size, ord("e")), np.where(e < 0, ord("-"), ord("+")),
-        ord("0") + magnitude // 100, ord("0") + magnitude // 10 % 10, ord("0") + magnitude % 10,
-    ], axis=1).astype(np.uint8)
-    chars = np.concatenate([
-        np.full((x.size, 1), ord("-"), dtype=np.uint8),
-        np.broadcast_to(np.frombuffer(b"0.000", dtype=np.uint8), (x.size, 5)),
-        np.stack([ascii_digits, np.full_like(ascii_digits, ord("."))], axis=2)
-        .reshape(x.size, 2 * digits),
-        exponent,
-    ], axis=1)
-    places, count, point = np.arange(digits), count[:, None], point[:, None]
-    with_point = (places == point) & (point >= 0) & (count > places + 1)  # a fraction follows
-    keep = np.concatenate([
-        (np.signbit(x) & (decided | zero))[:, None],
-        np.arange(5) < np.where(positional & (e < 0), 1 - e, 0)[:, None],
-        np.stack([places < count, with_point], axis=2).reshape(x.size, 2 * digits),
-        # "e", its sign and at least two digits
-        ~positional[:, None] & ((np.arange(5) != 2) | (magnitude >= 100)[:, None]),
-    ], axis=1)
-    keep[~(decided | zero)] = False
-    for k in np.flatnonzero(finite & ~zero & ~decided).tolist():
-        printed = np.frombuffer(b"%.*g" % (digits, float(x[k])), dtype=np.uint8)
-        chars[k, :printed.size], keep[k, :printed.size] = printed, True
-    return Cells(chars, keep)
-
-
-def _significand(a: np.ndarray, e: np.ndarray, digits: int) -> tuple[np.ndarray, np.ndarray]:
-    """round(a · 10^(digits - 1 - e)) (n,) int64 and where it is decided (`_decidable`, the
-    power an exact double: the product or quotient rounded once)."""
-    k = digits - 1 - e
-    exact = np.abs(k) < _FLOAT_POWERS.size
-    power = _FLOAT_POWERS[np.where(exact, np.abs(k), 0)]
-    scaled = np.where(exact, np.where(k >= 0, a * power, a / power), 0.0)
-    decided = exact & _decidable(scaled)
-    return np.where(decided, np.rint(scaled), 0.0).astype(np.int64), decided
