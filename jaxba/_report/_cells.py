@@ -3,7 +3,8 @@ cells side by side, taken out in one pass.
 
 A column is `Cells`: `chars` (n, w) uint8 (UTF-8) and `keep` (n, w) bool, the bytes of each
 cell that are printed (a cell is its kept bytes, in order); the table is one boolean take of
-all columns side by side (`joined`), so no row is ever a Python object.
+all columns side by side (`joined`; none where every byte is kept, rows of one width: ASCII
+IDs), so no row is ever a Python object.
 """
 
 from collections.abc import Sequence
