@@ -135,13 +135,6 @@ class AbstractObservationGroup(eqx.Module):
         return self.stddev
 
 
-def part_names(group: AbstractObservationGroup,
-               camera_ids: Mapping[str, Sequence[Hashable]]) -> np.ndarray:
-    """The name of every row's part (`parts`), (n,) object."""
-    names, index = group.parts(camera_ids)
-    return np.asarray(names, dtype=object)[index]
-
-
 def part_name(group: AbstractObservationGroup, camera_ids: Mapping[str, Sequence[Hashable]],
               row: int) -> str:
     """The name of the part (`parts`) that row `row` of `group` belongs to."""

@@ -32,7 +32,7 @@ from .._statistics._observation_statistics import (
     is_measurement,
     name_rows,
     observation_ids as ids_of_observation,
-    row_parts,
+    row_part_index,
     with_coordinate,
 )
 from .._statistics._rigs import composed_pose_sigma, composed_poses
@@ -70,8 +70,9 @@ class ImageResiduals:
     """Image residuals of all image-point groups, sorted by image (file order within one).
 
     `image`, `point` (n,): rows of `project.image_ids` and `project.point_ids`; `group` (n,):
-    the index of the row's group in `result.problem.groups`, `part` (n,) the name of its part
-    there ("image_points:<camera ID>", `AbstractObservationGroup.parts`); `image_ids`, `point_ids`,
+    the index of the row's group in `result.problem.groups`, `part_index` (n,) the row's part
+    there in `parts` (names, "image_points:<camera ID>", `AbstractObservationGroup.parts`);
+    `image_ids`, `point_ids`,
     `camera_ids` and `units` (n,) object arrays: the IDs, the image's camera and its units.
     `xy` and `v` are (n, 2) in the image units of each row's camera model (`units`: "mm", or
     "pixel" for pixel-unit models such as "opencv"); `v_px` is v in pixels (v divided by the
@@ -86,7 +87,8 @@ class ImageResiduals:
     image: np.ndarray
     point: np.ndarray
     group: np.ndarray
-    part: np.ndarray
+    parts: tuple[str, ...]
+    part_index: np.ndarray
     image_ids: np.ndarray
     point_ids: np.ndarray
     camera_ids: np.ndarray
@@ -343,11 +345,13 @@ def image_residuals(project: Project, result: Adjustment) -> ImageResiduals:
         (1.0, 1.0) if unit == PIXEL else _pixel_size(project, cid)
         for cid, unit in zip(cameras, units)
     ]).reshape(-1, 2)
+    parts, part_index = row_part_index(result.problem.groups, rows, project_ids(project).cameras)
     return ImageResiduals(
         image=image,
         point=rows.point,
         group=rows.group,
-        part=row_parts(result.problem.groups, rows, project_ids(project).cameras),
+        parts=parts,
+        part_index=part_index,
         image_ids=np.asarray(project.image_ids, dtype=object)[image],
         point_ids=np.asarray(project.point_ids, dtype=object)[rows.point],
         camera_ids=np.asarray(cameras, dtype=object)[image],

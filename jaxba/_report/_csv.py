@@ -58,10 +58,10 @@ def _image_point_lines(project: Project, result: Adjustment) -> str:
     cameras = np.array([_field(project.spec.images[i].camera) for i in project.image_ids],
                        dtype=object)
     empty = [""] * n
+    parts = np.array([_field(part) for part in residuals.parts], dtype=object)
     texts = [
         ["image_points"] * n,
-        list(map({part: _field(part) for part in set(residuals.part.tolist())}.__getitem__,
-                 residuals.part.tolist())),
+        parts[residuals.part_index].tolist(),
         image_ids[residuals.image].tolist(),
         point_ids[residuals.point].tolist(),
         empty,

@@ -89,8 +89,8 @@ class _Deferred:
 
 
 def _points_text(project: Project, result: Adjustment, depth: int, indent: str) -> str:
-    """The "points" value of results.json as `_layout` writes `_points`, formatted row-wise:
-    one `%` per point with float reprs (json writes floats by `float.__repr__`). Points with a
+    """The "points" value of results.json as `_layout` writes `_points`, formatted in one `%`
+    over all points with float reprs (json writes floats by `float.__repr__`). Points with a
     non-finite number (null in JSON) go through `_layout`."""
     if depth != 2:
         return _layout(_points(project, result), depth, indent)
@@ -109,28 +109,28 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     axes_text = "[" + ", ".join(["%r"] * axes.shape[1]) + "]"
     direction_text = "[" + ", ".join([axes_text] * axes.shape[1]) + "]"
     with_ellipsoid = f'"ellipsoid": {{"axes": {axes_text}, "directions": {direction_text}}}'
-    templates = [
-        "%s: {\n" + leaf + f",\n{leaf}".join(lines) + f"\n{inner}}}"
-        for lines in (fields, [*fields, with_ellipsoid])
-    ]
+    # One template per kind of point: without an ellipsoid, with one, with a non-finite number.
+    templates = np.array([
+        *("%s: {\n" + leaf + f",\n{leaf}".join(lines) + f"\n{inner}}}"
+          for lines in (fields, [*fields, with_ellipsoid])), "%s"], dtype=object)
+    kind = np.where(finite, has.astype(int), 2)
     status = np.asarray(points.status, dtype=object)
     encoded = {name: _string(name) for name in set(status.ravel().tolist())}
-    columns = [list(map(_string, points.ids))]
+    size = 1 + 3 * values.shape[1]  # the fields of a point without an ellipsoid
+    table = np.empty((len(kind), size + ellipsoid.shape[1]), dtype=object)
+    table[:, 0] = list(map(_string, points.ids))
     for j in range(values.shape[1]):
-        columns += [values[:, j].tolist(), stds[:, j].tolist(),
-                    [encoded[name] for name in status[:, j].tolist()]]
-    columns += [column.tolist() for column in ellipsoid.T]
-    size = 1 + 3 * values.shape[1]
-    items = []
-    for k, (row, has_k, finite_k) in enumerate(zip(zip(*columns), has.tolist(), finite.tolist())):
-        if not finite_k:
-            entry = _point_entry(points, axes, directions, has, k)
-            items.append(f"{row[0]}: {_layout(entry, depth - 1, inner)}")
-        elif has_k:
-            items.append(templates[1] % row)
-        else:
-            items.append(templates[0] % row[:size])
-    return "{\n" + inner + f",\n{inner}".join(items) + f"\n{indent}}}"
+        table[:, 1 + 3 * j] = values[:, j].tolist()
+        table[:, 2 + 3 * j] = stds[:, j].tolist()
+        table[:, 3 + 3 * j] = [encoded[name] for name in status[:, j].tolist()]
+    for j, column in enumerate(ellipsoid.T):
+        table[:, size + j] = column.tolist()
+    for k in np.flatnonzero(~finite).tolist():
+        entry = _point_entry(points, axes, directions, has, k)
+        table[k, 0] = f"{table[k, 0]}: {_layout(entry, depth - 1, inner)}"
+    used = np.arange(table.shape[1]) < np.array([size, table.shape[1], 1])[kind][:, None]
+    text = f",\n{inner}".join(templates[kind].tolist()) % tuple(table[used].tolist())
+    return "{\n" + inner + text + f"\n{indent}}}"
 
 
 def _correlations(project: Project, result: Adjustment) -> dict[str, dict]:

@@ -5,7 +5,6 @@ and .sigma are comments, so the data lines read back with any whitespace splitte
 """
 
 import math
-import operator
 
 import numpy as np
 
@@ -13,6 +12,7 @@ from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._summary import aligned, statistical_items
 from ._board_warp import board_warp
+from ._cells import constant, joined, texts, whole
 from ._collect import (
     MM,
     PIXEL,
@@ -92,16 +92,21 @@ def column_table(
 
 def _number_lines(numbers: np.ndarray, places: np.ndarray, widths: list[int],
                   missing: bytes) -> list[str]:
-    """One line per row of `numbers` (n, m): column j right aligned in `widths[j]` with
-    `places` (n, m) decimals, `missing` where not finite, columns two spaces apart; all
-    printed at once (`fixed_cells`)."""
+    """One line per row of `numbers` (n, m): `_number_chars` decoded."""
+    return _number_chars(numbers, places, widths, missing).tobytes().decode("ascii").splitlines()
+
+
+def _number_chars(numbers: np.ndarray, places: np.ndarray, widths: list[int],
+                  missing: bytes) -> np.ndarray:
+    """The rows of `numbers` (n, m) as ASCII, (n, characters) uint8, each ending in a newline:
+    column j right aligned in `widths[j]` with `places` (n, m) decimals, `missing` where not
+    finite, columns two spaces apart; all printed at once (`fixed_cells`)."""
     n, most = len(numbers), max(widths, default=0)
     cells = fixed_cells(numbers, places, most, missing=missing).reshape(*numbers.shape, most)
     gap = np.full((n, 2), ord(" "), dtype=np.uint8)
     columns = [cells[:, j, most - width:] for j, width in enumerate(widths)]
     parts = [part for column in columns for part in (gap, column)][1:]
-    text = np.concatenate([*parts, np.full((n, 1), ord("\n"), dtype=np.uint8)], axis=1)
-    return text.tobytes().decode("ascii").splitlines()
+    return np.concatenate([*parts, np.full((n, 1), ord("\n"), dtype=np.uint8)], axis=1)
 
 
 def _printed_width(values: np.ndarray, decimals: int) -> int:
@@ -509,20 +514,20 @@ def res_text(project: Project, result: Adjustment) -> str:
         f"critical |w| {reliability.critical_value:.2f} at per-test alpha {reliability.alpha:.3g}"
         if reliability is not None else "no reliability computed"
     )
-    lines = [
+    head = [
         f"# jaxba image residuals: {project.spec.name}",
         f"# v = observed - computed; {unit_line}",
         f"# r redundancy numbers, w normalised residuals ({test}); outlier 1: rejected by data"
         " snooping (its v at the final solution, which did not use it) or |w| > critical",
-        *_residual_table(residuals, with_px=not in_pixels),
-        "#",
     ]
     converted = residuals is not image_residuals(project, result)
     summaries = (residual_summaries(residuals) if converted
                  else image_residual_summaries(project, result))
-    lines += [_rms_comment(f"image {iid}", summary) for iid, summary in summaries["images"].items()]
-    lines.append(_rms_comment("all", summaries["all"]))
-    return "\n".join(lines) + "\n"
+    tail = ["#", *(_rms_comment(f"image {iid}", summary)
+                   for iid, summary in summaries["images"].items())]
+    tail.append(_rms_comment("all", summaries["all"]))
+    return ("\n".join(head) + "\n" + _residual_table(residuals, project, with_px=not in_pixels)
+            + "\n".join(tail) + "\n")
 
 
 def _fixed_width(values: np.ndarray, decimals: int) -> int:
@@ -536,32 +541,36 @@ def _fixed_width(values: np.ndarray, decimals: int) -> int:
 
 
 def number_table(
-    header: list[str], labels: list[list[str]], numbers: np.ndarray, decimals: list[list[int]],
-    kind: np.ndarray, *, prefix: str = "# ",
-) -> list[str]:
-    """Aligned lines as `table`, fast for many rows: the text columns `labels` (one list of n
-    strings each, left aligned), then `numbers` (n, m) right aligned with `decimals[kind[i]][j]`
-    decimals in row i, column j (`kind` (n,) int) and `-` where not finite; the numbers
-    printed all at once (`fixed_cells`)."""
+    header: list[str], labels: list[tuple[list[str], np.ndarray]], numbers: np.ndarray,
+    decimals: list[list[int]], kind: np.ndarray, *, prefix: str = "# ",
+) -> str:
+    """Aligned lines as `table`, each ending in a newline, fast for many rows: the text
+    columns `labels` ((strings, codes (n,)): row i shows strings[codes[i]], left aligned),
+    then `numbers` (n, m) right aligned with `decimals[kind[i]][j]` decimals in row i, column
+    j (`kind` (n,) int) and `-` where not finite; the rows laid out in one pass (`joined`)."""
     n_text = len(labels)
     numbers = np.where(np.isfinite(numbers), numbers, np.nan)
+    n = len(numbers)
     rows = [numbers[kind == k] for k in range(len(decimals))]
-    widths = [max(map(len, [name, *column])) for name, column in zip(header, labels)]
+    used = [[strings[k] for k in np.unique(codes).tolist()] for strings, codes in labels]
+    widths = [max(map(len, [name, *column])) for name, column in zip(header, used)]
     widths += [
         max([len(name)] + [_fixed_width(r[:, j], places[j]) for r, places in zip(rows, decimals)])
         for j, name in enumerate(header[n_text:])
     ]
     places = np.asarray(decimals, dtype=int)[kind]  # (n, m) decimals of every entry
-    body = _number_lines(numbers, places, widths[n_text:], b"-")
-    label_format = "  " + "".join(f"%-{w}s  " for w in widths[:n_text])
-    labelled = map(operator.add, map(label_format.__mod__, zip(*labels)), body)
+    gap = constant("  ", n)
+    columns = [gap]
+    for (strings, codes), width in zip(labels, widths):
+        columns += [texts(strings, codes, width=width), gap]
+    columns.append(whole(_number_chars(numbers, places, widths[n_text:], b"-")))
     cells = [c.ljust(w) for c, w in zip(header[:n_text], widths)]
     cells += [c.rjust(w) for c, w in zip(header[n_text:], widths[n_text:])]
-    return [prefix + "  ".join(cells).rstrip(), *labelled]
+    return prefix + "  ".join(cells).rstrip() + "\n" + (joined(columns) if n else "")
 
 
-def _residual_table(residuals: ImageResiduals, *, with_px: bool = True) -> list[str]:
-    """The rows of NAME.res (see `res_text`) with their header line."""
+def _residual_table(residuals: ImageResiduals, project: Project, *, with_px: bool = True) -> str:
+    """The rows of NAME.res (see `res_text`) with their header line, each ending in a newline."""
     header = ["image_id", "point_id", "x", "y", "vx", "vy"]
     header += ["vx_px", "vy_px"] if with_px else []
     header += ["rx", "ry", "wx", "wy", "outlier"]
@@ -569,7 +578,8 @@ def _residual_table(residuals: ImageResiduals, *, with_px: bool = True) -> list[
     columns += [residuals.redundancy, residuals.w, residuals.outlier[:, None]]
     statistics = [_PX_DECIMALS] * (2 * with_px) + [3, 3, 2, 2, 0]
     decimals = [[_MM_DECIMALS] * 4 + statistics, [_PX_DECIMALS + 1] * 4 + statistics]
-    labels = [residuals.image_ids.tolist(), residuals.point_ids.tolist()]
+    labels = [(list(project.image_ids), residuals.image),
+              (list(project.point_ids), residuals.point)]
     kind = (residuals.units != MM).astype(int)
     return number_table(header, labels, np.column_stack(columns).astype(float), decimals, kind)
 

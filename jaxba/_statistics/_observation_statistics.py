@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._problem._observations import AbstractObservationGroup, part_names
+from .._problem._observations import AbstractObservationGroup
 from ._ids import Ids
 
 
@@ -202,11 +202,20 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
 def row_parts(groups, rows: ImagePointRows, camera_ids) -> np.ndarray:
     """The part (`AbstractObservationGroup.parts`) of every row of `rows` (n,) object, e.g.
     "image_points:C1"; `groups`: the problem's groups, `camera_ids` {model: IDs}."""
-    parts = np.empty(len(rows.group), dtype=object)
+    names, index = row_part_index(groups, rows, camera_ids)
+    return np.asarray(names, dtype=object)[index]
+
+
+def row_part_index(groups, rows: ImagePointRows, camera_ids) -> tuple[tuple[str, ...], np.ndarray]:
+    """`row_parts` as (names, index (n,) of every row's part in names): the parts of the
+    groups of `rows`, in the order of the groups."""
+    names, index = [], np.zeros(len(rows.group), dtype=int)
     for k in np.unique(rows.group).tolist():
         here = rows.group == k
-        parts[here] = part_names(groups[k], camera_ids)[rows.row[here]]
-    return parts
+        group_names, group_index = groups[k].parts(camera_ids)
+        index[here] = len(names) + np.asarray(group_index, dtype=int)[rows.row[here]]
+        names += group_names
+    return tuple(names), index
 
 
 def outliers(result, statistics: list[GroupStatistics]) -> list[Outlier]:

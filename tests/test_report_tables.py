@@ -1,0 +1,100 @@
+"""The per-observation tables written in one pass (NAME.res: `number_table`; observations.csv:
+`_csv._lines`) against the plain way to write them, one row at a time with Python's `%`.
+
+The values are awkward on purpose: signed zeros, NaN and infinities, huge and tiny magnitudes,
+exact rounding ties; the IDs long, non-ASCII (their width counted in characters, as
+`str.ljust` does, not in bytes) and, in the CSV, holding commas and quotes.
+"""
+
+import math
+
+import numpy as np
+
+from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines
+from jaxba._report._text import number_table
+
+IDS = ["P1", "p" * 70, "Pünkt-7", "点12", "ñ", "📷cam", 'a,b', 'say "x"', "x" * 3]
+
+
+def _awkward(n: int, columns: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    values = rng.normal(size=(n, columns)) * 10.0 ** rng.integers(-12, 12, (n, columns))
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1e300, -1e-300, 5e-324, 0.5, 2.5,
+                        -0.0005, 123456789.5, 1e16, 9.99999999995, 1e-5, 0.0001, 1e10])
+    spots = rng.integers(0, values.size, 3 * special.size)
+    values.ravel()[spots] = np.tile(special, 3)
+    return values
+
+
+def _reference_res(header, labels, numbers, decimals, kind, prefix="# "):
+    """Row by row: each label left aligned, each number right aligned (`-` when not
+    finite), columns as wide as their widest entry (a column of a kind with a finite number
+    keeps room for "nan"), two spaces apart."""
+    texts = [[strings[k] for k in codes.tolist()] for strings, codes in labels]
+    cells = [[f"{x:.{decimals[t][j]}f}" if math.isfinite(x) else "-"
+              for j, x in enumerate(row)] for row, t in zip(numbers.tolist(), kind.tolist())]
+    widths = [max(len(name), *map(len, column)) for name, column in zip(header, texts)]
+    for j, name in enumerate(header[len(labels):]):
+        width = len(name)
+        for t in range(len(decimals)):
+            mine = [row[j] for row, k in zip(cells, kind.tolist()) if k == t]
+            finite = [c for c in mine if c != "-"]
+            missing = [3 if finite else 1] * (len(finite) < len(mine))
+            width = max([width, *map(len, finite)] + missing)
+        widths.append(width)
+    lines = [prefix + "  ".join(
+        [h.ljust(w) for h, w in zip(header[:len(labels)], widths)]
+        + [h.rjust(w) for h, w in zip(header[len(labels):], widths[len(labels):])]).rstrip()]
+    for i, row in enumerate(cells):
+        left = [column[i].ljust(w) for column, w in zip(texts, widths)]
+        right = [c.rjust(w) for c, w in zip(row, widths[len(labels):])]
+        lines.append("  " + "".join(f"{c}  " for c in left) + "  ".join(right))
+    return "\n".join(lines) + "\n"
+
+
+def test_residual_table_is_the_row_by_row_table():
+    n = 400
+    rng = np.random.default_rng(5)
+    numbers = _awkward(n, 5, seed=1)
+    numbers[:, 2] = np.where(rng.random(n) < 0.5, np.nan, numbers[:, 2])  # r unavailable
+    labels = [(IDS, rng.integers(0, len(IDS), n)), (IDS[::-1], rng.integers(0, len(IDS), n))]
+    kind = rng.integers(0, 2, n)
+    decimals = [[6, 6, 3, 2, 0], [4, 4, 3, 2, 0]]
+    header = ["image_id", "point_id", "x", "vx", "rx", "wx", "outlier"]
+    expected = _reference_res(header, labels, numbers, decimals, kind)
+    assert number_table(header, labels, numbers, decimals, kind) == expected
+
+
+def test_residual_table_of_ascii_ids_and_of_no_rows():
+    """ASCII IDs make rows of one width in bytes (laid out without a take); no rows leave
+    the header alone."""
+    rng = np.random.default_rng(2)
+    numbers = _awkward(50, 2, seed=3)
+    labels = [(["a", "bb", "ccc"], rng.integers(0, 3, 50))]
+    kind = np.zeros(50, dtype=int)
+    expected = _reference_res(["id", "x", "y"], labels, numbers, [[3, 0]], kind)
+    assert number_table(["id", "x", "y"], labels, numbers, [[3, 0]], kind) == expected
+    empty = number_table(["id", "x"], [(["a"], np.zeros(0, dtype=int))], np.zeros((0, 1)),
+                         [[3]], np.zeros(0, dtype=int))
+    assert empty == "# id  x\n"
+
+
+def test_observation_lines_are_the_row_by_row_csv():
+    n = 300
+    rng = np.random.default_rng(9)
+    filled = NUMBER_COLUMNS[:8] + FLAG_COLUMNS
+    numbers = _awkward(n, len(filled), seed=4)
+    numbers[:, -2:] = rng.integers(0, 2, (n, 2))
+    texts = [[_field(IDS[k]) for k in rng.integers(0, len(IDS), n).tolist()] for _ in range(7)]
+
+    def field(name, x):
+        if name not in filled or not math.isfinite(x):
+            return ""
+        return ("%d" if name in FLAG_COLUMNS else "%.10g") % x
+
+    expected = "".join(
+        ",".join([*(column[i] for column in texts),
+                  *(field(name, row[filled.index(name)] if name in filled else math.nan)
+                    for name in NUMBER_COLUMNS + FLAG_COLUMNS)]) + "\n"
+        for i, row in enumerate(numbers.tolist()))
+    assert _lines(texts, numbers, filled) == expected
