@@ -26,7 +26,10 @@ from ._schur._choice import SOLVERS, use_schur
 from ._schur._descent import Schur
 from ._solution import Solution
 from ._steps import StepInfo, least_squares_stepwise
-from ._trust_region import STEP_TOLERANCE
+from ._trust_region import CERES_FUNCTION_TOLERANCE, STEP_TOLERANCE
+
+# Where a solve stops (`stopping_rule`): solve's step_tolerance and function_tolerance.
+STOPPING_RULES = {"statistical": (STEP_TOLERANCE, 0.0), "cost": (0.0, CERES_FUNCTION_TOLERANCE)}
 
 
 def solve(
@@ -88,6 +91,18 @@ def lower_solve(
     program, arguments = _program(problem, backend.ready(problem), tolerances, max_steps,
                                   optx.ImplicitAdjoint())
     return program.lower(*arguments), arguments
+
+
+def stopping_rule(name: str) -> dict[str, float]:
+    """`solve`'s `step_tolerance` and `function_tolerance` for the stopping rule `name`:
+    "statistical" (the default: the Gauss-Newton steps, and stop where the next would move
+    every unknown by less than `STEP_TOLERANCE` of its σ) or "cost" (Ceres' rule, `jaxba
+    bal`'s: damped steps only, stop once an accepted step lowers the cost by at most
+    `CERES_FUNCTION_TOLERANCE` of it). `ValueError` for another name."""
+    if name not in STOPPING_RULES:
+        raise ValueError(f"stop must be one of {', '.join(STOPPING_RULES)}, not {name!r}")
+    step_tolerance, function_tolerance = STOPPING_RULES[name]
+    return {"step_tolerance": step_tolerance, "function_tolerance": function_tolerance}
 
 
 def _tolerances(backend: Backend, rtol, atol, step_tolerance, function_tolerance) -> Tolerances:

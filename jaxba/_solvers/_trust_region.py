@@ -91,6 +91,9 @@ DescentState = TypeVar("DescentState")
 CERES_INITIAL_RADIUS = 1e4
 # Below this radius, stop (Ceres' min_trust_region_radius).
 MIN_RADIUS = 1e-32
+# Ceres' default function_tolerance: stop once an accepted step lowers the cost by at most
+# this fraction of it (`jaxba bal`, and the "cost" stopping rule of `jaxba._solvers._solve`).
+CERES_FUNCTION_TOLERANCE = 1e-6
 # τ of the statistical test (module docstring): stop where the Gauss-Newton step would move
 # every unknown by at most 1e-5 of its (a priori) σ, far below anything a report prints.
 STEP_TOLERANCE = 1e-5

@@ -4,7 +4,9 @@ BAL's camera row (r, t, f, k1, k2) becomes an image (P = R X + t: M = R(r), X0 =
 angles ω φ κ of M = R3(κ) R2(φ) R1(ω)) and a camera of the `"bal"` model (f, k1, k2 free),
 one per image, in a `"pixel"` project: BAL's observations are the model's image frame (origin
 at the image centre, y up), σ 1 pixel. BAL has no control: the datum is `"dependent"` (the
-first image's EOPs and one station coordinate of the longest base fixed). Points measured in
+first image's EOPs and one station coordinate of the longest base fixed). The solve stops as
+`jaxba bal` and Ceres stop BAL problems (`stop = "cost"`: an accepted step lowered the cost by
+at most 1e-6 of it, damped steps only), where they stop. Points measured in
 fewer than 2 images, and images left without measurements, are left out (a free point needs
 two rays). Plain NumPy; no jax.
 """
@@ -98,7 +100,8 @@ def write_bal_project(
         "[project]", f"name = {json.dumps(name)}", 'image_units = "pixel"', "",
         "[files]", 'cameras = "cameras.toml"', 'images = "orientation.txt"',
         'image_points = "image_coordinates.txt"', 'points = "points.txt"', "",
-        "[adjustment]", "image_sigma = 1.0  # pixel", 'datum = "dependent"', "",
+        "[adjustment]", "image_sigma = 1.0  # pixel", 'datum = "dependent"',
+        'stop = "cost"  # as Ceres and jaxba bal stop BAL problems', "",
     ]))
     return BalProject(project_file, len(cameras), len(points), int(keep.sum()),
                       int(np.count_nonzero((rays > 0) & (rays < 2))))
