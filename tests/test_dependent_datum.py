@@ -141,11 +141,13 @@ def test_schur_frees_the_gauge_and_lands_in_the_datum(tmp_path, n_distances):
     assert sigma == pytest.approx({n: e["c"].sigma for n, e in dense.cameras.items()}, rel=1e-6)
 
 
-def test_cost_rule_stops_at_the_first_small_cost_change_in_the_datum(tmp_path):
-    """`stop = "cost"` (Ceres' rule, as `jaxba import bal` writes): the Schur solve with the
-    gauge released takes damped steps only and ends at the first accepted step that lowered
-    the cost by at most 1e-6 of it; the solution is in the datum and near the statistical
-    rule's (a cost-change test promises no σ fraction: within 1e-2 σ here)."""
+def test_cost_rule_stops_after_a_small_cost_change_near_the_optimum(tmp_path):
+    """`stop = "cost"` (Ceres' rule with a guard, as `jaxba import bal` writes): the Schur
+    solve with the gauge released takes damped steps only and ends at an accepted step that
+    lowered the cost by at most 1e-6 of it, where the next Gauss-Newton step would move every
+    unknown by less than 1e-3 of its a priori σ: the solution, in the datum, lies within
+    1e-3 + 1e-5 (the statistical rule's) a priori σ of the statistical rule's (reported σ:
+    σ̂0/σ0 times those; 10 % for the model's curvature)."""
     truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_images=10,
                                           n_targets=40)
     statistical_project = _with_settings(truth, datum='"dependent"')
@@ -155,8 +157,7 @@ def test_cost_rule_stops_at_the_first_small_cost_change_in_the_datum(tmp_path):
     cost = jaxba.adjust_project(project, solver="schur")
     assert statistical.converged and cost.converged
     costs = np.array([it.cost for it in cost.iterations])
-    change = -np.diff(costs) / costs[:-1]
-    assert change[-1] <= 1e-6 and np.all(change[:-1] > 1e-6)
+    assert costs[-2] - costs[-1] <= 1e-6 * costs[-2]
     gauge = list(project.problem.gauge)
     adjusted = jaxba.advanced.flatten(cost.parameters)
     np.testing.assert_allclose(adjusted[gauge],
@@ -164,8 +165,9 @@ def test_cost_rule_stops_at_the_first_small_cost_change_in_the_datum(tmp_path):
                                rtol=0, atol=1e-12)
     sigma = jaxba.advanced.flatten(statistical.precision.std)
     reference = jaxba.advanced.flatten(statistical.parameters)
-    free = np.isfinite(sigma) & (sigma > 0)
-    assert np.max(np.abs(adjusted - reference)[free] / sigma[free]) < 1e-2
+    free = sigma > 0
+    bound = 1.1 * (1e-3 + 1e-5) / statistical.sigma0
+    assert np.max(np.abs(adjusted - reference)[free] / sigma[free]) <= bound
     assert costs[-1] >= statistical.iterations[-1].cost - 1e-9 * costs[-1]
 
 

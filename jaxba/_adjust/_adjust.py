@@ -81,7 +81,8 @@ def adjust(
 
     `stop`: where the solve stops, "statistical" (the next Gauss-Newton step would move every
     unknown by less than 1e-5 of its σ) or "cost" (Ceres' rule: an accepted step lowered the
-    cost by at most 1e-6 of it; `jaxba._solvers._solve.stopping_rule`); `rtol`, `atol`: the
+    cost by at most 1e-6 of it, and the next step would move every unknown by less than 1e-3
+    of its σ; `jaxba._solvers._solve.stopping_rule`); `rtol`, `atol`: the
     Cauchy test beside either.
 
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object

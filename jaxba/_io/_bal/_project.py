@@ -6,7 +6,7 @@ one per image, in a `"pixel"` project: BAL's observations are the model's image 
 at the image centre, y up), σ 1 pixel. BAL has no control: the datum is `"dependent"` (the
 first image's EOPs and one station coordinate of the longest base fixed). The solve stops as
 `jaxba bal` and Ceres stop BAL problems (`stop = "cost"`: an accepted step lowered the cost by
-at most 1e-6 of it, damped steps only), where they stop. Points measured in
+at most 1e-6 of it, damped steps; guarded by a loose statistical test). Points measured in
 fewer than 2 images, and images left without measurements, are left out (a free point needs
 two rays). Plain NumPy; no jax.
 """
