@@ -282,11 +282,11 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         cauchy = self._cauchy_test(
             state.y_eval, y_diff, residual_eval, _tree_sub(residual_eval, state.residual))
         small_change = state.cost - cost_eval <= self.function_tolerance * state.cost
-        # Where accepted, the solve ends; with the statistical test on, a small change only
-        # asks for it (`gauss_newton` False; never for an accepted step where the function
-        # tolerance is 0).
-        ends = cauchy | small_change if self.step_tolerance == 0 else cauchy
-        last = ends & ~state.first_step
+        # Where accepted, the solve ends; without `gauss_newton` a small change only asks
+        # for the statistical test (`propose`). (With a function tolerance of 0 no accepted
+        # step is a small change.)
+        guarded = self.step_tolerance > 0 and not self.gauss_newton
+        last = (cauchy if guarded else cauchy | small_change) & ~state.first_step
 
         def linearised(descent_state):  # accepted, and the solve goes on
             descent_state = self.descent.query(state.y_eval, residual_eval, descent_state)
