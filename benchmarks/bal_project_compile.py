@@ -9,7 +9,9 @@ in fresh processes with OPENBLAS_NUM_THREADS=1 and an empty persistent compilati
 (JAX_COMPILATION_CACHE_DIR: what a first run on a new machine compiles). Per run: compile
 seconds and programs (results.json: the whole adjustment's `timings` for `adjust`, the
 solve's `compile_seconds` for `bal`), iterations (trial steps, accepted or not, as Ceres
-counts them), the process's CPU seconds (user + system) and peak RSS (GNU time). Prints a
+counts them), the final cost ½Σe², for `adjust` the free unknowns without a σ and how many
+unknowns `no_sigma` names, the process's CPU seconds (user + system) and peak RSS (GNU
+time). Prints a
 Markdown table with the compile seconds and CPU seconds of `adjust` as a ratio to `bal`'s
 in the same repeat.
 
@@ -56,7 +58,8 @@ def _adjust(project: pathlib.Path, tmp: pathlib.Path, k: int) -> dict:
              if isinstance(entry, dict) and entry.get("status") == "free"]
     return {"compile_s": data["timings"]["seconds"]["compile"],
             "programs": data["timings"]["compilations"], "iterations": data["steps"] - 1,
-            "final_cost": None, "sigma0": data["sigma0"], "converged": data["converged"],
+            "final_cost": data["iterations"][-1]["cost"], "sigma0": data["sigma0"],
+            "converged": data["converged"],
             "no_sigma": sum(s is None for s in sigma), "named": len(data["no_sigma"]),
             "cpu_s": cpu, "rss_mib": rss}
 
@@ -87,8 +90,11 @@ def _row(problem: str, run: str, entries: list[dict], ratios: dict) -> str:
         values = [e[key] for e in entries if e[key] is not None]
         return statistics.median(values) if values else float("nan")
 
+    sigma = (f"{median('no_sigma'):.0f} / {median('named'):.0f}" if "no_sigma" in entries[0]
+             else "-")
     return (f"| {problem} | {run} | {median('compile_s'):.2f} | {median('programs'):.0f} |"
-            f" {median('iterations'):.0f} | {median('cpu_s'):.1f} | {median('rss_mib'):.0f} |"
+            f" {median('iterations'):.0f} | {median('final_cost'):.8f} | {sigma} |"
+            f" {median('cpu_s'):.1f} | {median('rss_mib'):.0f} |"
             f" {ratios.get('compile', '')} | {ratios.get('cpu', '')} |")
 
 
@@ -100,9 +106,9 @@ def main() -> None:
     args = parser.parse_args()
     files = args.files or [DATA / name for name in DEFAULT]
     results = [measure(path, args.repeats) for path in files]
-    print("| problem | run | compile s | programs | iterations | CPU s | peak RSS MiB |"
-          " compile / bal | CPU / bal |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| problem | run | compile s | programs | iterations | final cost |"
+          " σ missing / named | CPU s | peak RSS MiB | compile / bal | CPU / bal |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for result in results:
         compile_ratio = statistics.median(
             a["compile_s"] / b["compile_s"] for a, b in zip(result["adjust"], result["bal"]))

@@ -139,3 +139,43 @@ def test_schur_frees_the_gauge_and_lands_in_the_datum(tmp_path, n_distances):
     assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-9)
     sigma = {name: estimates["c"].sigma for name, estimates in schur.cameras.items()}
     assert sigma == pytest.approx({n: e["c"].sigma for n, e in dense.cameras.items()}, rel=1e-6)
+
+
+def test_cost_rule_stops_after_a_small_cost_change_near_the_optimum(tmp_path):
+    """`stop = "cost"` (Ceres' rule with a guard, as `jaxba import bal` writes): the Schur
+    solve with the gauge released takes damped steps only and ends at an accepted step that
+    lowered the cost by at most 1e-6 of it, where the next Gauss-Newton step would move every
+    unknown by less than 1e-3 of its a priori σ: the solution, in the datum, lies within
+    1e-3 + 1e-5 (the statistical rule's) a priori σ of the statistical rule's (reported σ:
+    σ̂0/σ0 times those; 10 % for the model's curvature)."""
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_images=10,
+                                          n_targets=40)
+    statistical_project = _with_settings(truth, datum='"dependent"')
+    project = _with_settings(truth, datum='"dependent"', stop='"cost"')
+    assert project.spec.settings.stop == "cost"
+    statistical = jaxba.adjust_project(statistical_project, solver="schur")
+    cost = jaxba.adjust_project(project, solver="schur")
+    assert statistical.converged and cost.converged
+    costs = np.array([it.cost for it in cost.iterations])
+    assert costs[-2] - costs[-1] <= 1e-6 * costs[-2]
+    gauge = list(project.problem.gauge)
+    adjusted = jaxba.advanced.flatten(cost.parameters)
+    np.testing.assert_allclose(adjusted[gauge],
+                               jaxba.advanced.flatten(project.problem.initial)[gauge],
+                               rtol=0, atol=1e-12)
+    sigma = jaxba.advanced.flatten(statistical.precision.std)
+    reference = jaxba.advanced.flatten(statistical.parameters)
+    free = sigma > 0
+    bound = 1.1 * (1e-3 + 1e-5) / statistical.sigma0
+    assert np.max(np.abs(adjusted - reference)[free] / sigma[free]) <= bound
+    assert costs[-1] >= statistical.iterations[-1].cost - 1e-9 * costs[-1]
+
+
+def test_stop_must_name_a_rule(tmp_path):
+    truth = jaxba.write_synthetic_project(tmp_path, seed=4, noise_px=0.3, n_images=6,
+                                          n_targets=30)
+    with pytest.raises(jaxba.ProjectError, match="stop: expected one of"):
+        _with_settings(truth, stop='"never"')
+    project = _with_settings(truth)
+    with pytest.raises(ValueError, match="stop must be one of statistical, cost, not 'never'"):
+        jaxba.adjust(project.problem, stop="never")

@@ -101,6 +101,7 @@ def test_bal_project_has_the_bal_residuals(tmp_path):
     assert (written.n_images, written.n_points, written.n_image_points) == (3, 7, 19)
     project = jaxba.build_project(jaxba.read_project(written.project_file))
     assert project.datum["kind"] == "dependent" and project.datum["image"] == "img0"
+    assert project.spec.settings.stop == "cost"  # where jaxba bal and Ceres stop
     problem = project.problem
     expected = {(f"img{c}", str(p)): -v for c, p, v in
                 zip(bal.camera_index, bal.point_index, _bal_residuals(bal))}

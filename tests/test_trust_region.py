@@ -119,6 +119,31 @@ def test_gauss_newton_step_within_tau_sigma_ends_the_solve():
     assert steps < int(tight.stats["num_steps"])
 
 
+def test_cost_rule_stops_where_the_cost_test_and_a_loose_step_test_hold():
+    """`gauss_newton=False` with both tolerances (the "cost" stopping rule): damped steps
+    until an accepted step changes the cost by at most the function tolerance; there it
+    stops only where the Gauss-Newton step is within τ = 1e-3 of every σ (checked on the
+    final Jacobian), else takes that step. Rosenbrock's valley passes the cost test far
+    from the minimum with a huge function tolerance: the guard keeps the solve going."""
+
+    def solve(**options):
+        solver = LevenbergMarquardt(descent=DenseDescent(offset_rosenbrock), rtol=0.0,
+                                    atol=0.0, **options)
+        return optx.least_squares(offset_rosenbrock, solver, Y0, max_steps=200, throw=False)
+
+    tau = 1e-3
+    cost_only = solve(function_tolerance=0.5)
+    guarded = solve(function_tolerance=0.5, step_tolerance=tau, gauss_newton=False)
+    assert cost_only.result == optx.RESULTS.successful
+    assert guarded.result == optx.RESULTS.successful
+    assert np.max(np.abs(cost_only.value - 1.0)) > 1e-2  # stopped far from (1, 1)
+    jacobian = jax.jacfwd(offset_rosenbrock)(guarded.value)
+    cofactors = jnp.linalg.inv(jacobian.T @ jacobian)
+    step = -cofactors @ (jacobian.T @ offset_rosenbrock(guarded.value))
+    assert np.all(np.abs(step) <= tau * np.sqrt(np.diag(cofactors)))
+    assert int(guarded.stats["num_steps"]) > int(cost_only.stats["num_steps"])
+
+
 LINEAR_A = jnp.array([[2.0, 1.0], [1.0, 3.0], [0.5, -1.0], [1.0, 1.0], [-1.0, 2.0]])
 LINEAR_B = jnp.array([1.0, 2.0, 0.5, -1.0, 3.0])
 

@@ -11,6 +11,7 @@ from .._problem._bundle import BundleProblem, free_indices, observed_minus_compu
 from .._problem._checks import check_problem
 from .._problem._parameters import parameter_labels
 from .._solvers._progress import Iteration, StepRecorder
+from .._solvers._solve import stopping_rule
 from .._statistics._adjustment import Adjustment
 from .._statistics._backends import backend_for
 from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
@@ -54,6 +55,7 @@ def adjust(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    stop: str = "statistical",
     labels: list[str] | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
     throw: bool = False,
@@ -77,12 +79,19 @@ def adjust(
     observations or free unknowns, or a free image, camera or point no observation reaches,
     is refused first (`jaxba._problem._checks.ProblemError`, a `ValueError`, naming it).
 
+    `stop`: where the solve stops, "statistical" (the next Gauss-Newton step would move every
+    unknown by less than 1e-5 of its σ) or "cost" (Ceres' rule: an accepted step lowered the
+    cost by at most 1e-6 of it, and the next step would move every unknown by less than 1e-3
+    of its σ; `jaxba._solvers._solve.stopping_rule`); `rtol`, `atol`: the
+    Cauchy test beside either.
+
     `solver`: "dense" (normal equations of all unknowns, dense statistics), "schur" (object
     points eliminated; the `Precision` holds the covariance in blocks and the redundancy
     numbers) or "auto" (`use_schur`: "schur" for large bundles). The phases are timed into
     `timings` (a new `Timings` when None), which the result holds.
     """
     require_float64("jaxba.adjust")
+    stopping_rule(stop)  # a bad name refused before any work
     ids = ids_from_labels(problem.initial, labels) if labels is not None else None
     check_problem(problem, labels)
     timings = Timings() if timings is None else timings
@@ -93,7 +102,8 @@ def adjust(
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):
-        solution = backend.solve(max_steps=max_steps, rtol=rtol, atol=atol, on_step=recorder)
+        solution = backend.solve(max_steps=max_steps, rtol=rtol, atol=atol, stop=stop,
+                                 on_step=recorder)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     final_cost = float(solution.cost)

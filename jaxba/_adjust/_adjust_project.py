@@ -25,6 +25,7 @@ def adjust_project(
     return adjust_pipeline(
         project.problem, labels=project.labels, sigma0=settings.sigma0,
         max_steps=settings.max_iterations, rtol=settings.rtol, atol=settings.atol,
-        solver=solver or settings.solver, variance_components=settings.variance_components,
+        stop=settings.stop, solver=solver or settings.solver,
+        variance_components=settings.variance_components,
         data_snooping=settings.data_snooping, alpha=settings.snooping_alpha,
         familywise=settings.snooping_familywise, on_iteration=on_iteration, timings=timings)

@@ -48,6 +48,7 @@ def adjust_pipeline(
     max_steps: int = 50,
     rtol: float = 1e-8,
     atol: float = 1e-8,
+    stop: str = "statistical",
     solver: str = "auto",
     variance_components: bool = False,
     data_snooping: bool = False,
@@ -57,12 +58,13 @@ def adjust_pipeline(
     timings: Timings | None = None,
 ) -> Adjustment:
     """Adjust `problem` and compute its statistics; see the module docstring. `labels`,
-    `sigma0`, `max_steps`, `rtol`, `atol`, `solver` ("auto", "dense" or "schur") and
+    `sigma0`, `max_steps`, `rtol`, `atol`, `stop`, `solver` ("auto", "dense" or "schur") and
     `on_iteration` as for `jaxba.adjust`; `variance_components` and `data_snooping` switch
     those steps on; `alpha` and `familywise`: the significance of the w-tests (snooping and
     reliability). Phases are timed into `timings` (as `jaxba.adjust`): the re-adjustments of
     variance components and data snooping, and reliability, count as "statistics"."""
-    options = dict(sigma0=sigma0, max_steps=max_steps, rtol=rtol, atol=atol, solver=solver)
+    options = dict(sigma0=sigma0, max_steps=max_steps, rtol=rtol, atol=atol, stop=stop,
+                   solver=solver)
     timings = Timings() if timings is None else timings
     snooping = dict(alpha=alpha, familywise=familywise)
     # A robust loss from far-off approximations treats every residual as an outlier; start

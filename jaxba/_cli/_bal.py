@@ -28,6 +28,7 @@ from .._solvers._progress import Iteration, StepRecorder
 from .._solvers._schur._descent import Schur
 from .._solvers._schur._structure import bundle_structure
 from .._solvers._solve import solve
+from .._solvers._trust_region import CERES_FUNCTION_TOLERANCE
 from .._timing import CompileLog
 
 
@@ -45,7 +46,7 @@ def run_bal(
     out_dir: str | os.PathLike,
     *,
     max_steps: int = 100,
-    function_tolerance: float = 1e-6,
+    function_tolerance: float = CERES_FUNCTION_TOLERANCE,
     rtol: float = 1e-10,
     atol: float = 1e-10,
     on_iteration: Callable[[Iteration], None] | None = _print_iteration,

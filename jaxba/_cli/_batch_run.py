@@ -50,11 +50,12 @@ SHARE = 100
 
 def _needs_single(project) -> bool:
     """Whether the project is adjusted alone (`jaxba.adjust_project`), not in a vmapped chunk:
-    a robust loss, variance components, data snooping, or a board warp (the chunk's padded
-    blocks have none)."""
+    a robust loss, variance components, data snooping, a board warp (the chunk's padded
+    blocks have none), or a stopping rule other than the statistical one."""
     settings = project.spec.settings
     return (project.problem.robust is not None or settings.variance_components
-            or settings.data_snooping or project.problem.initial.warp is not None)
+            or settings.data_snooping or project.problem.initial.warp is not None
+            or settings.stop != "statistical")
 
 
 def run_batch(

@@ -40,6 +40,11 @@ class AdjustmentSettings:
     variance_components: bool = False
     rtol: float = 1e-8
     atol: float = 1e-8
+    # Where the solve stops: "statistical" (the next Gauss-Newton step would move every
+    # unknown by less than 1e-5 of its σ) or "cost" (Ceres': an accepted step lowered the
+    # cost by at most 1e-6 of it, guarded by the statistical test with 1e-3; what `jaxba
+    # import bal` writes).
+    stop: str = "statistical"
     refraction: bool = False
     # Refraction needs heights above sea level in km: height_km = (Z + z_offset) * unit_km.
     object_unit_km: float = 0.001

@@ -22,13 +22,16 @@ from .._problem._parameters import Parameters
 class Tolerances(NamedTuple):
     """The trust-region loop's stopping rules (`jaxba._solvers._trust_region`): optimistix's
     Cauchy test (`rtol`, `atol`), the statistical step test (`step`: gᵀN⁻¹g ≤ step², in σ;
-    0 off; static: it decides what is compiled) and the relative cost change of an accepted
-    step (`function`; 0 off)."""
+    0 off; static: it decides what is compiled), the relative cost change of an accepted
+    step (`function`; 0 off) and whether the statistical test and the Gauss-Newton steps
+    come at every accepted point (`gauss_newton`, static; False: only where the cost change
+    passed: `LevenbergMarquardt.gauss_newton`)."""
 
     rtol: float | Array
     atol: float | Array
     step: float
     function: float | Array
+    gauss_newton: bool = True
 
 
 class LeastSquares(NamedTuple):

@@ -61,7 +61,7 @@ class Dense(Backend):
         solver = NormalLevenbergMarquardt(
             problem, plan, scale, tolerances.rtol, tolerances.atol,
             step_tolerance=tolerances.step, function_tolerance=tolerances.function,
-            block_size=self.block_size)
+            gauss_newton=tolerances.gauss_newton, block_size=self.block_size)
         return LeastSquares(_residual_fn, solver, jnp.zeros_like(scale),
                             (problem, plan.free_index, scale))
 

@@ -88,8 +88,8 @@ class NormalDampedNewtonDescent(AbstractNormalDescent[Array, _NormalState]):
 class NormalLevenbergMarquardt(LevenbergMarquardt):
     """Levenberg-Marquardt with `NormalDampedNewtonDescent` and Ceres' trust region. Use with
     `optx.least_squares` on `solve`'s residual function of the scaled unknowns (args:
-    problem, free index, scale). `step_tolerance`, `function_tolerance`: the trust-region
-    loop's statistical and cost-change tests (`jaxba._solvers._trust_region`)."""
+    problem, free index, scale). `step_tolerance`, `function_tolerance`, `gauss_newton`: the
+    trust-region loop's statistical and cost-change tests (`jaxba._solvers._trust_region`)."""
 
     def __init__(
         self,
@@ -101,7 +101,9 @@ class NormalLevenbergMarquardt(LevenbergMarquardt):
         *,
         step_tolerance: float = STEP_TOLERANCE,
         function_tolerance: float = 0.0,
+        gauss_newton: bool = True,
         block_size: int | None = None,
     ):
         super().__init__(rtol, atol, NormalDampedNewtonDescent(problem, plan, scale, block_size),
-                         step_tolerance=step_tolerance, function_tolerance=function_tolerance)
+                         step_tolerance=step_tolerance, function_tolerance=function_tolerance,
+                         gauss_newton=gauss_newton)

@@ -27,7 +27,12 @@ from ._schur._choice import SOLVERS, use_schur
 from ._schur._descent import Schur
 from ._solution import Solution
 from ._steps import StepInfo, least_squares_stepwise
-from ._trust_region import STEP_TOLERANCE
+from ._trust_region import CERES_FUNCTION_TOLERANCE, COST_RULE_STEP_TOLERANCE, STEP_TOLERANCE
+
+# Where a solve stops (`stopping_rule`): solve's step_tolerance, function_tolerance and
+# gauss_newton.
+STOPPING_RULES = {"statistical": (STEP_TOLERANCE, 0.0, True),
+                  "cost": (COST_RULE_STEP_TOLERANCE, CERES_FUNCTION_TOLERANCE, False)}
 
 
 def solve(
@@ -39,6 +44,7 @@ def solve(
     atol: float | None = None,
     step_tolerance: float = STEP_TOLERANCE,
     function_tolerance: float = 0.0,
+    gauss_newton: bool = True,
     on_step: Callable[[StepInfo], None] | None = None,
     adjoint: optx.AbstractAdjoint | None = None,
 ) -> Solution:
@@ -48,8 +54,10 @@ def solve(
     Converged at an accepted iterate from which the Gauss-Newton step would move every
     unknown by less than `step_tolerance` of its σ (gᵀN⁻¹g ≤ τ²; 0: off), where an accepted
     step lowered the cost by at most `function_tolerance` of it (0: off; BAL's gauge-free
-    problems stop this way, as Ceres does), or where optimistix's Cauchy test passes (step
-    and residual change within `rtol`, `atol`; default the backend's `tolerance`), or when
+    problems stop this way, as Ceres does; with `gauss_newton` False and a step tolerance,
+    where both tests hold: `stopping_rule`'s "cost"), or where
+    optimistix's Cauchy test passes (step and residual change within `rtol`, `atol`;
+    default the backend's `tolerance`), or when
     every step from it is rejected down to the trust region's minimum radius. No datum
     check, no statistics.
 
@@ -60,7 +68,8 @@ def solve(
     under a transformation).
     """
     backend = choose_backend(problem, backend) if isinstance(backend, str) else backend
-    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance)
+    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance,
+                             gauss_newton)
     adjoint = optx.ImplicitAdjoint() if adjoint is None else adjoint
     if _traced(problem):  # nested in the caller's program as a call of its own
         return _compiled(problem, backend, tolerances, max_steps, adjoint)
@@ -80,22 +89,41 @@ def lower_solve(
     atol: float | None = None,
     step_tolerance: float = STEP_TOLERANCE,
     function_tolerance: float = 0.0,
+    gauss_newton: bool = True,
 ):
     """`solve`'s compiled program for `problem` lowered, and its arguments: `lowered.compile()
     (*arguments)` is `solve(problem, backend, ...)` with the same settings, for timing
     compilation apart from the run."""
     backend = choose_backend(problem, backend) if isinstance(backend, str) else backend
-    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance)
+    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance,
+                             gauss_newton)
     program, arguments = _program(problem, backend.ready(problem), tolerances, max_steps,
                                   optx.ImplicitAdjoint())
     return program.lower(*arguments), arguments
 
 
-def _tolerances(backend: Backend, rtol, atol, step_tolerance, function_tolerance) -> Tolerances:
+def stopping_rule(name: str) -> dict:
+    """`solve`'s `step_tolerance`, `function_tolerance` and `gauss_newton` for the stopping
+    rule `name`: "statistical" (the default: the Gauss-Newton steps, and stop where the next
+    would move every unknown by less than `STEP_TOLERANCE` of its σ) or "cost" (Ceres' rule,
+    as `jaxba bal`: damped steps until an accepted step lowers the cost by at most
+    `CERES_FUNCTION_TOLERANCE` of it; there stop where the next Gauss-Newton step would move
+    every unknown by less than `COST_RULE_STEP_TOLERANCE` of its σ, else try that step).
+    `ValueError` for another name."""
+    if name not in STOPPING_RULES:
+        raise ValueError(f"stop must be one of {', '.join(STOPPING_RULES)}, not {name!r}")
+    step_tolerance, function_tolerance, gauss_newton = STOPPING_RULES[name]
+    return {"step_tolerance": step_tolerance, "function_tolerance": function_tolerance,
+            "gauss_newton": gauss_newton}
+
+
+def _tolerances(backend: Backend, rtol, atol, step_tolerance, function_tolerance,
+                gauss_newton) -> Tolerances:
     """The stopping rules, rtol and atol defaulting to the backend's `tolerance`."""
     return Tolerances(rtol=backend.tolerance if rtol is None else rtol,
                       atol=backend.tolerance if atol is None else atol,
-                      step=step_tolerance, function=function_tolerance)
+                      step=step_tolerance, function=function_tolerance,
+                      gauss_newton=gauss_newton)
 
 
 def _program(problem, backend, tolerances, max_steps, adjoint):

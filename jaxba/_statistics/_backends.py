@@ -28,7 +28,7 @@ from .._solvers._dense import Dense
 from .._solvers._schur._descent import Schur
 from .._solvers._schur._structure import bundle_structure
 from .._solvers._solution import Solution
-from .._solvers._solve import choose_backend, solve
+from .._solvers._solve import choose_backend, solve, stopping_rule
 from ._adjustment import Adjustment
 from ._covariance import Precision, equilibrated_jacobian, precision, scaled_cofactor
 from ._datum import check_datum, whitened_residuals
@@ -61,9 +61,10 @@ class Backend(abc.ABC):
         """`DatumError` naming the unobservable directions (one label per scalar unknown)."""
 
     @abc.abstractmethod
-    def solve(self, *, max_steps: int, rtol: float, atol: float,
+    def solve(self, *, max_steps: int, rtol: float, atol: float, stop: str = "statistical",
               on_step: Callable | None = None) -> Solution:
-        """Levenberg-Marquardt from the problem's approximations; parameters in its datum."""
+        """Levenberg-Marquardt from the problem's approximations, stopping by the rule `stop`
+        names (`stopping_rule`); parameters in its datum."""
 
     @abc.abstractmethod
     def precision(self, params: Parameters, *, sigma0: float = 1.0) -> Precision:
@@ -90,16 +91,16 @@ class DenseBackend(Backend):
     def check_datum(self, labels=None):
         check_datum(self.problem, labels=labels)
 
-    def solve(self, *, max_steps, rtol, atol, on_step=None):
+    def solve(self, *, max_steps, rtol, atol, stop="statistical", on_step=None):
         """A free network in the minimal datum of `minimal_constraints`, then moved to its
         inner constraints (as the Schur backend: adjusted as stiff observations, the
         constraints left Levenberg-Marquardt crawling on weak blocks)."""
+        options = dict(max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step,
+                       **stopping_rule(stop))
         if inner_constraint_group(self.problem) is None:
-            return solve(self.problem, Dense(), max_steps=max_steps, rtol=rtol, atol=atol,
-                         on_step=on_step)
+            return solve(self.problem, Dense(), **options)
         minimal = minimal_constraints(self.problem, self.problem.initial)
-        solution = solve(minimal, Dense(), max_steps=max_steps, rtol=rtol, atol=atol,
-                         on_step=on_step)
+        solution = solve(minimal, Dense(), **options)
         inner = to_inner_datum(self.problem, solution.parameters)
         return eqx.tree_at(lambda s: s.parameters, solution, inner)
 
@@ -131,15 +132,18 @@ class SchurBackend(Backend):
     def check_datum(self, labels=None):
         check_datum_schur(self.solved, labels=labels, structure=self.structure)
 
-    def solve(self, *, max_steps, rtol, atol, on_step=None):
+    def solve(self, *, max_steps, rtol, atol, stop="statistical", on_step=None):
+        """A minimal datum's gauge released (only the Gauss-Newton steps hold it; the
+        "cost" rule has none) and the solution moved into the datum after."""
+        options = dict(max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step,
+                       **stopping_rule(stop))
         if self.problem.gauge and not self.free_network:  # the datum after the solve
             problem, gauge = released(self.problem)
-            solution = solve(problem, Schur(gauge=gauge), max_steps=max_steps, rtol=rtol,
-                             atol=atol, on_step=on_step)
+            held = gauge if options["step_tolerance"] > 0 else None
+            solution = solve(problem, Schur(gauge=held), **options)
             moved = to_gauge_datum(self.problem, solution.parameters)
             return eqx.tree_at(lambda s: s.parameters, solution, moved)
-        solution = solve(self.solved, Schur(self.structure), max_steps=max_steps, rtol=rtol,
-                         atol=atol, on_step=on_step)
+        solution = solve(self.solved, Schur(self.structure), **options)
         if not self.free_network:
             return solution
         inner = to_inner_datum(self.problem, solution.parameters)

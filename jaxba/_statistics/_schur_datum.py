@@ -34,8 +34,8 @@ def check_datum_schur(
     defect as `check_datum` does, without a dense Jacobian (see the module docstring)."""
     labels = labels or parameter_labels(problem.initial)
     structure = structure or bundle_structure(problem)
-    normal, reduced, point_inverse = compiled_normal_equations(problem, structure,
-                                                               problem.initial)
+    normal, reduced, point_inverse, _ = compiled_normal_equations(problem, structure,
+                                                                  problem.initial)
     index = free_indices(problem)
     n_all = flatten(problem.initial).size
     row_of = np.full(n_all, -1)

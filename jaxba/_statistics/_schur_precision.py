@@ -58,7 +58,7 @@ def schur_cofactors(
     if structure is None:
         structure = bundle_structure(problem)
     n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    normal, reduced, point_inverse = compiled_normal_equations(problem, structure, params)
+    normal, reduced, point_inverse, _ = compiled_normal_equations(problem, structure, params)
     return _schur_cofactors(problem, structure, params, normal, reduced, point_inverse,
                             *_traced_scalars(sigma0, n_observations - n_unknowns))
 

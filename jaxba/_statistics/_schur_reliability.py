@@ -27,7 +27,7 @@ from .._problem._parameters import Parameters
 from .._programs import stored
 from .._solvers._schur._assembly import compiled_normal_equations
 from .._solvers._schur._columns import free_masks, row_columns, row_points
-from .._solvers._schur._jacobians import image_blocks, row_jacobians
+from .._solvers._schur._jacobians import row_jacobians
 from .._solvers._schur._structure import BundleStructure, bundle_structure
 from ._covariance import Precision
 from ._schur_precision import (
@@ -101,12 +101,12 @@ def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
 
 @stored("schur_statistics")
 @eqx.filter_jit
-def _statistics(problem, structure, params, normal, reduced, point_inverse, sigma0,
+def _statistics(problem, structure, params, normal, reduced, point_inverse, blocks, sigma0,
                 redundancy):
     """`_leverages`, `schur_cofactors` and the whitened residuals in one program (`sigma0`,
     `redundancy`: float64 scalars from `_traced_scalars`)."""
     leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal,
-                                                          reduced, point_inverse)
+                                                          reduced, point_inverse, blocks)
     cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
                                   redundancy)
     # Without a robust loss the solver's residuals are the whitened ones (params are the
@@ -116,14 +116,15 @@ def _statistics(problem, structure, params, normal, reduced, point_inverse, sigm
 
 
 @eqx.filter_jit
-def _leverages(problem, structure, params, normal, reduced, point_inverse):
+def _leverages(problem, structure, params, normal, reduced, point_inverse, blocks):
     """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k); the residuals; and
     S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`);
-    `normal`, `reduced` S and `point_inverse` V⁻¹ at `params`: `compiled_normal_equations`'s."""
+    `normal`, `reduced` S, `point_inverse` V⁻¹ and `blocks`, the image observations'
+    Jacobian blocks (J_r, J_e), at `params`: `compiled_normal_equations`'s."""
     dtype = normal.reduced_gradient.dtype
     cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
     free_r, free_e = free_masks(problem, structure, dtype)
-    jr, je, _ = image_blocks(problem, structure, params, free_r, free_e)
+    jr, je = blocks
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
     point_cofactors = _point_cofactors(problem, structure, cofactor,

@@ -4,7 +4,9 @@ BAL's camera row (r, t, f, k1, k2) becomes an image (P = R X + t: M = R(r), X0 =
 angles ω φ κ of M = R3(κ) R2(φ) R1(ω)) and a camera of the `"bal"` model (f, k1, k2 free),
 one per image, in a `"pixel"` project: BAL's observations are the model's image frame (origin
 at the image centre, y up), σ 1 pixel. BAL has no control: the datum is `"dependent"` (the
-first image's EOPs and one station coordinate of the longest base fixed). Points measured in
+first image's EOPs and one station coordinate of the longest base fixed). The solve stops as
+`jaxba bal` and Ceres stop BAL problems (`stop = "cost"`: an accepted step lowered the cost by
+at most 1e-6 of it, damped steps; guarded by a loose statistical test). Points measured in
 fewer than 2 images, and images left without measurements, are left out (a free point needs
 two rays). Plain NumPy; no jax.
 """
@@ -96,8 +98,9 @@ def write_bal_project(
     project_file.write_text(project_toml(
         name, "pixel", {"cameras": "cameras.toml", "images": "orientation.txt",
                         "image_points": "image_coordinates.txt", "points": "points.txt"},
-        {"image_sigma": 1.0, "datum": "dependent"},
+        {"image_sigma": 1.0, "datum": "dependent", "stop": "cost"},
         comment=[f"BAL problem {source} (jaxba import bal): one bal camera per image, no control."],
-        notes={"image_sigma": "pixel"}), encoding="utf-8")
+        notes={"image_sigma": "pixel", "stop": "as Ceres and jaxba bal stop BAL problems"}),
+        encoding="utf-8")
     return BalProject(project_file, len(cameras), len(points), int(keep.sum()),
                       int(np.count_nonzero((rays > 0) & (rays < 2))))

@@ -42,6 +42,7 @@ _SETTING_CHOICES = {
     "robust": ("none", "huber", "cauchy"),
     "datum": ("control", "free", "dependent"),
     "solver": ("auto", "dense", "schur"),
+    "stop": ("statistical", "cost"),
 }
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
 

@@ -77,12 +77,31 @@ def bundle_normal_equations(
     max_diagonal: float = 1e32,
 ) -> BundleNormalEquations:
     """U, V, W, g and the Marquardt damping of `problem` at `params` (all unknowns' values)."""
+    blocks = _image_blocks(problem, structure, params)
+    return normal_from_blocks(problem, structure, params, *blocks, min_diagonal, max_diagonal)
+
+
+def _image_blocks(problem, structure, params):
+    free_r, free_e = free_masks(problem, structure, params.images.dtype)
+    return image_blocks(problem, structure, params, free_r, free_e)
+
+
+def normal_from_blocks(
+    problem: BundleProblem,
+    structure: BundleStructure,
+    params: Parameters,
+    jr: Float[Array, "n_obs1 2 m"],
+    je: Float[Array, "n_obs1 2 3"],
+    e: Float[Array, "n_obs1 2"],
+    min_diagonal: float = 1e-6,
+    max_diagonal: float = 1e32,
+) -> BundleNormalEquations:
+    """`bundle_normal_equations` from the image observations' Jacobian blocks and whitened
+    residuals at `params` (`image_blocks`, free columns only)."""
     n_r = structure.n_reduced
     n_e = structure.eliminated_points.shape[0]
     dtype = params.images.dtype
     free_r, free_e = free_masks(problem, structure, dtype)
-
-    jr, je, e = image_blocks(problem, structure, params, free_r, free_e)
     per_key = pair_block_sums(
         jr, jr, structure.key_rows, structure.key_rows, structure.key_row_block,
         structure.key_columns.shape[0],
@@ -139,16 +158,19 @@ def bundle_normal_equations(
 
 
 def _normal_and_reduced(problem, structure, params):
-    normal = bundle_normal_equations(problem, structure, params)
+    jr, je, e = _image_blocks(problem, structure, params)
+    normal = normal_from_blocks(problem, structure, params, jr, je, e)
     point_inverse = small_inverse(normal.point_hessian)
     product, _ = schur_complement(structure, normal, point_inverse)
-    return normal, normal.reduced_hessian + product, point_inverse
+    return normal, normal.reduced_hessian + product, point_inverse, (jr, je)
 
 
 # One program of its own for the datum check (at the approximations) and the statistics (at
 # the solution), which would otherwise each compile the normal equations inside theirs:
-# `bundle_normal_equations` at `params`, S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r) and V⁻¹
-# (n_e, 3, 3). (The datum check's S was a second program, 0.2 s to load in every process.)
+# `bundle_normal_equations` at `params`, S = U - Σ_p Y_pᵀ V_p⁻¹ Y_p (n_r, n_r), V⁻¹
+# (n_e, 3, 3), and the image observations' Jacobian blocks (J_r, J_e) (`image_blocks`),
+# which the leverages read instead of differentiating the camera model again in their own
+# program. (The datum check's S was a second program, 0.2 s to load in every process.)
 compiled_normal_equations = stored("normal_equations")(jax.jit(_normal_and_reduced))
 
 

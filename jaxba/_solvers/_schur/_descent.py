@@ -134,7 +134,8 @@ class Schur(Backend):
         solver = LevenbergMarquardt(
             tolerances.rtol, tolerances.atol,
             BundleSchurDescent(problem, self.structure, gauge=self.gauge),
-            step_tolerance=tolerances.step, function_tolerance=tolerances.function)
+            step_tolerance=tolerances.step, function_tolerance=tolerances.function,
+            gauss_newton=tolerances.gauss_newton)
         return LeastSquares(_residual_fn, solver, problem.initial, problem)
 
     def parameters(self, problem, args, value):

@@ -59,7 +59,7 @@ def schur_solve(
     positions = unflatten(problem.initial, np.arange(rhs.shape[1]))
     reduced = reduced_positions(problem, structure)
     points = np.asarray(positions.points)[np.asarray(structure.eliminated_points)]
-    normal, _, _ = compiled_normal_equations(problem, structure, params)
+    normal = compiled_normal_equations(problem, structure, params)[0]
     x_r, x_e = _schur_solve(problem, structure, normal, jnp.asarray(rhs[:, reduced]),
                             jnp.asarray(rhs[:, points]))
     out = np.zeros_like(rhs)
