@@ -35,7 +35,7 @@ from jaxba._solvers._schur._descent import Schur  # noqa: E402
 from jaxba._solvers._schur._reduced_solve import solve_bundle_damped  # noqa: E402
 from jaxba._solvers._schur._structure import bundle_structure  # noqa: E402
 from jaxba._solvers._steps import _init, _step  # noqa: E402
-from jaxba._statistics._schur_precision import schur_cofactors  # noqa: E402
+from jaxba._statistics._covariance import schur_cofactors  # noqa: E402
 
 ZHANG = pathlib.Path(__file__).resolve().parents[1] / "configs" / "zhang" / "zhang.toml"
 

@@ -17,8 +17,9 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "jaxba._solvers._levenberg_marquardt": ("NormalLevenbergMarquardt",),
     "jaxba._solvers._schur._descent": ("Schur",),
     "jaxba._solvers._solve": ("choose_backend",),
-    "jaxba._statistics._covariance": ("SchurCovariance",),
-    "jaxba._statistics._schur_datum": ("check_datum_schur",),
-    "jaxba._statistics._schur_precision": ("BundleCofactors", "schur_cofactors", "schur_precision"),
-    "jaxba._statistics._schur_reliability": ("schur_redundancy_numbers",),
+    "jaxba._statistics._covariance": (
+        "BundleCofactors", "SchurCovariance", "schur_cofactors", "schur_precision",
+    ),
+    "jaxba._statistics._datum": ("check_datum_schur",),
+    "jaxba._statistics._reliability": ("schur_redundancy_numbers",),
 })

@@ -11,7 +11,7 @@ from helpers import SYNTHETIC_BLOCK
 
 import jaxba
 from jaxba._problem._checks import ProblemError
-from jaxba._statistics._schur_datum import check_datum_schur
+from jaxba._statistics._datum import check_datum_schur
 
 # A result is "recovered" when it is within this many of its reported σ of the truth.
 RECOVERY_SIGMAS = 4.0

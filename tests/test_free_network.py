@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxba
-from jaxba._statistics._backends import DenseBackend, SchurBackend
+from jaxba._statistics._adjustable import adjustable
 from jaxba._statistics._datum import similarity_transform
 from jaxba._statistics._free_network import (
     free_network_precision,
@@ -166,8 +166,8 @@ def test_s_transformed_covariance_equals_the_bordered_inverse(free_block):
     reduced = transformed.schur.reduced_positions
     np.testing.assert_allclose(transformed.schur.reduced, bordered.covariance_of(reduced),
                                rtol=0, atol=1e-9 * np.abs(transformed.schur.reduced).max())
-    r_schur, e_schur = SchurBackend(problem).redundancy_numbers(params)
-    r_dense, e_dense = DenseBackend(problem).redundancy_numbers(params)
+    r_schur, e_schur = adjustable(problem, "schur").redundancy_numbers(params)
+    r_dense, e_dense = adjustable(problem, "dense").redundancy_numbers(params)
     np.testing.assert_allclose(r_schur, r_dense, rtol=0, atol=1e-9)
     np.testing.assert_allclose(e_schur, e_dense, rtol=0, atol=1e-9)
 

@@ -256,7 +256,7 @@ def test_an_adjustment_is_stored_then_loaded(folder, tmp_path, monkeypatch, back
     stored = adjust()
     names = {path.name.rpartition("-")[0] for path in folder.iterdir()}
     assert {"lm_init", "lm_step", "solve_setup" if backend == "dense" else "normal_equations",
-            "whitened_residuals" if backend == "dense" else "schur_statistics"} <= names
+            "whitened_residuals" if backend == "dense" else "schur_cofactors"} <= names
     _programs._loaded.clear()
     monkeypatch.setattr(_programs, "_export", None)  # an export now would fail the test
     loaded = adjust()

@@ -18,12 +18,14 @@ import jaxba
 from jaxba._problem._bundle import free_indices
 from jaxba._problem._observations import AbstractObservationGroup
 from jaxba._problem._parameters import flatten
+from jaxba._solvers._dense import Dense
 from jaxba._solvers._schur._assembly import bundle_normal_equations, zero_normal_equations
+from jaxba._solvers._schur._descent import Schur
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._solvers._schur._structure import bundle_structure
-from jaxba._statistics._backends import DenseBackend
-from jaxba._statistics._schur_precision import schur_cofactors
-from jaxba._statistics._schur_reliability import schur_redundancy_numbers
+from jaxba._statistics._adjustable import adjustable
+from jaxba._statistics._covariance import schur_cofactors
+from jaxba._statistics._reliability import schur_redundancy_numbers
 
 COVARIANCE_RTOL = 1e-7  # σ and point 3x3 covariances, Schur vs dense precision
 STEP_RTOL = 1e-9  # one damped step, Schur vs dense normal equations (float64)
@@ -211,6 +213,19 @@ def test_cofactors_match_dense_precision(block, plain_solution, pairwise):
         )  # fmt: skip
 
 
+def test_normal_solve_is_the_same_on_both_backends(block, plain_solution):
+    """N⁻¹ b by the Schur split (`Schur.normal_solve`, the free network's S-transformation
+    uses it) equals the dense N⁻¹ b, and both leave the fixed unknowns at 0."""
+    params = plain_solution.parameters
+    rhs = np.random.default_rng(3).normal(size=(2, flatten(block.free).size))
+    dense = Dense().normal_solve(block, params, rhs)
+    schur = Schur().ready(block).normal_solve(block, params, rhs)
+    fixed = ~np.asarray(flatten(block.free), dtype=bool)
+    assert fixed.any() and not dense[:, fixed].any() and not schur[:, fixed].any()
+    np.testing.assert_allclose(schur, dense, rtol=0,
+                               atol=COVARIANCE_RTOL * np.abs(dense).max())
+
+
 @pytest.mark.parametrize("pairwise", [True, False])
 @pytest.mark.parametrize("variant", ["plain", "control_robust", "camera_priors"])
 def test_redundancy_numbers_match_dense(block, variant, pairwise):
@@ -224,7 +239,7 @@ def test_redundancy_numbers_match_dense(block, variant, pairwise):
     # Several chunks of pairs and of points; the cofactors pair-wise and densely.
     structure = bundle_structure(problem, chunk_mib=0.01, pair_batch=64, pairwise=pairwise)
     r, whitened = schur_redundancy_numbers(problem, params, structure=structure)
-    expected_r, expected_whitened = DenseBackend(problem).redundancy_numbers(params)
+    expected_r, expected_whitened = adjustable(problem, "dense").redundancy_numbers(params)
     assert r.shape == expected_r.shape == (problem.n_observations(),)
     np.testing.assert_allclose(whitened, expected_whitened, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(r, expected_r, rtol=0, atol=REDUNDANCY_ATOL)

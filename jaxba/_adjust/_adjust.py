@@ -12,8 +12,8 @@ from .._problem._checks import check_problem
 from .._problem._parameters import parameter_labels
 from .._solvers._progress import Iteration, StepRecorder
 from .._solvers._solve import stopping_rule
+from .._statistics._adjustable import adjustable
 from .._statistics._adjustment import Adjustment
-from .._statistics._backends import backend_for
 from .._statistics._causes import DIVERGED_SIGMA0, divergence_cause
 from .._statistics._covariance import Precision, precision_from_covariance
 from .._statistics._datum import nonfinite_start_error, whitened_residuals
@@ -64,7 +64,7 @@ def adjust(
     timings: Timings | None = None,
 ) -> Adjustment:
     """Adjust `problem` by Levenberg-Marquardt on the normal-equation backend `solver` names
-    (`jaxba._statistics._backends`).
+    (`jaxba._statistics._adjustable`).
 
     The datum is checked first (`DatumError` names the unobservable directions, using
     `labels`, one per scalar unknown in `flatten` order as `parameter_labels` writes them;
@@ -95,15 +95,15 @@ def adjust(
     ids = ids_from_labels(problem.initial, labels) if labels is not None else None
     check_problem(problem, labels)
     timings = Timings() if timings is None else timings
-    backend = backend_for(problem, solver)
+    bundle = adjustable(problem, solver)
     if check:
         with timings.phase("datum check"):
-            backend.check_datum(labels)
+            bundle.check_datum(labels)
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):
-        solution = backend.solve(max_steps=max_steps, rtol=rtol, atol=atol, stop=stop,
-                                 on_step=recorder)
+        solution = bundle.solve(max_steps=max_steps, rtol=rtol, atol=atol, stop=stop,
+                                on_step=recorder)
         solution = jax.block_until_ready(solution)
     params, result, steps = solution.parameters, solution.result, solution.steps
     final_cost = float(solution.cost)
@@ -120,7 +120,7 @@ def adjust(
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):
         try:
-            parameter_precision, whitened = backend.precision_and_whitened(
+            parameter_precision, whitened = bundle.precision_and_whitened(
                 params, sigma0=sigma0)
         except np.linalg.LinAlgError as error:
             whitened = whitened_residuals(problem, params)
@@ -146,7 +146,7 @@ def adjust(
         converged=bool(converged),
         message=str(message),
         steps=int(steps),
-        backend=backend.name,
+        backend=bundle.name,
         timings=timings,
         sigma0_prior=float(sigma0),
         ids=ids,

@@ -14,8 +14,8 @@ import numpy as np
 
 from .._problem._bundle import BundleProblem, observation_mask
 from .._problem._observations import named_parts
+from .._statistics._adjustable import adjusted_redundancy_numbers
 from .._statistics._adjustment import Adjustment
-from .._statistics._backends import adjusted_redundancy_numbers
 from .._statistics._ids import index_ids
 from ._adjust import adjust
 from ._snooping import restart_from

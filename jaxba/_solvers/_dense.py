@@ -1,15 +1,29 @@
-"""The Dense backend: Levenberg-Marquardt on the normal equations of all free unknowns."""
+"""The Dense backend: Levenberg-Marquardt on the normal equations of all free unknowns (its
+statistics' linear algebra: `_dense_statistics.py`)."""
 
 from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._problem._bundle import BundleProblem, params_from_scaled
-from .._problem._linearisation import LinearisationPlan, linearisation_plan, normal_equations
+from .._problem._linearisation import (
+    LinearisationPlan,
+    dense_jacobian,
+    linearisation_plan,
+    normal_equations,
+)
 from ._backend import Backend, LeastSquares, Tolerances
+from ._dense_statistics import (
+    SINGULAR_VALUE_RTOL,
+    dense_cofactors,
+    dense_leverages,
+    dense_normal_solve,
+    jacobian_rank,
+)
 from ._levenberg_marquardt import UNBATCHED_BLOCK, NormalLevenbergMarquardt
 
 
@@ -45,6 +59,7 @@ class Dense(Backend):
     tolerance: ClassVar[float] = 1e-8
     top_level: ClassVar[bool] = False
     compiled_setup: ClassVar[bool] = True
+    holds_inner_constraints: ClassVar[bool] = True
 
     def ready(self, problem):
         return self if self.plan is not None else Dense(linearisation_plan(problem),
@@ -68,6 +83,21 @@ class Dense(Backend):
     def parameters(self, problem, args, value):
         _, index, scale = args
         return params_from_scaled(problem, value, index, scale)
+
+    def rank(self, problem, *, rtol: float = SINGULAR_VALUE_RTOL):
+        """`jacobian_rank` of the dense Jacobian at the approximations (`rtol`: its
+        threshold on the singular values)."""
+        return jacobian_rank(np.asarray(dense_jacobian(problem, problem.initial)[0]),
+                             rtol=rtol)
+
+    def cofactors(self, problem, params):
+        return dense_cofactors(problem, params)
+
+    def leverages(self, problem, params):
+        return dense_leverages(problem, params)
+
+    def normal_solve(self, problem, params, rhs):
+        return dense_normal_solve(problem, params, rhs)
 
 
 def equilibrated(normal: Float[Array, "n n"], real: Bool[Array, " n"] | None = None

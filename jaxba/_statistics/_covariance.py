@@ -1,17 +1,22 @@
-"""Precision at the solution: σ̂0², redundancy and the covariance of the free unknowns."""
+"""Precision at the solution: σ̂0², redundancy and the covariance of the free unknowns, from
+the cofactors N⁻¹ that a backend forms (`Backend.cofactors`: all of it, or in blocks)."""
 
 import dataclasses
 
+import jax
 import numpy as np
 
 from .._problem._bundle import BundleProblem, free_indices, tie_source
-from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters, flatten, unflatten
+from .._solvers._backend import Backend, Cofactors, Leverages
+from .._solvers._dense import Dense
+from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import BundleStructure
 
 
 @dataclasses.dataclass(frozen=True)
 class SchurCovariance:
-    """Cxx of a bundle adjusted with the object points eliminated (`solve_schur`): the
+    """Cxx of a bundle adjusted with the object points eliminated (`Schur`): the
     reduced side (IOPs, EOPs, points in distances) in full and every object point's 3 x 3
     block; the cross-covariances of an eliminated point with any other unknown are not
     formed (they would make Cxx dense).
@@ -20,8 +25,8 @@ class SchurCovariance:
     - `reduced`: (n_r, n_r) their covariance (rows of fixed unknowns 0);
     - `points`: (n_points, 3, 3) every point's covariance (0 for fixed coordinates);
     - `redundancy`: the redundancy numbers and whitened residuals (r_i, e_i) of the real
-      observations at the same solution (`schur_redundancy_numbers`), where they were
-      computed with the covariance (`adjust`: one program for both), else None.
+      observations at the same solution (`redundancy_numbers`), where they were
+      computed with the covariance (`Schur.cofactors`: one program for both), else None.
     """
 
     reduced_positions: np.ndarray
@@ -115,59 +120,74 @@ def _schur_block(schur: SchurCovariance, std: Parameters, positions: np.ndarray)
     )
 
 
-def _constraint_rows(problem: BundleProblem) -> np.ndarray:
-    """Flat mask over the real observations: True on rows of constraint groups."""
-    return np.concatenate([
-        np.full(int(np.sum(np.asarray(group.mask()))), group.constraint)
-        for group in problem.groups
-    ])
+def redundancy_numbers(leverages: Leverages) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations (flat, `observation_mask` order): r_i = 1 - j N⁻¹ jᵀ."""
+    return 1.0 - leverages.leverage, leverages.whitened
 
 
-def _inner_constraint_cofactor(observations: np.ndarray, constraints: np.ndarray) -> np.ndarray:
-    """Top-left block of [[N, B], [Bᵀ, 0]]⁻¹, N = AᵀA, B = Cᵀ: the cofactor of a free
-    network under the inner constraints C dx = 0 (a generalised inverse of N)."""
-    n, d = observations.shape[1], constraints.shape[0]
-    bordered = np.block([
-        [observations.T @ observations, constraints.T],
-        [constraints, np.zeros((d, d))],
-    ])
-    return np.linalg.solve(bordered, np.eye(n + d)[:, :n])[:n]
+def precision(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    backend: Backend | None = None,
+) -> Precision:
+    """σ̂0², σ of every unknown and the covariance of the free unknowns at `params`, from
+    `backend`'s cofactors (`precision_from_cofactors`; default `Dense`: all of Cxx, up to a
+    few thousand unknowns; `LinAlgError` where N is singular)."""
+    backend = Dense() if backend is None else backend.ready(problem)
+    return precision_from_cofactors(problem, params, backend.cofactors(problem, params),
+                                    sigma0=sigma0)
 
 
-def equilibrated_jacobian(jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(J D, D) with D = 1/‖column‖ of the whitened Jacobian J (n_obs, n_free): N⁻¹ =
-    D (D N D)⁻¹ D, factorised with unit columns."""
-    column_scale = 1.0 / np.maximum(np.linalg.norm(jacobian, axis=0), np.finfo(float).tiny)
-    return jacobian * column_scale, column_scale
+def precision_from_cofactors(
+    problem: BundleProblem, params: Parameters, cofactors: Cofactors, *, sigma0: float = 1.0
+) -> Precision:
+    """The `Precision` of N⁻¹ (`cofactors`, any backend's) at `params`: σ̂0² = σ0² eᵀe / r and
+    Cxx = σ̂0² (σ0² JᵀJ)⁻¹, all of it where the backend formed all of N⁻¹, else its blocks
+    (`SchurCovariance`, with the redundancy numbers where the backend formed them)."""
+    n_observations = problem.n_observations()
+    redundancy = n_observations - free_indices(problem).size
+    sigma0_squared = sigma0**2 * cofactors.squares / redundancy
+    variance_factor = sigma0_squared / sigma0**2
+    if cofactors.matrix is not None:
+        return precision_from_covariance(problem, params, variance_factor * cofactors.matrix,
+                                         sigma0_squared, redundancy, n_observations)
+    leverages = cofactors.leverages
+    return precision_from_blocks(problem, params, sigma0_squared, redundancy, SchurCovariance(
+        reduced_positions=cofactors.reduced_positions,
+        reduced=variance_factor * cofactors.reduced,
+        points=variance_factor * cofactors.points,
+        redundancy=None if leverages is None else redundancy_numbers(leverages),
+    ))
 
 
-def scaled_cofactor(scaled: np.ndarray) -> np.ndarray:
-    """(AᵀA)⁻¹ by Cholesky of the equilibrated Jacobian A = J D (`equilibrated_jacobian`):
-    the dense cofactor matrix of a problem with a datum, NumPy (one problem, outside jax)."""
-    import scipy.linalg  # on first use: its import (0.2-0.4 s) is not every run's
-
-    return scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled.T @ scaled),
-                                  np.eye(scaled.shape[1]))
-
-
-def precision(problem: BundleProblem, params: Parameters, *, sigma0: float = 1.0) -> Precision:
-    """Dense covariance of the free unknowns at `params` (up to a few thousand unknowns)."""
-    jacobian, whitened = (np.asarray(a) for a in dense_jacobian(problem, params))
-    n_observations, n_unknowns = jacobian.shape
-    redundancy = n_observations - n_unknowns
-    sigma0_squared = sigma0**2 * float(whitened @ whitened) / redundancy
-    scaled, column_scale = equilibrated_jacobian(jacobian)
-    constraint = _constraint_rows(problem)
-    if constraint.any():
-        cofactor = _inner_constraint_cofactor(scaled[~constraint], scaled[constraint])
-    else:
-        cofactor = scaled_cofactor(scaled)
-    # Cxx = σ̂0² (σ0² JᵀJ)⁻¹
-    covariance = (sigma0_squared / sigma0**2) * (
-        column_scale[:, None] * cofactor * column_scale[None, :]
-    )
-    return precision_from_covariance(
-        problem, params, covariance, sigma0_squared, redundancy, n_observations)
+def precision_from_blocks(
+    problem: BundleProblem,
+    params: Parameters,
+    sigma0_squared: float,
+    redundancy: int,
+    blocks: SchurCovariance,
+) -> Precision:
+    """The `Precision` of Cxx in blocks (`blocks`) of `problem`'s unknowns at `params`: σ
+    from the blocks' diagonals (0 for fixed unknowns)."""
+    n_all = flatten(params).size
+    std = np.zeros(n_all)
+    std[blocks.reduced_positions] = np.sqrt(np.clip(np.diag(blocks.reduced), 0.0, None))
+    point_positions = np.asarray(unflatten(params, np.arange(n_all)).points)
+    std[point_positions] = np.sqrt(np.clip(np.diagonal(blocks.points, axis1=1, axis2=2), 0.0,
+                                           None))
+    index = free_indices(problem)
+    return with_ties(Precision(
+        sigma0_squared=sigma0_squared,
+        redundancy=redundancy,
+        n_observations=problem.n_observations(),
+        n_unknowns=index.size,
+        free_index=index,
+        covariance=None,
+        std=unflatten(jax.tree.map(np.asarray, params), std * flatten(problem.free)),
+        schur=blocks,
+    ), problem)
 
 
 def precision_from_covariance(
@@ -191,3 +211,52 @@ def precision_from_covariance(
         covariance=covariance,
         std=unflatten(params, std),
     ), problem)
+
+
+def schur_precision(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> Precision:
+    """`precision` from the Schur split, without any dense n x n inverse: σ̂0², σ of every
+    unknown, and as covariance a `SchurCovariance` (`covariance` None): Cxx of the reduced
+    side and every object point's 3 x 3 block, with the redundancy numbers. For bundles
+    with a datum (a free network: `free_network_precision`). `structure`: the problem's
+    `bundle_structure`, if already built."""
+    return precision(problem, params, sigma0=sigma0, backend=Schur(structure))
+
+
+@dataclasses.dataclass(frozen=True)
+class BundleCofactors:
+    """Cofactors (JᵀJ)⁻¹ of the whitened bundle at a solution, from the Schur split.
+
+    - `reduced`: (n_r, n_r) = S⁻¹, the full cofactor block of the reduced side (IOPs, EOPs,
+      distance points; `BundleStructure` column order), rows/columns of fixed unknowns 0;
+    - `points`: (n_points, 3, 3) the 3 x 3 cofactor block of every object point;
+    - `sigma0_squared`: σ0² eᵀe / (n_observations - n_unknowns);
+    - `std`: Parameters of σ = sqrt(σ̂0²/σ0² diag Q), as `Precision.std`.
+    """
+
+    reduced: np.ndarray
+    points: np.ndarray
+    sigma0_squared: float
+    std: Parameters
+
+
+def schur_cofactors(
+    problem: BundleProblem,
+    params: Parameters,
+    *,
+    sigma0: float = 1.0,
+    structure: BundleStructure | None = None,
+) -> BundleCofactors:
+    """The cofactor blocks behind `schur_precision` (`Schur.cofactors`), unscaled, with σ̂0²
+    and σ: the same numbers as the dense `precision` for bundles with a datum; not for
+    free networks."""
+    backend = Schur(structure).ready(problem)
+    cofactors = backend.cofactors(problem, params)
+    scaled = precision_from_cofactors(problem, params, cofactors, sigma0=sigma0)
+    return BundleCofactors(cofactors.reduced, cofactors.points, scaled.sigma0_squared,
+                           scaled.std)

@@ -1,4 +1,6 @@
-"""Refuse rank-deficient bundles before solving, naming what cannot be determined."""
+"""Refuse rank-deficient bundles before solving, naming what cannot be determined: from the
+rank of the normal equations that a backend finds (`Backend.rank`: the dense Jacobian's SVD,
+or the Schur split's null space)."""
 
 import equinox as eqx
 import jax
@@ -10,9 +12,13 @@ from .._models._cameras._names import INSEPARABLE_PARAMETERS, lens_model
 from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices, tie_source
-from .._problem._linearisation import dense_jacobian
 from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
 from .._programs import stored
+from .._solvers._backend import Rank
+from .._solvers._dense import Dense
+from .._solvers._dense_statistics import SINGULAR_VALUE_RTOL
+from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import BundleStructure
 from ._causes import intersection_cause, nonfinite_observations
 
 SIMILARITY_NAMES = (
@@ -104,31 +110,10 @@ def _describe_similarity(null_basis, directions, index) -> str | None:
     return ", ".join(name for name in SIMILARITY_NAMES if name in names)
 
 
-def null_space(
-    problem: BundleProblem, *, rtol: float = 1e-9, jacobian: np.ndarray | None = None
-) -> np.ndarray | None:
-    """Basis (d, n_free) of the unknowns' directions no observation sees, or None.
-
-    From the singular values of the column-equilibrated whitened Jacobian at the
-    approximations (smallest / largest < `rtol`); rows in unscaled units. `jacobian`:
-    that Jacobian if already computed.
-    """
-    if jacobian is None:
-        jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
-    column_norms = np.linalg.norm(jacobian, axis=0)
-    scaled = jacobian / column_norms
-    if scaled.shape[0] > scaled.shape[1]:  # J = QR: R has J's singular values and V
-        scaled = np.linalg.qr(scaled, mode="r")
-    _, singular, vt = np.linalg.svd(scaled, full_matrices=False)
-    null_rows = singular < rtol * singular[0]
-    return vt[null_rows] / column_norms if null_rows.any() else None
-
-
-def describe_defect(problem, null_basis, index, labels, *, column_norms=None) -> None:
+def describe_defect(problem, null_basis, index, labels, *, column_norms) -> None:
     """Raise `DatumError` naming the defect spanned by `null_basis` (d, n_free).
 
-    `column_norms` (n_free,): the norms of the whitened Jacobian's columns (default: from
-    the dense Jacobian).
+    `column_norms` (n_free,): the norms of the whitened Jacobian's columns.
     """
     rank_defect = null_basis.shape[0]
     directions = similarity_directions(problem.initial, network_centre(problem), pose=problem.pose)
@@ -146,9 +131,6 @@ def describe_defect(problem, null_basis, index, labels, *, column_norms=None) ->
             + hint
         )
     # Rank the unknowns in Jacobi-scaled units (as the observations see them).
-    if column_norms is None:
-        column_norms = np.linalg.norm(
-            np.asarray(dense_jacobian(problem, problem.initial)[0]), axis=0)
     scaled = null_basis * column_norms
     magnitude = np.max(np.abs(scaled / np.linalg.norm(scaled, axis=1, keepdims=True)), axis=0)
     significant = magnitude > 0.1 * magnitude.max()
@@ -173,16 +155,41 @@ def _involved_points(problem: BundleProblem, index, significant) -> np.ndarray:
 
 
 def check_datum(
-    problem: BundleProblem, *, labels: list[str] | None = None, rtol: float = 1e-9
+    problem: BundleProblem, *, labels: list[str] | None = None,
+    rtol: float = SINGULAR_VALUE_RTOL
 ) -> None:
     """Raise `DatumError` if the bundle is rank deficient at its approximations.
 
     The message names the defect: a similarity transformation of the network (which of
     translation, rotation, scale) or the unknowns that can change together without
-    changing any observation.
+    changing any observation. From the dense Jacobian (`Dense.rank`, `rtol`: its threshold
+    on the singular values); `check_rank` for another backend's rank.
     """
-    jacobian = np.asarray(dense_jacobian(problem, problem.initial)[0])
-    check_datum_with_jacobian(problem, jacobian, labels=labels, rtol=rtol)
+    check_rank(problem, Dense().rank(problem, rtol=rtol), labels=labels)
+
+
+def check_datum_schur(
+    problem: BundleProblem,
+    *,
+    labels: list[str] | None = None,
+    structure: BundleStructure | None = None,
+) -> None:
+    """`check_datum` without a dense Jacobian: from the Schur split (`Schur.rank`;
+    `structure`: the problem's `bundle_structure`, if already built)."""
+    backend = Schur(structure).ready(problem)
+    check_rank(problem, backend.rank(problem), labels=labels)
+
+
+def check_rank(problem: BundleProblem, rank: Rank, *, labels: list[str] | None = None) -> None:
+    """Raise `DatumError` naming what the observations cannot determine, from the rank of
+    the normal equations at the approximations (any backend's `rank`): the checks before any
+    decomposition (`check_columns`), then the defect its null space spans
+    (`describe_defect`)."""
+    labels = labels or parameter_labels(problem.initial)
+    check_columns(problem, rank.finite, rank.column_norms, labels)
+    if rank.null_space is not None:
+        describe_defect(problem, rank.null_space, free_indices(problem), labels,
+                        column_norms=rank.column_norms)
 
 
 # `BundleProblem.whitened` as one compiled program (op by op it compiled ~60 small ones).
@@ -258,20 +265,3 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
                     f"datum defect: {a} and {b} of {camera} are not separable ({reason}):"
                     f" fix one of them, or give it a prior σ")
 
-
-def check_datum_with_jacobian(
-    problem: BundleProblem,
-    jacobian: np.ndarray,
-    *,
-    labels: list[str] | None = None,
-    rtol: float = 1e-9,
-) -> None:
-    """`check_datum`, given the whitened Jacobian (real observations x free unknowns) at
-    the approximations (e.g. from a batched computation)."""
-    labels = labels or parameter_labels(problem.initial)
-    index = free_indices(problem)
-    check_columns(problem, np.all(np.isfinite(jacobian), axis=0),
-                  np.linalg.norm(jacobian, axis=0), labels)
-    null_basis = null_space(problem, rtol=rtol, jacobian=jacobian)
-    if null_basis is not None:
-        describe_defect(problem, null_basis, index, labels)

@@ -14,14 +14,20 @@ backend `jaxba.precision` returns the inner-constraint cofactor, the top-left bl
 [[N, B], [Bᵀ, 0]]⁻¹. Both backends solve in a minimal datum (below) rather than with the
 constraints as stiff rows, on which Levenberg-Marquardt crawls on weak blocks.
 
-The Schur backend cannot hold a row that couples every point. It solves the network with
-a minimal datum instead (`minimal_constraints`: d unknowns held, chosen from the geometry
-as a dependent relative orientation: one well-observed image's EOPs and a base),
+The Schur backend cannot hold a row that couples every point (`holds_inner_constraints`).
+It solves the network with a minimal datum instead (`minimal_constraints`: d unknowns held,
+chosen from the geometry as a dependent relative orientation: one well-observed image's EOPs
+and a base),
 moves the solution by the similarity that satisfies the inner constraints
 (`to_inner_datum`: the residuals are invariant, so this is the inner-constraint solution)
-and carries the covariance over by Baarda's S-transformation (`free_network_precision`):
+and carries its cofactors over by Baarda's S-transformation (`free_network_precision`):
 Q_i = S Q_m Sᵀ, S = I - G (C G)⁻¹ C, G the null space at the solution, C the constraints.
 Gauge-invariant quantities (residuals, σ̂0, redundancy numbers) need no transformation.
+
+This is statistics, not a backend's linear algebra: which datum a free network is reported in
+is a choice about the result (the similarity that moves the solution, the S-transformation of
+its cofactors), made from what any backend forms in the minimal datum (`cofactors`,
+`normal_solve`, `leverages`).
 """
 
 
@@ -36,11 +42,16 @@ from .._problem._bundle import BundleProblem, free_indices
 from .._problem._inner_constraints import InnerConstraints
 from .._problem._linearisation import column_norms
 from .._problem._parameters import Parameters, flatten, unflatten
-from .._solvers._schur._reduced_solve import schur_solve
-from .._solvers._schur._structure import BundleStructure, bundle_structure
-from ._covariance import Precision, SchurCovariance, with_ties
+from .._solvers._backend import Backend
+from .._solvers._schur._descent import Schur
+from ._covariance import (
+    Precision,
+    SchurCovariance,
+    precision_from_blocks,
+    precision_from_cofactors,
+    redundancy_numbers,
+)
 from ._datum import DatumError, network_centre, similarity_directions, similarity_transform
-from ._schur_reliability import schur_precision_and_redundancy, schur_redundancy_numbers
 
 STIFFNESS = 100.0
 # A similarity motion is unobservable when the observations see less than this fraction
@@ -231,24 +242,26 @@ def free_network_precision(
     params: Parameters,
     *,
     sigma0: float = 1.0,
-    structure: BundleStructure | None = None,
+    backend: Backend | None = None,
 ) -> Precision:
-    """`schur_precision` of a free network at its inner-constraint solution `params`, in
-    the inner-constraint datum: the minimal-datum covariance Q_m carried over by the
-    S-transformation Q_i = S Q_m Sᵀ (module docstring) for the blocks a `SchurCovariance`
-    holds. With P = (C G)⁻¹ C and K = Q_m Pᵀ (d Schur solves), a block is
-    Q_i[a, b] = Q_m[a, b] - G_a K_bᵀ - K_a G_bᵀ + G_a (P K) G_bᵀ. `structure`: the
-    minimal-datum problem's `bundle_structure`, if already computed."""
+    """The `Precision` of a free network at its inner-constraint solution `params`, in the
+    inner-constraint datum, for a backend that forms its cofactors in blocks (one that
+    cannot hold the inner constraints: default `Schur`): the minimal-datum covariance Q_m
+    carried over by the S-transformation Q_i = S Q_m Sᵀ (module docstring) for the blocks
+    a `SchurCovariance` holds. With P = (C G)⁻¹ C and K = Q_m Pᵀ (d normal-equation solves),
+    a block is Q_i[a, b] = Q_m[a, b] - G_a K_bᵀ - K_a G_bᵀ + G_a (P K) G_bᵀ. `backend`: made
+    ready for the minimal-datum problem (the same for any `params`), if it is already."""
     group = inner_constraint_group(problem)
     minimal = minimal_constraints(problem, params)
-    structure = structure or bundle_structure(minimal)
+    backend = (Schur() if backend is None else backend).ready(minimal)
     # With the redundancy numbers (gauge invariant: from the minimal datum) in one program.
-    base = schur_precision_and_redundancy(minimal, params, sigma0=sigma0, structure=structure)
+    base = precision_from_cofactors(minimal, params, backend.cofactors(minimal, params),
+                                    sigma0=sigma0)
     variance_factor = base.sigma0_squared / sigma0**2
     null = constraint_null_space(group, params, problem.free)  # G (d, n_all)
     constraint = np.asarray(group.directions)  # C
     projector = np.linalg.solve(constraint @ null.T, constraint)  # P (d, n_all)
-    k = variance_factor * schur_solve(minimal, params, projector, structure=structure)
+    k = variance_factor * backend.normal_solve(minimal, params, projector)
     middle = projector @ k.T  # P K (d, d)
 
     def transformed(block, g, k_block):  # (..., m, m) and (..., m, d) -> Q_i blocks
@@ -261,30 +274,20 @@ def free_network_precision(
     point_positions = np.asarray(unflatten(params, np.arange(null.shape[1])).points)
     points = transformed(base.schur.points, np.moveaxis(null[:, point_positions], 0, -1),
                          np.moveaxis(k[:, point_positions], 0, -1))
-    std = np.zeros(null.shape[1])
-    std[reduced_positions] = np.sqrt(np.clip(np.diag(reduced), 0.0, None))
-    std[point_positions] = np.sqrt(np.clip(np.diagonal(points, axis1=1, axis2=2), 0.0, None))
-    index = free_indices(problem)
-    return with_ties(Precision(
-        sigma0_squared=base.sigma0_squared,
-        redundancy=base.redundancy,
-        n_observations=problem.n_observations(),
-        n_unknowns=index.size,
-        free_index=index,
-        covariance=None,
-        std=unflatten(jax.tree.map(np.asarray, params), std * flatten(problem.free)),
-        schur=SchurCovariance(reduced_positions, reduced, points,
-                              _with_constraint_rows(problem, params, *base.schur.redundancy)),
-    ), problem)
+    redundancy = _with_constraint_rows(problem, params, *base.schur.redundancy)
+    return precision_from_blocks(problem, params, base.sigma0_squared, base.redundancy,
+                                 SchurCovariance(reduced_positions, reduced, points, redundancy))
 
 
 def free_network_redundancy_numbers(
-    problem: BundleProblem, params: Parameters
+    problem: BundleProblem, params: Parameters, *, backend: Backend | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(r_i, e_i) of a free network's real observations at `params`, as
-    `schur_redundancy_numbers` (gauge invariant: from the minimal datum); the inner
-    constraints' rows have r = 0."""
-    r, e = schur_redundancy_numbers(minimal_constraints(problem, params), params)
+    """(r_i, e_i) of a free network's real observations at `params` from the minimal datum
+    (gauge invariant; `backend` as `free_network_precision`'s); the inner constraints'
+    rows have r = 0."""
+    minimal = minimal_constraints(problem, params)
+    backend = (Schur() if backend is None else backend).ready(minimal)
+    r, e = redundancy_numbers(backend.leverages(minimal, params))
     return _with_constraint_rows(problem, params, r, e)
 
 
@@ -293,3 +296,4 @@ def _with_constraint_rows(problem, params, r, e) -> tuple[np.ndarray, np.ndarray
     group = inner_constraint_group(problem)
     constraint_e = np.ravel(np.asarray(group.residuals(params, problem.refraction)))
     return np.concatenate([r, np.zeros(constraint_e.size)]), np.concatenate([e, constraint_e])
+

@@ -13,8 +13,12 @@ import math
 import numpy as np
 
 from .._problem._bundle import BundleProblem, observation_mask
+from .._problem._parameters import Parameters
+from .._solvers._schur._descent import Schur
+from .._solvers._schur._structure import BundleStructure
+from ._adjustable import adjusted_redundancy_numbers
 from ._adjustment import Adjustment
-from ._backends import adjusted_redundancy_numbers
+from ._covariance import redundancy_numbers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +70,15 @@ def reliability(
     return reliability_from_redundancy(
         result.problem, r, whitened, alpha=alpha, power=power, familywise=familywise
     )
+
+
+def schur_redundancy_numbers(
+    problem: BundleProblem, params: Parameters, *, structure: BundleStructure | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r_i, e_i) of the real observations, flat in `observation_mask` order, at `params`
+    from the Schur split (`Schur.leverages`): the dense ones without a dense Jacobian or
+    N⁻¹. For bundles with a datum; `structure`: the problem's `bundle_structure`, if built."""
+    return redundancy_numbers(Schur(structure).ready(problem).leverages(problem, params))
 
 
 def reliability_from_redundancy(

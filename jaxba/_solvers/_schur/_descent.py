@@ -1,6 +1,7 @@
 """The Schur backend: the damped step of a `BundleProblem` by the Schur complement of its
 normal equations (`_assembly.py`) and the model's predicted reduction, inside jaxba's
-Levenberg-Marquardt (`jaxba._solvers._solve.solve` runs it)."""
+Levenberg-Marquardt (`jaxba._solvers._solve.solve` runs it); its rank, cofactors and
+leverages from the same split (`_null_space.py`, `_cofactors.py`, `_leverages.py`)."""
 
 from typing import ClassVar
 
@@ -19,7 +20,9 @@ from .._trust_region import (
 )
 from ._assembly import BundleNormalEquations, bundle_normal_equations, zero_normal_equations
 from ._columns import at_columns, reduced_vector, to_parameters
-from ._reduced_solve import solve_bundle_damped
+from ._leverages import schur_cofactors, schur_leverages
+from ._null_space import schur_rank
+from ._reduced_solve import schur_solve, solve_bundle_damped
 from ._structure import BundleStructure, bundle_structure
 
 
@@ -124,6 +127,8 @@ class Schur(Backend):
     tolerance: ClassVar[float] = 1e-10
     top_level: ClassVar[bool] = True
     compiled_setup: ClassVar[bool] = False
+    holds_inner_constraints: ClassVar[bool] = False  # a row over every point: no blocks
+    releases_gauge: ClassVar[bool] = True
 
     def ready(self, problem):
         if self.structure is not None:
@@ -140,3 +145,19 @@ class Schur(Backend):
 
     def parameters(self, problem, args, value):
         return problem.with_free(value)
+
+    def released_gauge(self, gauge):
+        return Schur(gauge=gauge)
+
+    def rank(self, problem):
+        return schur_rank(problem, self.structure)
+
+    def cofactors(self, problem, params):
+        """With the leverages and the whitened residuals: one program for all."""
+        return schur_cofactors(problem, self.structure, params)
+
+    def leverages(self, problem, params):
+        return schur_leverages(problem, self.structure, params)
+
+    def normal_solve(self, problem, params, rhs):
+        return schur_solve(problem, params, rhs, structure=self.structure)

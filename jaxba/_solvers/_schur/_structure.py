@@ -64,7 +64,7 @@ class BundleStructure(eqx.Module):
       points, for the statistics' point cofactors where they are formed densely (padding:
       observation n_image_obs / local point points_per_chunk / point n_eliminated);
       `pairwise`: they are summed over the pairs instead
-      (`_schur_precision._observation_cofactors`);
+      (`_cofactors.observation_cofactors`);
     - `reduced_points`, `eliminated_points`: row numbers in `points`; `point_column`:
       (n_points,) first reduced column of a reduced point, -1 otherwise;
     - `eliminated_index`: (n_points,) row in the eliminated block, n_eliminated otherwise;
@@ -124,7 +124,7 @@ def bundle_structure(
     doubles) where the statistics form the point cofactors densely; `jacobian_batch` is the
     number of image observations differentiated at once, `pair_batch` the number of
     observation pairs multiplied at once in S and in the pair-wise cofactors; `pairwise`:
-    how the cofactors are formed (`_schur_precision._observation_cofactors`), None: by the
+    how the cofactors are formed (`_cofactors.observation_cofactors`), None: by the
     work each takes (`PAIRWISE_ADVANTAGE`). The split depends on `problem.free`
     (`iop_columns`): rebuild it when the free mask changes. Raises `ValueError` for an
     observation group that is not row-local (no `row_blocks`: inner constraints), and for

@@ -1,120 +1,33 @@
-"""Statistics of a `BundleProblem` from the Schur split: the cofactors (JᵀJ)⁻¹ of the reduced
-side and every object point's 3 x 3 block, without a dense n x n inverse."""
+"""The cofactors (JᵀJ)⁻¹ of a bundle from the Schur split: S⁻¹ on the reduced side and every
+object point's 3 x 3 block, without a dense n x n inverse (jax functions, traced into the
+programs of `_leverages.py`).
 
-import equinox as eqx
+With N = JᵀJ split as [[U, W], [Wᵀ, V]] (points eliminated), N⁻¹'s reduced block is S⁻¹,
+S = U - W V⁻¹ Wᵀ (n_r x n_r, inverted by Cholesky), and the 3 x 3 diagonal block of
+eliminated point p is V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ (Y_p = W's rows of point p), summed
+over the pairs of observations of each point (Triggs et al. 2000, section 6.1;
+`observation_cofactors`).
+"""
+
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
-from .._problem._bundle import BundleProblem, free_indices
-from .._problem._parameters import Parameters
-from .._solvers._schur._assembly import (
-    BundleNormalEquations,
-    compiled_normal_equations,
-    schur_complement,
-)
-from .._solvers._schur._columns import reduced_positions, reduced_vector, to_parameters
-from .._solvers._schur._normal import matmul, point_inverse, singular_points
-from .._solvers._schur._structure import BundleStructure, bundle_structure
-from ._covariance import Precision, SchurCovariance, with_ties
+from ._assembly import BundleNormalEquations, schur_complement
+from ._columns import reduced_vector
+from ._normal import matmul, point_inverse, singular_points
+from ._structure import BundleStructure
 
 
-class BundleCofactors(eqx.Module):
-    """Cofactors (JᵀJ)⁻¹ of the whitened bundle at a solution, from the Schur split.
-
-    - `reduced`: (n_r, n_r) = S⁻¹, the full cofactor block of the reduced side (IOPs, EOPs,
-      distance points; `BundleStructure` column order), rows/columns of fixed unknowns 0;
-    - `points`: (n_points, 3, 3) the 3 x 3 cofactor block of every object point (reduced
-      ones copied from `reduced`), V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ for eliminated ones
-      (`_observation_cofactors`);
-    - `sigma0_squared`: σ0² eᵀe / (n_observations - n_unknowns);
-    - `std`: Parameters of σ = sqrt(σ̂0²/σ0² diag Q) (Cxx = σ̂0² N⁻¹, N = σ0² JᵀJ), 0 for
-      fixed unknowns (as `Precision.std`).
-    """
-
-    reduced: Float[Array, "n_r n_r"]
-    points: Float[Array, "n_points 3 3"]
-    sigma0_squared: Float[Array, ""]
-    std: Parameters
-
-
-def schur_cofactors(
-    problem: BundleProblem,
-    params: Parameters,
-    *,
-    sigma0: float = 1.0,
-    structure: BundleStructure | None = None,
-) -> BundleCofactors:
-    """The precision of the unknowns at `params` without any dense n x n inverse.
-
-    With N = JᵀJ split as [[U, W], [Wᵀ, V]] (points eliminated), N⁻¹'s reduced block is S⁻¹,
-    S = U - W V⁻¹ Wᵀ (n_r x n_r, inverted by Cholesky), and the 3 x 3 diagonal block of
-    eliminated point p is V_p⁻¹ + V_p⁻¹ Y_p S⁻¹ Y_pᵀ V_p⁻¹ (Y_p = W's rows of point p), summed
-    over the pairs of observations of each point (Triggs et al. 2000, section 6.1;
-    `_observation_cofactors`). Same numbers as the dense
-    `jaxba.precision` (σ̂0² = σ0² eᵀe / r) for bundles with a datum; not for free networks.
-    """
-    if structure is None:
-        structure = bundle_structure(problem)
-    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    normal, reduced, point_inverse, _ = compiled_normal_equations(problem, structure, params)
-    return _schur_cofactors(problem, structure, params, normal, reduced, point_inverse,
-                            *_traced_scalars(sigma0, n_observations - n_unknowns))
-
-
-def schur_precision(
-    problem: BundleProblem,
-    params: Parameters,
-    *,
-    sigma0: float = 1.0,
-    structure: BundleStructure | None = None,
-) -> Precision:
-    """`jaxba.precision` from the Schur split (`schur_cofactors`): σ̂0², σ of every unknown,
-    and as covariance a `SchurCovariance` (`covariance` None): Cxx of the reduced side and
-    every object point's 3 x 3 block."""
-    if structure is None:
-        structure = bundle_structure(problem)
-    cofactors = schur_cofactors(problem, params, sigma0=sigma0, structure=structure)
-    return _precision_from_cofactors(problem, structure, cofactors, sigma0)
-
-
-def _precision_from_cofactors(
-    problem: BundleProblem,
-    structure: BundleStructure,
-    cofactors: BundleCofactors,
-    sigma0: float,
-    redundancy: tuple[np.ndarray, np.ndarray] | None = None,
-) -> Precision:
-    """`schur_precision` from `schur_cofactors`' result (and `SchurCovariance.redundancy`)."""
-    sigma0_squared = float(cofactors.sigma0_squared)
-    variance_factor = sigma0_squared / sigma0**2
-    index = free_indices(problem)
-    return with_ties(Precision(
-        sigma0_squared=sigma0_squared,
-        redundancy=problem.n_observations() - index.size,
-        n_observations=problem.n_observations(),
-        n_unknowns=index.size,
-        free_index=index,
-        covariance=None,
-        std=jax.tree.map(np.asarray, cofactors.std),
-        schur=SchurCovariance(
-            reduced_positions=reduced_positions(problem, structure),
-            reduced=variance_factor * np.asarray(cofactors.reduced),
-            points=variance_factor * np.asarray(cofactors.points),
-            redundancy=redundancy,
-        ),
-    ), problem)
-
-
-def no_sigma(normal: BundleNormalEquations, eliminated: Float[Array, "n_e1 3 3"]) -> Array:
+def nan_where_singular(normal: BundleNormalEquations, eliminated: Float[Array, "n_e1 3 3"]
+                       ) -> Array:
     """The eliminated points' 3 x 3 cofactor blocks (n_e + 1, 3, 3; last: padding), NaN for
     the points whose V_p is singular (`singular_points`): they have no σ."""
     singular = jnp.append(singular_points(normal.point_hessian), False)
     return jnp.where(singular[:, None, None], jnp.nan, eliminated)
 
 
-def _reduced_cofactor(problem, structure, normal, reduced, inverse) -> tuple[Array, Array]:
+def reduced_cofactor(problem, structure, normal, reduced, inverse) -> tuple[Array, Array]:
     """S⁻¹ (n_r, n_r; rows and columns of fixed unknowns 0) and the points' V⁻¹ padded
     with a zero block (n_e + 1, 3, 3), from S (`reduced`) and V⁻¹ (`inverse`) as
     `compiled_normal_equations` returns them; where a point's V_p is singular
@@ -133,7 +46,7 @@ def _reduced_cofactor(problem, structure, normal, reduced, inverse) -> tuple[Arr
     return cofactor, jnp.concatenate([inverse, jnp.zeros((1, 3, 3), dtype)])
 
 
-def _observation_cofactors(
+def observation_cofactors(
     structure: BundleStructure, normal: BundleNormalEquations, cofactor: Array, inverse: Array
 ) -> tuple[Float[Array, "n_obs1 3 k"], Float[Array, "n_e1 3 3"]]:
     """`_pairwise_cofactors` or `_dense_cofactors`, as `structure.pairwise` says: the same
@@ -227,9 +140,9 @@ def _pairwise_cofactors(
     return g, points
 
 
-def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
+def point_cofactors(problem, structure, cofactor, eliminated) -> Array:
     """The 3 x 3 cofactor block of every object point (n_points, 3, 3), 0 where fixed, from
-    S⁻¹ and the eliminated points' blocks (n_e + 1, 3, 3: `_observation_cofactors`)."""
+    S⁻¹ and the eliminated points' blocks (n_e + 1, 3, 3: `observation_cofactors`)."""
     n_e = structure.eliminated_points.shape[0]
     points = jnp.zeros((problem.initial.points.shape[0], 3, 3), cofactor.dtype)
     points = points.at[structure.eliminated_points].set(eliminated[:n_e])
@@ -237,31 +150,3 @@ def _point_cofactors(problem, structure, cofactor, eliminated) -> Array:
     points = points.at[structure.reduced_points].set(cofactor[index[:, :, None], index[:, None, :]])
     free = problem.free.points.astype(cofactor.dtype)
     return points * free[:, :, None] * free[:, None, :]
-
-
-def _traced_scalars(sigma0: float, redundancy: int) -> tuple[np.float64, np.float64]:
-    """σ0 and the redundancy as float64 scalars, which `eqx.filter_jit` traces: as Python
-    numbers they are static, and every new redundancy (data snooping switches observations
-    off) compiled the statistics program again (~3 s)."""
-    return np.float64(sigma0), np.float64(redundancy)
-
-
-@eqx.filter_jit
-def _schur_cofactors(problem, structure, params, normal, reduced, point_inverse, sigma0,
-                     redundancy):
-    cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
-    _, eliminated = _observation_cofactors(structure, normal, cofactor, inverse)
-    points = _point_cofactors(problem, structure, cofactor, no_sigma(normal, eliminated))
-    residuals = problem.residuals(problem.with_free(params))
-    return _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy)
-
-
-def _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0, redundancy):
-    """`BundleCofactors` from S⁻¹, the points' 3 x 3 blocks and the whitened residuals."""
-    sigma0_squared = sigma0**2 * sum(jnp.sum(r**2) for r in residuals) / redundancy
-    variance_factor = sigma0_squared / sigma0**2
-    reduced_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(cofactor), 0.0))
-    point_std = jnp.sqrt(variance_factor * jnp.clip(jnp.diagonal(points, axis1=1, axis2=2), 0.0))
-    eliminated_std = point_std[structure.eliminated_points]
-    std = to_parameters(structure, problem.initial, reduced_std, eliminated_std)
-    return BundleCofactors(cofactor, points, sigma0_squared, std)

@@ -1,6 +1,8 @@
-"""Redundancy numbers of a bundle from the Schur split, without a dense Jacobian or N⁻¹.
+"""The leverages of a bundle's observations from the Schur split, without a dense Jacobian or
+N⁻¹, and the programs that form them with the cofactors (`_cofactors.py`).
 
-The redundancy number of a whitened residual entry with Jacobian row j is r = 1 - j N⁻¹ jᵀ.
+The leverage of a whitened residual entry with Jacobian row j is j N⁻¹ jᵀ (its redundancy
+number r = 1 - j N⁻¹ jᵀ).
 A row depends on few unknowns, so j N⁻¹ jᵀ needs only the cofactor blocks among them: for an
 image observation with blocks a (its reduced columns: IOPs, EOPs, a reduced point) and b (its
 eliminated point p),
@@ -10,7 +12,7 @@ eliminated point p),
 Q_rr = S⁻¹ on the observation's reduced columns (one block per key: the same for all
 observations of an image), G_p = S⁻¹ Y_p V_p⁻¹ (so that Q_rp = -G_p) and Q_pp the point's
 3 x 3 cofactor block; a needs only G_p's rows at its own columns, which, as Q_pp, are sums
-over the pairs of observations of the point (`_precision._observation_cofactors`). The rows
+over the pairs of observations of the point (`_cofactors.observation_cofactors`). The rows
 of the other groups need the cofactor block among their own unknowns (`row_blocks`): one
 point's 3 x 3 block for control, S⁻¹ at a few reduced columns otherwise (GNSS/INS and IOP
 priors, a distance's two reduced points).
@@ -22,117 +24,86 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._problem._bundle import BundleProblem, observation_mask
-from .._problem._parameters import Parameters
-from .._programs import stored
-from .._solvers._schur._assembly import compiled_normal_equations
-from .._solvers._schur._columns import free_masks, row_columns, row_points
-from .._solvers._schur._jacobians import row_jacobians
-from .._solvers._schur._structure import BundleStructure, bundle_structure
-from ._covariance import Precision
-from ._schur_precision import (
-    _bundle_cofactors,
-    _observation_cofactors,
-    _point_cofactors,
-    _precision_from_cofactors,
-    _reduced_cofactor,
-    _traced_scalars,
-    no_sigma,
+from ..._problem._bundle import BundleProblem, observation_mask
+from ..._problem._parameters import Parameters
+from ..._programs import stored
+from .._backend import Cofactors, Leverages
+from ._assembly import compiled_normal_equations
+from ._cofactors import (
+    nan_where_singular,
+    observation_cofactors,
+    point_cofactors,
+    reduced_cofactor,
 )
+from ._columns import free_masks, reduced_positions, row_columns, row_points
+from ._jacobians import row_jacobians
+from ._structure import BundleStructure
 
 
-def schur_redundancy_numbers(
-    problem: BundleProblem, params: Parameters, *, structure: BundleStructure | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(r_i, e_i) of the real observations, flat in `observation_mask` order, at `params`:
-    the same as `DenseBackend.redundancy_numbers` (`_backends`), from the Schur split.
-    For bundles with a datum (S positive definite); not for free networks."""
-    if structure is None:
-        structure = bundle_structure(problem)
+def schur_leverages(problem: BundleProblem, structure: BundleStructure, params: Parameters
+                    ) -> Leverages:
+    """The real observations' leverages at `params` (`structure`: the problem's
+    `bundle_structure`)."""
     leverages, residuals, _ = _leverages(
         problem, structure, params, *compiled_normal_equations(problem, structure, params))
-    return _redundancy(problem, leverages, residuals)
+    return _real(problem, leverages, residuals)
 
 
-def schur_precision_and_redundancy(
-    problem: BundleProblem,
-    params: Parameters,
-    *,
-    sigma0: float = 1.0,
-    structure: BundleStructure | None = None,
-) -> Precision:
-    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`
-    (`schur_statistics` without the whitened residuals)."""
-    return schur_statistics(problem, params, sigma0=sigma0, structure=structure)[0]
-
-
-def schur_statistics(
-    problem: BundleProblem,
-    params: Parameters,
-    *,
-    sigma0: float = 1.0,
-    structure: BundleStructure | None = None,
-) -> tuple[Precision, tuple[Array, ...]]:
-    """`schur_precision` with `schur_redundancy_numbers` in its `SchurCovariance.redundancy`,
-    and the whitened residuals at `params` (`BundleProblem.whitened`, per group): all from
-    one compiled program, which forms S⁻¹ and the pair-wise cofactor blocks once (two
-    programs did all that twice: block A 0.3 s and, cold, one compilation of ~3 s more; the
-    residuals, a program of their own, cost 0.2 s to load in every process), from the
+def schur_cofactors(problem: BundleProblem, structure: BundleStructure, params: Parameters
+                    ) -> Cofactors:
+    """S⁻¹, every point's 3 x 3 block, the leverages and the whitened residuals at `params`,
+    all from one compiled program, which forms S⁻¹ and the pair-wise cofactor blocks once
+    (two programs did all that twice: block A 0.3 s and, cold, one compilation of ~3 s more;
+    the residuals, a program of their own, cost 0.2 s to load in every process), from the
     normal equations of `compiled_normal_equations` (the datum check's program: compiled
     once for both)."""
-    if structure is None:
-        structure = bundle_structure(problem)
-    redundancy = problem.n_observations() - problem.n_unknowns()
-    leverages, residuals, cofactors, whitened = _statistics(
-        problem, structure, params, *compiled_normal_equations(problem, structure, params),
-        *_traced_scalars(sigma0, redundancy))
-    precision = _precision_from_cofactors(problem, structure, cofactors, sigma0,
-                                          _redundancy(problem, leverages, residuals))
-    return precision, whitened
+    leverages, residuals, cofactor, points, squares, whitened = _cofactors_program(
+        problem, structure, params, *compiled_normal_equations(problem, structure, params))
+    return Cofactors(squares=float(squares),
+                     reduced_positions=reduced_positions(problem, structure),
+                     reduced=np.asarray(cofactor), points=np.asarray(points),
+                     leverages=_real(problem, leverages, residuals), whitened=whitened)
 
 
-def _redundancy(problem, leverages, residuals) -> tuple[np.ndarray, np.ndarray]:
-    """(r_i, e_i) of the real observations from the leverages and residuals per group."""
+def _real(problem, leverages, residuals) -> Leverages:
+    """`Leverages` of the real observations from the leverages and residuals per group."""
     leverage = np.concatenate([np.ravel(np.asarray(h)) for h in leverages])
     whitened = np.concatenate([np.ravel(np.asarray(e)) for e in residuals])
     real = observation_mask(problem)
-    return 1.0 - leverage[real], whitened[real]
+    return Leverages(leverage[real], whitened[real])
 
 
-@stored("schur_statistics")
+@stored("schur_cofactors")
 @eqx.filter_jit
-def _statistics(problem, structure, params, normal, reduced, point_inverse, blocks, sigma0,
-                redundancy):
-    """`_leverages`, `schur_cofactors` and the whitened residuals in one program (`sigma0`,
-    `redundancy`: float64 scalars from `_traced_scalars`)."""
+def _cofactors_program(problem, structure, params, normal, reduced, point_inverse, blocks):
+    """`_leverages`, eᵀe and the whitened residuals in one program."""
     leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal,
                                                           reduced, point_inverse, blocks)
-    cofactors = _bundle_cofactors(structure, problem, cofactor, points, residuals, sigma0,
-                                  redundancy)
+    squares = sum(jnp.sum(r**2) for r in residuals)
     # Without a robust loss the solver's residuals are the whitened ones (params are the
     # solution's, `with_free` already): not traced a second time.
     whitened = residuals if problem.robust is None else problem.whitened(params)
-    return leverages, residuals, cofactors, whitened
+    return leverages, residuals, cofactor, points, squares, whitened
 
 
 @eqx.filter_jit
 def _leverages(problem, structure, params, normal, reduced, point_inverse, blocks):
     """Per observation group, j N⁻¹ jᵀ of every residual entry (n, k); the residuals; and
-    S⁻¹ with every point's 3 x 3 cofactor block (`BundleCofactors.reduced`, `.points`);
+    S⁻¹ with every point's 3 x 3 cofactor block (`Cofactors.reduced`, `.points`);
     `normal`, `reduced` S, `point_inverse` V⁻¹ and `blocks`, the image observations'
     Jacobian blocks (J_r, J_e), at `params`: `compiled_normal_equations`'s."""
     dtype = normal.reduced_gradient.dtype
-    cofactor, inverse = _reduced_cofactor(problem, structure, normal, reduced, point_inverse)
+    cofactor, inverse = reduced_cofactor(problem, structure, normal, reduced, point_inverse)
     free_r, free_e = free_masks(problem, structure, dtype)
     jr, je = blocks
     image, eliminated = _image_leverages(structure, normal, cofactor, inverse, jr, je)
     image = jnp.zeros_like(image).at[structure.image_order].set(image)  # the groups' order
-    point_cofactors = _point_cofactors(problem, structure, cofactor,
-                                       no_sigma(normal, eliminated))
+    points = point_cofactors(problem, structure, cofactor,
+                             nan_where_singular(normal, eliminated))
 
     residuals = problem.residuals(problem.with_free(params))
     padded = jnp.pad(cofactor, ((0, 1), (0, 1)))
-    eliminated_cofactors = jnp.concatenate([point_cofactors[structure.eliminated_points],
+    eliminated_cofactors = jnp.concatenate([points[structure.eliminated_points],
                                             jnp.zeros((1, 3, 3), dtype)])
     leverages, start = [], 0
     for group in problem.groups:
@@ -153,7 +124,7 @@ def _leverages(problem, structure, params, normal, reduced, point_inverse, block
             leverage = leverage + jnp.einsum("nka,nab,nkb->nk", eliminated,
                                              eliminated_cofactors[point], eliminated)
         leverages.append(leverage)
-    return leverages, residuals, (cofactor, point_cofactors)
+    return leverages, residuals, (cofactor, points)
 
 
 def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Array, Array]:
@@ -168,7 +139,7 @@ def _image_leverages(structure, normal, cofactor, inverse, jr, je) -> tuple[Arra
     # One observation's m x m block at a time, vmapped over batches: never all at once.
     leverage = jax.lax.map(lambda x: reduced_part(*x), (jr, structure.key),
                            batch_size=structure.jacobian_batch)
-    g, point_blocks = _observation_cofactors(structure, normal, cofactor, inverse)
+    g, point_blocks = observation_cofactors(structure, normal, cofactor, inverse)
     k = g.shape[-1]
     # a G_p[c_i] bᵀ per residual entry: (a g_i) is (2, 3), dotted with b row by row.
     a_g = sum(jr[:, :, a, None] * g[:, None, :, a] for a in range(k))

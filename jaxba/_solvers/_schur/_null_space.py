@@ -1,11 +1,11 @@
-"""`check_datum` for bundles too large for a dense Jacobian: from the Schur split.
+"""The rank of a bundle's normal equations from the Schur split, without a dense Jacobian.
 
 The normal matrix N = JᵀJ at the approximations is formed in blocks (`bundle_normal_equations`)
 and its null space found in two parts: an eliminated point whose 3 x 3 block V_p is singular
 (seen along a single ray) is a defect of its own; with every V_p regular, N x = 0 exactly
 when S x_r = 0 (S = U - W V⁻¹ Wᵀ, the reduced camera matrix, n_r x n_r) and
-x_p = -V_p⁻¹ Y_pᵀ x_r, so S's null vectors, extended to the points, span the defect. Both
-are then named as `check_datum` names them (`describe_defect`).
+x_p = -V_p⁻¹ Y_pᵀ x_r, so S's null vectors, extended to the points, span the defect
+(`jaxba._statistics._datum` names it).
 
 Eigenvalues of the normal matrices rather than singular values of the Jacobian: the
 condition number is squared, so a defect shows as an eigenvalue ratio at rounding level
@@ -14,26 +14,19 @@ condition number is squared, so a defect shows as an eigenvalue ratio at roundin
 
 import numpy as np
 
-from .._problem._bundle import BundleProblem, free_indices
-from .._problem._parameters import flatten, parameter_labels, unflatten
-from .._solvers._schur._assembly import compiled_normal_equations
-from .._solvers._schur._columns import reduced_positions
-from .._solvers._schur._structure import BundleStructure, bundle_structure
-from ._datum import check_columns, describe_defect
+from ..._problem._bundle import BundleProblem, free_indices
+from ..._problem._parameters import flatten, unflatten
+from .._backend import Rank
+from ._assembly import compiled_normal_equations
+from ._columns import reduced_positions
+from ._structure import BundleStructure
 
 EIGENVALUE_RTOL = 1e-12
 
 
-def check_datum_schur(
-    problem: BundleProblem,
-    *,
-    labels: list[str] | None = None,
-    structure: BundleStructure | None = None,
-) -> None:
-    """Raise `DatumError` if the bundle is rank deficient at its approximations, naming the
-    defect as `check_datum` does, without a dense Jacobian (see the module docstring)."""
-    labels = labels or parameter_labels(problem.initial)
-    structure = structure or bundle_structure(problem)
+def schur_rank(problem: BundleProblem, structure: BundleStructure) -> Rank:
+    """`Rank` of `problem`'s normal equations at its approximations, from the blocks
+    (`structure`: `bundle_structure(problem)`; see the module docstring)."""
     normal, reduced, point_inverse, _ = compiled_normal_equations(problem, structure,
                                                                   problem.initial)
     index = free_indices(problem)
@@ -52,14 +45,13 @@ def check_datum_schur(
     diagonal[point_rows[point_free]] = np.diagonal(point_hessian, axis1=1, axis2=2)[point_free]
     finite = np.isfinite(diagonal)
     column_norms = np.sqrt(np.where(finite, diagonal, 0.0))
-    check_columns(problem, finite, column_norms, labels)
-
+    if not (np.all(finite) and np.all(column_norms > 0)):
+        return Rank(finite, column_norms, None)
     basis = _single_ray_points(point_hessian, point_rows, index.size)
     if basis is None:
         basis = _reduced_null_space(structure, normal, reduced, point_inverse, reduced_rows,
                                     point_rows, index.size)
-    if basis is not None:
-        describe_defect(problem, basis, index, labels, column_norms=column_norms)
+    return Rank(finite, column_norms, basis)
 
 
 def _equilibrated_null_space(matrix: np.ndarray) -> np.ndarray:
