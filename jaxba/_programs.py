@@ -115,6 +115,10 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
     """
     arrays, rest = eqx.partition(args, eqx.is_array)
     leaves, tree = jax.tree.flatten(arrays)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        # Under a caller's transformation (jit, vmap, grad): a nested call, as traced (an
+        # export has no derivative, and its primal outputs would be tracers too).
+        return program(*args, *static)
     folder = _folder()
     key = None if folder is None else _key(name, program, tree, leaves, rest, static)
     if key is None or key in _traced:

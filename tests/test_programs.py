@@ -288,3 +288,18 @@ def test_a_registry_changed_by_the_trace_stores_nothing(folder, monkeypatch):
     assert entries == [Box] and (not folder.exists() or not list(folder.iterdir()))
     second = _programs.call_stored("test_resolving", resolving, (box, y), (2,))
     assert _equal(second, _program(box, y, 2)) and len(list(folder.iterdir())) == 1
+
+
+def test_under_a_transformation_the_program_is_nested(folder):
+    """Called on tracers (inside `jax.grad`, `jax.jit`): the program itself, nested in the
+    caller's trace, so that derivatives and jit pass through it (an export has neither)."""
+    box = _box()
+
+    def total(scale):
+        moved, _ = _call(Box(box.x * scale, box.scale), jnp.linspace(-1.0, 2.0, 5) * scale)
+        return jnp.sum(moved.x)
+
+    step = 1e-6
+    numeric = (total(1.0 + step) - total(1.0 - step)) / (2 * step)
+    assert np.isclose(jax.grad(total)(1.0), numeric, rtol=1e-6)
+    assert np.isclose(jax.jit(total)(1.0), total(1.0))
