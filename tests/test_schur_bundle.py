@@ -146,7 +146,7 @@ def test_damped_step_matches_dense_normal_equations(block, variant, damping):
 
 
 @pytest.mark.parametrize("variant", ["plain", "control_robust"])
-def test_solve_schur_matches_dense_solve(block, plain_solution, variant):
+def test_schur_solve_matches_dense_solve(block, plain_solution, variant):
     problem = block if variant == "plain" else _with_control_and_robust(block)
     # Huber from the approximations (every residual far in the linear part) converges
     # slowly (linearly) in both (dense: ~310 steps): both run to the Cauchy test alone (no

@@ -38,9 +38,10 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
     call or `lower` (never at import). Calls and `lower` as `eqx.filter_jit`'s.
 
     Only for programs called at the top level, never inside `jax.jit` or `jax.vmap` (jax
-    refuses compiler options on a nested jit): `solve_schur`'s loop and the stepwise
-    loop's steps, whose arguments are built in NumPy or driven from Python anyway. The
-    dense `solve`, which batches vmap, keeps the default options.
+    refuses compiler options on a nested jit): the Schur backend's solve and the stepwise
+    loop's steps, whose arguments are built in NumPy or driven from Python anyway. Inside
+    another program (a stored export, `nested`) the options go to that program. The dense
+    solve, which batches vmap, keeps the default options.
     """
 
     def __init__(self, fn: Callable):

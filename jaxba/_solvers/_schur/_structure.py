@@ -149,7 +149,7 @@ def bundle_structure(
         blocks = group.row_blocks()
         if not blocks:
             raise ValueError(
-                f"solve_schur cannot split observation group {group.name!r}: its rows are"
+                f"the Schur backend cannot split observation group {group.name!r}: its rows are"
                 " not row-local (a free network's inner constraints: `minimal_constraints`)")
         if group.kind() != "image_points" and len(blocks) > 1:
             coupled += [np.asarray(index) for block, index in blocks if block == "points"]
