@@ -10,13 +10,12 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..._project._spec import MOUNT_NAMES
 from .._project._project_file import project_toml
 from ._cameras import PIXEL_ORIGIN_SHIFT, camera_to_jaxba
 from ._model import COLMAP_CAMERA_MODELS
 from ._read import read_colmap_model
 from ._rigs import ImportedRigs, imported_rigs
-
-_MOUNT_NAMES = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,8 +183,8 @@ def _write_rigs(out_dir: pathlib.Path, rigs: ImportedRigs, names: Mapping[int, s
             lines.append(f"[rig{rig_id}.{camera}]")
             if mount is not None:
                 values = np.r_[mount[:3], np.degrees(mount[3:])]
-                lines += [f"{n} = {float(v)!r}" for n, v in zip(_MOUNT_NAMES, values)]
-            lines.append(f"free = {json.dumps(list(_MOUNT_NAMES))}")
+                lines += [f"{n} = {float(v)!r}" for n, v in zip(MOUNT_NAMES, values)]
+            lines.append(f"free = {json.dumps(list(MOUNT_NAMES))}")
         lines.append("")
     (out_dir / "rigs.toml").write_text("\n".join(lines))
     clash = {str(fid) for fid in rigs.frames.values()} & set(names.values())

@@ -11,13 +11,13 @@ import pathlib
 
 from ..._files._atomic import replace_files
 from ..._models._cameras._names import CAMERA_PARAMETER_NAMES
+from ..._project._spec import MOUNT_NAMES
 from .._project._project_file import project_toml, toml_text
 from .._zhang import table_text
 from ._project import DetectedProject
 from ._sheet import contact_sheet
 
 FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")  # OpenCV's calibrateCamera
-RIG_FREE = ("X0", "Y0", "Z0", "omega", "phi", "kappa")
 DETECTIONS_FILE, SHEET_FILE = "detections.csv", "detections.png"
 FILES = {"cameras": "cameras.toml", "images": "orientation.txt",
          "image_points": "image_coordinates.txt", "points": "board_points.txt"}
@@ -51,8 +51,8 @@ def _rigs_toml(project: DetectedProject) -> str:
              " images of common frames", f"[{project.rig}]", f"reference = {toml_text(reference)}"]
     for camera, pose in project.relative.items():
         lines += ["", f"[{project.rig}.{camera}]"]
-        lines += [f"{name} = {float(value)!r}" for name, value in zip(RIG_FREE, pose)]
-        lines.append(f"free = {json.dumps(list(RIG_FREE))}")
+        lines += [f"{name} = {float(value)!r}" for name, value in zip(MOUNT_NAMES, pose)]
+        lines.append(f"free = {json.dumps(list(MOUNT_NAMES))}")
     return "\n".join(lines) + "\n"
 
 
