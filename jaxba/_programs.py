@@ -107,7 +107,7 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
       source is in the key) of pytrees of arrays `args` and static arguments `static`. A
       program compiled with options of its own (`solver_jit`) gives its function jitted
       without them as `nested` (the export traces that) and its options as
-      `compiler_options()` (the stored program's call is compiled with them);
+      `compiler_options()` (the stored program's call is compiled with them).
 
     The output's structure (its pytree nodes and non-array leaves) is stored beside the
     export, pickled with empty arrays in place of its arrays: a later process rebuilds the
@@ -128,13 +128,14 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
     if loaded is None:
         stored = _load(path, leaves)
         if stored is None:
-            stored = _export(getattr(program, "nested", program), tree, rest, static, leaves)
-            if stored is None or _key(name, program, tree, leaves, rest, static) != key:
+            made = _export(getattr(program, "nested", program), tree, rest, static, leaves)
+            if made is None or _key(name, program, tree, leaves, rest, static) != key:
                 # not exportable, its output not picklable, or the trace looked up a class
                 # by a name never resolved before (a registry changed): no file
                 _traced.add(key)  # and no second try in this process
                 return program(*args, *static)
-            _store(path, *stored)
+            *stored, body = made
+            _store(path, body)
         exported, skeleton = stored
         options = getattr(program, "compiler_options", None)
         out_arrays, out_rest = eqx.partition(skeleton, eqx.is_array)
@@ -300,11 +301,13 @@ def _load(path: pathlib.Path, leaves: list):
 
 def _export(program, tree, rest, static, leaves):
     """(`program` exported as a function of the flat array leaves of its arguments, its
-    output's skeleton: the output with an empty array for each array); None where jax
+    output's skeleton: the output with an empty array for each array, the file's body:
+    the skeleton's pickle, its length first, and the serialized export); None where jax
     cannot export or serialize it or the skeleton does not survive pickling unchanged.
-    The export is the one deserialized from its bytes, as a later process reads it: its
-    call lowers to the same module, so both find the same compiled executable in jax's
-    cache (the freshly traced export's did not: every program compiled twice)."""
+    The export and the skeleton are the ones read back from the body, as a later process
+    reads them: the export's call lowers to the same module, so both find the same
+    compiled executable in jax's cache (the freshly traced export's did not: every program
+    compiled twice)."""
     traced = {}
 
     def flat(*leaves):
@@ -317,27 +320,27 @@ def _export(program, tree, rest, static, leaves):
                                   weak_type=bool(getattr(leaf, "weak_type", False)))
              for leaf in leaves]
     try:
-        exported = jax.export.deserialize(jax.export.export(jax.jit(flat))(*specs).serialize())
+        serialized = bytes(jax.export.export(jax.jit(flat))(*specs).serialize())
+        exported = jax.export.deserialize(bytearray(serialized))
         empty = [np.empty(0, aval.dtype) for aval in exported.out_avals]
-        skeleton = eqx.combine(jax.tree.unflatten(traced["tree"], empty), traced["rest"])
-        arrays, rest = eqx.partition(pickle.loads(pickle.dumps(skeleton)), eqx.is_array)
+        pickled = pickle.dumps(eqx.combine(jax.tree.unflatten(traced["tree"], empty),
+                                           traced["rest"]))
+        skeleton = pickle.loads(pickled)
     except Exception:  # not exportable or not picklable: the caller traces as usual
         return None
+    arrays, rest = eqx.partition(skeleton, eqx.is_array)
     if jax.tree.structure(arrays) != traced["tree"] or not eqx.tree_equal(rest, traced["rest"]):
         return None
-    return exported, skeleton
+    return exported, skeleton, len(pickled).to_bytes(_LENGTH, "little") + pickled + serialized
 
 
-def _store(path: pathlib.Path, exported, skeleton) -> None:
-    """Write `path`: a digest of the rest, the skeleton's pickle (its length first), the
-    serialized export; atomically. Nothing where it cannot be serialized or the folder
-    cannot be written."""
+def _store(path: pathlib.Path, body: bytes) -> None:
+    """Write `path`: a digest of `body`, then `body` (`_export`'s); atomically. Nothing
+    where the folder cannot be written."""
     try:
-        pickled = pickle.dumps(skeleton)
-        body = len(pickled).to_bytes(_LENGTH, "little") + pickled + bytes(exported.serialize())
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    except Exception:  # not serializable, a read-only folder: skip
+    except OSError:  # a read-only folder: skip
         return
     try:
         with os.fdopen(handle, "wb") as file:
