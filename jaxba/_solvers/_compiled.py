@@ -10,6 +10,15 @@ slower than XLA's own fused loops. Without them, its dot products kept (CPU seco
 of 7, machine loaded): Dubrovnik-16's solve 0.61-0.63 -> 0.55-0.57 s; the close-range
 block of benchmarks/blocks.py, normal equations 60 -> 41 ms, the compiled solve 0.54 ->
 0.43 s.
+
+The older LLVM IR emitters. XLA:CPU compiles each fusion of a program into a kernel of its
+own; its MLIR fusion emitters (the default) cost ~35 ms of CPU per kernel, the older LLVM IR
+emitters about half that, and the Schur backend's programs hold hundreds of kernels (the
+step of Dubrovnik-16 imported as a project: 285). Without them (CPU seconds under load 4-7,
+one process, the same run): Dubrovnik-16's BAL solve compiles in 7.6-7.9 s instead of
+11.2-12.9 s and runs in the same time (0.90-1.08 s of CPU either way, the same cost
+to the last digit); `jaxba adjust` of the imported project compiles its seven programs in
+12.4 s instead of 20.5 s.
 """
 
 import functools
@@ -18,12 +27,13 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 
-# YNNPACK for individual dot products only (not its reductions).
-SOLVER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"}
+# YNNPACK for individual dot products only (not its reductions); the LLVM IR emitters.
+SOLVER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT",
+                  "xla_cpu_use_fusion_emitters": False}
 
 
 @functools.cache
-def solver_compiler_options() -> dict[str, str]:
+def solver_compiler_options() -> dict[str, str | bool]:
     """`SOLVER_OPTIONS` where this jaxlib accepts them (a trivial program compiled once to
     find out), else none: the names are XLA's experimental ones."""
     try:
@@ -38,8 +48,9 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
     call or `lower` (never at import). Calls and `lower` as `eqx.filter_jit`'s.
 
     Only for programs called at the top level, never inside `jax.jit` or `jax.vmap` (jax
-    refuses compiler options on a nested jit): the Schur backend's solve and the stepwise
-    loop's steps, whose arguments are built in NumPy or driven from Python anyway. Inside
+    refuses compiler options on a nested jit): the Schur backend's solve, normal equations
+    and cofactors, and the stepwise loop's steps, whose arguments are built in NumPy or
+    driven from Python anyway. Inside
     another program (a stored export, `nested`) the options go to that program. The dense
     solve, which batches vmap, keeps the default options.
     """
@@ -67,5 +78,5 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
         return eqx.filter_jit(self._fn)
 
     @staticmethod
-    def compiler_options() -> dict[str, str]:
+    def compiler_options() -> dict[str, str | bool]:
         return solver_compiler_options()

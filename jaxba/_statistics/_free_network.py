@@ -43,6 +43,7 @@ from .._problem._inner_constraints import InnerConstraints
 from .._problem._linearisation import column_norms
 from .._problem._parameters import Parameters, flatten, unflatten
 from .._solvers._backend import Backend
+from .._solvers._compiled import solver_jit
 from .._solvers._schur._descent import Schur
 from ._covariance import (
     Precision,
@@ -214,7 +215,7 @@ def minimal_datum(problem: BundleProblem, null: Float[np.ndarray, "d n_all"]) ->
     return np.asarray(chosen)
 
 
-@eqx.filter_jit
+@solver_jit  # top level only: the move of an adjusted solution
 def _inner_datum(group: InnerConstraints, refraction, params: Parameters) -> Parameters:
     def moved(phi):
         return similarity_transform(params, group.similarity @ phi, group.centre,

@@ -23,13 +23,13 @@ priors on its diagonal, a distance on its two reduced points).
 """
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._parameters import Parameters
 from ..._programs import stored
+from .._compiled import solver_jit
 from ._columns import add_at_columns, free_masks, row_columns, row_points
 from ._jacobians import gram, image_blocks, row_jacobians, transposed_product
 from ._normal import add_diagonal, marquardt_diagonal, matmul, pair_block_sums, small_inverse
@@ -171,7 +171,7 @@ def _normal_and_reduced(problem, structure, params):
 # (n_e, 3, 3), and the image observations' Jacobian blocks (J_r, J_e) (`image_blocks`),
 # which the leverages read instead of differentiating the camera model again in their own
 # program. (The datum check's S was a second program, 0.2 s to load in every process.)
-compiled_normal_equations = stored("normal_equations")(jax.jit(_normal_and_reduced))
+compiled_normal_equations = stored("normal_equations")(solver_jit(_normal_and_reduced))
 
 
 def dense_from_blocks(

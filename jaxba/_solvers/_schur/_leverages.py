@@ -28,6 +28,7 @@ from ..._problem._bundle import BundleProblem, observation_mask
 from ..._problem._parameters import Parameters
 from ..._programs import stored
 from .._backend import Cofactors, Leverages
+from .._compiled import solver_jit
 from ._assembly import compiled_normal_equations
 from ._cofactors import (
     nan_where_singular,
@@ -74,7 +75,7 @@ def _real(problem, leverages, residuals) -> Leverages:
 
 
 @stored("schur_cofactors")
-@eqx.filter_jit
+@solver_jit
 def _cofactors_program(problem, structure, params, normal, reduced, point_inverse, blocks):
     """`_leverages`, eᵀe and the whitened residuals in one program."""
     leverages, residuals, (cofactor, points) = _leverages(problem, structure, params, normal,
