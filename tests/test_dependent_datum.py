@@ -179,3 +179,27 @@ def test_stop_must_name_a_rule(tmp_path):
     project = _with_settings(truth)
     with pytest.raises(ValueError, match="stop must be one of statistical, cost, not 'never'"):
         jaxba.adjust(project.problem, stop="never")
+
+
+def test_gauge_move_in_numpy_equals_the_compiled_one(tmp_path):
+    """The dependent datum's move of omega-phi-kappa images in NumPy (Newton steps with
+    central differences) lands where the compiled move (jax's `similarity_transform`,
+    differentiated by autodiff) lands, from a solution turned, shifted and scaled off the
+    datum (7 similarity parameters), and sets the gauge's unknowns to their datum values."""
+    from jaxba._statistics import _gauge
+    from jaxba._statistics._datum import network_centre, similarity_transform
+
+    truth = jaxba.write_synthetic_project(tmp_path, seed=5, noise_px=0.3, n_images=6,
+                                          n_targets=30, n_distances=0)
+    problem = _with_settings(truth, datum='"dependent"').problem
+    assert len(problem.gauge) == 7 and problem.pose == "opk"
+    centre = network_centre(problem)
+    theta = np.array([0.03, -0.02, 0.05, 0.004, -0.003, 0.006, 0.002])
+    off = similarity_transform(problem.initial, theta, centre)
+    numpy = _gauge._gauge_datum_opk(problem, off, centre)
+    compiled = _gauge._gauge_datum_compiled(problem, off, centre)
+    flat = jaxba.advanced.flatten
+    np.testing.assert_allclose(flat(numpy), flat(compiled), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(flat(numpy)[list(problem.gauge)],
+                               flat(problem.initial)[list(problem.gauge)], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(flat(numpy), flat(problem.initial), rtol=0, atol=1e-9)

@@ -89,3 +89,11 @@ def test_leading_axes_broadcast(opk):
 def test_bad_shapes_are_refused(function, shape):
     with pytest.raises(ValueError, match="shape"):
         function(np.zeros(shape))
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-13, 1e-3, 2.5])
+def test_rodrigues_matrix_equals_jax(scale):
+    """Rodrigues' formula in NumPy equals jax's, below its Taylor threshold and above."""
+    r = scale * np.array([0.6, -0.48, 0.64])
+    expected = np.asarray(jax.jit(jaxba.rodrigues_to_matrix)(jnp.asarray(r)))
+    np.testing.assert_allclose(rn.rodrigues_to_matrix(r), expected, rtol=0, atol=EXACT)

@@ -2,7 +2,8 @@
 
 The same formulas as `opk_to_matrix` and `matrix_to_opk` of `jaxba._models._rotation`
 (docs/conventions.md: M = R3(kappa) R2(phi) R1(omega) = R_m^c, `p_image = M @ (X - X0)`), plus
-their closed-form derivative, vectorised over any leading axes. For the approximations, the
+their closed-form derivative, vectorised over any leading axes, and Rodrigues' formula for
+one rotation vector (`rodrigues_to_matrix`, the datum's similarity). For the approximations, the
 block initialisation and the file formats: small arrays evaluated many times one by one,
 where a jax dispatch would cost a hundred times the arithmetic.
 """
@@ -71,3 +72,18 @@ def matrix_to_opk(m) -> np.ndarray:
         np.arctan2(m[..., 2, 0], np.hypot(m[..., 2, 1], m[..., 2, 2])),
         np.arctan2(-m[..., 1, 0], m[..., 0, 0]),
     ], axis=-1)
+
+
+def rodrigues_to_matrix(r) -> np.ndarray:
+    """Rotation matrix (3, 3) of the axis-angle vector `r` (3,), radians: R = I + sin(θ) K +
+    (1 - cos(θ)) K², K = [r/θ]_x, θ = |r| (as `jaxba._models._rotation`'s, with its Taylor
+    terms below θ² = 1e-24)."""
+    r = np.asarray(r, dtype=np.float64)
+    squared = float(r @ r)
+    k = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+    if squared < 1e-24:
+        sin_term, cos_term = 1.0 - squared / 6.0, 0.5 - squared / 24.0
+    else:
+        theta = np.sqrt(squared)
+        sin_term, cos_term = np.sin(theta) / theta, (1.0 - np.cos(theta)) / squared
+    return np.eye(3) + sin_term * k + cos_term * (k @ k)
