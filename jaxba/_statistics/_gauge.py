@@ -85,10 +85,9 @@ def _gauge_datum_opk(problem: BundleProblem, params: Parameters, centre: np.ndar
         difference = moved - target
         return np.where(angle, (difference + np.pi) % (2 * np.pi) - np.pi, difference)
 
-    phi = np.zeros(rows.size)
+    phi, steps = np.zeros(rows.size), np.eye(rows.size) * _DIFFERENCE_STEP
     for _ in range(NEWTON_STEPS):
-        step = np.eye(rows.size) * _DIFFERENCE_STEP
-        jacobian = np.stack([violation(phi + h) - violation(phi - h) for h in step], axis=1)
+        jacobian = np.stack([violation(phi + h) - violation(phi - h) for h in steps], axis=1)
         phi = phi - np.linalg.solve(jacobian / (2 * _DIFFERENCE_STEP), violation(phi))
     theta = similarity @ phi
     scale, rotation = 1.0 + theta[6], rodrigues_to_matrix(theta[3:6])
