@@ -24,11 +24,11 @@ from jaxba._models._cameras import BalCamera
 from jaxba._models._poses import RodriguesPose
 from jaxba._problem._bundle import free_indices, params_from_free
 from jaxba._problem._parameters import flatten
+from jaxba._problem._unique_rows import unique_rows
 from jaxba._solvers._cholesky import cholesky_solve
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._solvers._schur._pairs import same_point_pairs
 from jaxba._solvers._schur._structure import bundle_structure
-from jaxba._unique_rows import unique_rows
 from jaxba.advanced import Schur
 
 N_CAMERAS, N_POINTS = 5, 60

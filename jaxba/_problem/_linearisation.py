@@ -28,7 +28,6 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from .._programs import stored
-from .._unique_rows import unique_rows
 from ._bundle import (
     BundleProblem,
     free_indices,
@@ -38,6 +37,7 @@ from ._bundle import (
 )
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
+from ._unique_rows import unique_rows
 
 
 class LinearisationPlan(eqx.Module):

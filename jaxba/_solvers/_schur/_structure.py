@@ -22,7 +22,7 @@ from jaxtyping import Array, Int
 
 from ..._problem._bundle import BundleProblem, tie_source
 from ..._problem._parameters import flatten, unflatten
-from ..._unique_rows import unique_rows
+from ..._problem._unique_rows import unique_rows
 from ._pairs import block_rows, same_point_pairs
 
 PAIR_ROW_SIZE = 8
