@@ -48,7 +48,7 @@ SHAPES = {  # name -> (blocks.py shape, free datum)
 }
 LINEAR_SOLVERS = ("SPARSE_SCHUR", "DENSE_SCHUR")
 PHASES = ("read", "build", "datum check", "solve", "statistics", "reports")
-CLI = "import sys; from jaxba._cli._main import main; sys.exit(main())"
+CLI = "from jaxba._cli._main import entry; entry()"  # what the `jaxba` program runs
 
 
 # --- jaxba's pipeline, phase by phase (run in a child: `--child phases`) -----------------

@@ -24,6 +24,7 @@ from jaxba._models._cameras import BalCamera
 from jaxba._models._poses import RodriguesPose
 from jaxba._problem._bundle import free_indices, params_from_free
 from jaxba._problem._parameters import flatten
+from jaxba._problem._unique_rows import unique_rows
 from jaxba._solvers._cholesky import cholesky_solve
 from jaxba._solvers._schur._normal import marquardt_diagonal
 from jaxba._solvers._schur._pairs import same_point_pairs
@@ -158,6 +159,17 @@ def test_pairs_are_all_same_point_pairs_of_the_lower_key_triangle():
     np.testing.assert_array_equal(key_pairs[pair_block, 1], key[second[real]])
     assert np.all(np.diff(row_block) >= 0) and np.all(row_block <= n_blocks)
     assert not np.any(real[row_block == n_blocks])
+
+
+@pytest.mark.parametrize("shape", [(0, 3), (1, 4), (5, 0), (200, 6)])
+def test_unique_rows_is_numpys_unique_of_rows(shape):
+    table = np.random.default_rng(shape[0]).integers(-2, 3, shape)
+    table[:, :1] = 7  # a constant leading column: the later columns decide the order
+    expected, inverse = np.unique(table, axis=0, return_inverse=True)
+    rows, index = unique_rows(table)
+    np.testing.assert_array_equal(rows, expected)
+    np.testing.assert_array_equal(index, np.ravel(inverse))
+    np.testing.assert_array_equal(rows[index], table)
 
 
 def test_same_point_pairs_small_case():

@@ -136,17 +136,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_locked(args, spec, out_dir, read_seconds: float) -> int:
+    from jaxba._gc import freeze_long_lived, paused_gc
+
     start = time.perf_counter()
-    setup_jax()
-    import jaxba
-    from jaxba import _report
-    from jaxba._problem._checks import ProblemError
-    from jaxba._timing import Phase, Timings
+    with paused_gc():  # imports leave almost no garbage: no full passes of the collector
+        setup_jax()
+        import jaxba
+        from jaxba import _report
+        from jaxba._problem._checks import ProblemError
+        from jaxba._timing import Phase, Timings
 
-    jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
+        jaxba.build_project, jaxba.adjust_project, _report.write_reports  # import them now
     if args.own_process:
-        from jaxba._gc import freeze_long_lived
-
         freeze_long_lived()
     timings = Timings(on_compile=lambda name: say(f"  {name}: compiling..."))
     timings.add(Phase("read", read_seconds, 0.0, 0, 0))

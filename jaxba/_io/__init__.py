@@ -1,20 +1,17 @@
-"""Converters from published data sets to jaxba project files (docs/project-files.md)."""
+"""Converters from published data sets to jaxba project files (docs/project-files.md).
 
-from ._colmap import (
-    ColmapModel,
-    ColmapProject,
-    project_to_colmap,
-    read_colmap_model,
-    write_colmap,
-    write_colmap_model,
-    write_colmap_project,
-)
-from ._dbat import DbatProject, write_dbat_project
-from ._opencv_yaml import write_opencv_yaml, write_project_camera_yaml
-from ._zhang import ZhangProject, write_zhang_project
+Imported from their modules when first used (`jaxba._lazy`): reading a project
+(`jaxba._io._project`) loads none of the converters.
+"""
 
-__all__ = [
-    "ColmapModel", "ColmapProject", "DbatProject", "ZhangProject", "project_to_colmap",
-    "read_colmap_model", "write_colmap", "write_colmap_model", "write_colmap_project",
-    "write_dbat_project", "write_opencv_yaml", "write_project_camera_yaml", "write_zhang_project",
-]
+from .._lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "._colmap": (
+        "ColmapModel", "ColmapProject", "project_to_colmap", "read_colmap_model", "write_colmap",
+        "write_colmap_model", "write_colmap_project",
+    ),
+    "._dbat": ("DbatProject", "write_dbat_project"),
+    "._opencv_yaml": ("write_opencv_yaml", "write_project_camera_yaml"),
+    "._zhang": ("ZhangProject", "write_zhang_project"),
+})

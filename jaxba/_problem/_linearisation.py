@@ -37,6 +37,7 @@ from ._bundle import (
 )
 from ._observations import ImagePoints
 from ._parameters import Parameters, flatten, unflatten
+from ._unique_rows import unique_rows
 
 
 class LinearisationPlan(eqx.Module):
@@ -118,8 +119,8 @@ def linearisation_plan(
         observed = _planned_rows(np.asarray(group.mask()).any(axis=1),
                                  column_of[depends[:, list(slots)]])
         columns = column_of[depends[observed][:, list(slots)]]
-        unique, key = np.unique(columns, axis=0, return_inverse=True)
-        rows = _rows_by_key(key.ravel(), unique.shape[0])
+        unique, key = unique_rows(columns)
+        rows = _rows_by_key(key, unique.shape[0])
         key_rows.append(jax.device_put(np.where(rows >= 0, observed[rows], -1)))
         key_columns.append(jax.device_put(unique))
     return LinearisationPlan(jax.device_put(free_index), tuple(key_rows), tuple(key_columns),
@@ -133,8 +134,7 @@ def _planned_rows(observed: np.ndarray, columns: np.ndarray) -> np.ndarray:
     so that the re-adjustments of data snooping have the shapes of the first adjustment
     (and its compiled programs); padded rows, copies of row 0, join row 0's key only where
     it is unobserved itself, once (hundreds of them made its key hundreds long)."""
-    _, key = np.unique(columns, axis=0, return_inverse=True)
-    key = key.ravel()
+    _, key = unique_rows(columns)
     unobserved = np.flatnonzero(~observed)
     _, first = np.unique(key[unobserved], return_index=True)
     first = unobserved[first]

@@ -27,11 +27,13 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
     d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), np.shape(values)).ravel()
     cells = np.empty((x.size, width), dtype=np.uint8)
     finite = np.isfinite(x)  # only these are sized by their digits (a column of NaN: "nan")
-    for start in range(0, x.size, _CHUNK):
-        chunk = slice(start, start + _CHUNK)
-        for places in np.unique(d[chunk][finite[chunk]]).tolist():
-            rows = np.flatnonzero((d[chunk] == places) & finite[chunk]) + start
-            cells[rows] = _fixed(x[rows], places, width, pad[0])
+    lowest = int(d.min(initial=0))
+    present = np.flatnonzero(np.bincount(d[finite] - lowest)) + lowest if finite.any() else []
+    for places in np.asarray(present).tolist():  # the rows of each count of decimals, chunked
+        rows = np.flatnonzero(finite & (d == places) if len(present) > 1 else finite)
+        for start in range(0, rows.size, _CHUNK):
+            chunk = rows[start:start + _CHUNK]
+            cells[chunk] = _fixed(x[chunk], places, width, pad[0])
     _put(cells, ~finite, lambda k: missing, pad)
     return cells
 

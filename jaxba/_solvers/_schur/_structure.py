@@ -22,6 +22,7 @@ from jaxtyping import Array, Int
 
 from ..._problem._bundle import BundleProblem, tie_source
 from ..._problem._parameters import flatten, unflatten
+from ..._problem._unique_rows import unique_rows
 from ._pairs import block_rows, same_point_pairs
 
 PAIR_ROW_SIZE = 8
@@ -200,8 +201,7 @@ def bundle_structure(
     columns.append(np.full((1, m), n_reduced, dtype=np.int64))
     point_rows.append(np.array([n_eliminated]))
     columns, point_rows = np.concatenate(columns), np.concatenate(point_rows)
-    key_columns, key = np.unique(columns, axis=0, return_inverse=True)
-    key = np.ravel(key)
+    key_columns, key = unique_rows(columns)
     n_obs = columns.shape[0] - 1
     # Each group's observations by key (stable), the padding row last: S's pair products
     # then gather from one key's rows at a time (Dubrovnik-16, listed by point: 19 -> 13 ms).
