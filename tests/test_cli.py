@@ -449,3 +449,19 @@ def test_a_project_with_nothing_free_is_refused_with_exit_code_2(tmp_path):
     code, stdout, stderr = _run("adjust", str(project_file), "--out", str(tmp_path / "out"))
     assert code == 2
     assert "jaxba: error: the problem has no free unknowns" in stderr
+
+
+def test_an_adjustment_piped_into_a_reader_that_stops_still_writes_its_reports(tmp_path):
+    """`jaxba adjust ... | head -1`: the console's reader goes away after the first line; the
+    run goes on silently and ends as it would have (exit 0, every report written)."""
+    project_file = _copy_lab(tmp_path / "lab")
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "jaxba", "adjust", str(project_file),
+                                "--out", str(out)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    assert process.stdout.readline().startswith("adjusting lab")
+    process.stdout.close()
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 0, stderr
+    assert "internal error" not in stderr
+    assert {"lab.out", "lab.res", "lab.sigma", "results.json"} <= {p.name for p in out.iterdir()}

@@ -30,6 +30,7 @@ from .._solvers._schur._structure import bundle_structure
 from .._solvers._solve import solve
 from .._solvers._trust_region import CERES_FUNCTION_TOLERANCE
 from .._timing import CompileLog
+from ._common import say
 
 
 @eqx.filter_jit
@@ -38,7 +39,7 @@ def _cost(problem: BundleProblem):
 
 
 def _print_iteration(iteration: Iteration) -> None:
-    print(f"  iteration {iteration.iteration:3d}  cost {iteration.cost:.9e}", flush=True)
+    say(f"  iteration {iteration.iteration:3d}  cost {iteration.cost:.9e}")
 
 
 def run_bal(

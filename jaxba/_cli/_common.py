@@ -3,6 +3,7 @@ the options every command takes and jax's set-up."""
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -72,7 +73,14 @@ def print_error(message: str, kind: str = "error") -> None:
 
 
 def say(message: str = "") -> None:
-    print(message, flush=True)
+    """`message` on stdout at once. Where its reader has gone (`jaxba adjust ... | head`),
+    the rest of the run goes on silently: its files are still written."""
+    try:
+        print(message, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # what is left in stdout's buffer goes nowhere
+        os.close(devnull)
 
 
 def setup_jax() -> None:
