@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             from jaxba._gc import freeze_long_lived
 
             _report.write_batch_reports  # imported now, frozen with the rest
-            freeze_long_lived()  # the modules and the projects read live until the end
+            freeze_long_lived()  # the modules and the batch's entries live until the end
 
         with project_progress(len(args.projects), say, bar=args.progress) as progress:
             try:
