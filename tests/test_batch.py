@@ -3,6 +3,7 @@ failing projects; Monte Carlo and bootstrap replicates against the formal precis
 
 import json
 import math
+import shutil
 
 import equinox as eqx
 import jax
@@ -135,6 +136,34 @@ def test_run_batch_reports_and_failures(projects, tmp_path):
             "variance_test.statistic", "variance_test.passed"} <= set(header)
     assert any(line.startswith("[3/4]") or line.startswith("[4/4]") for line in lines)
     assert len(finished) == 5  # every project once, the one that failed to read included
+
+
+def test_tables_read_where_the_projects_are_adjusted(projects, tmp_path):
+    """`read_batch(tables=False)` (the command line's) reads only the project files; each
+    project's tables are read where it is adjusted: a broken table fails that project
+    alone, with the reader's message, and the others get the rows of a batch read whole."""
+    root, paths, _ = projects
+    folder = root / "bad_table"
+    shutil.copytree(paths[0].parent, folder)
+    toml = folder / paths[0].name
+    toml.write_text(toml.read_text().replace('name = "p0"', 'name = "bad_table"', 1))
+    with (folder / "ground_points.txt").open("a") as table:
+        table.write("extra 1.0 2.0\n")  # a point one coordinate short
+    entries = read_batch([*paths, toml], tmp_path / "lazy", tables=False)
+    assert [(e.status, e.spec, e.name) for e in entries] == [
+        ("pending", None, "p0"), ("pending", None, "p1"), ("pending", None, "p2"),
+        ("pending", None, "bad_table")]
+    lazy = run_batch([*paths, toml], tmp_path / "lazy", entries=entries)
+    whole = run_batch(paths, tmp_path / "whole")
+    assert [r["status"] for r in lazy] == ["ok", "ok", "ok", "failed"]
+    assert "ground_points.txt:" in lazy[3]["reason"] and "expected" in lazy[3]["reason"]
+    for a, b in zip(whole, lazy[:3]):
+        assert a.keys() == b.keys()
+        for key, value in a.items():
+            if isinstance(value, float):
+                assert b[key] == pytest.approx(value, rel=BATCH_RTOL, abs=1e-12), key
+            else:
+                assert b[key] == value, key
 
 
 @pytest.mark.slow

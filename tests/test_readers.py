@@ -4,7 +4,7 @@ import pathlib
 
 import pytest
 
-from jaxba._io._project._readers import read_project
+from jaxba._io._project._readers import read_project, read_project_inputs
 from jaxba._project._errors import ProjectError
 from jaxba._project._spec import AdjustmentSettings
 
@@ -309,7 +309,23 @@ def test_pixel_units(tmp_path):
     ],
 )
 def test_project_file_errors(tmp_path, old, new, parts):
-    assert_error(write_project(tmp_path, lab1_toml=(old, new)), *parts)
+    path = write_project(tmp_path, lab1_toml=(old, new))
+    assert_error(path, *parts)
+    with pytest.raises(ProjectError) as info:  # the project file alone: the same error
+        read_project_inputs(path)
+    assert str(info.value) == error_of(path)
+
+
+def test_project_inputs_without_the_tables(tmp_path):
+    """`read_project_inputs` gives `read_project`'s name and input files from the project
+    file alone: a table that cannot be read does not stop it."""
+    path = write_project(tmp_path)
+    spec = read_project(path)
+    assert read_project_inputs(path) == (spec.name, spec.input_files)
+    assert len(spec.input_files) == 1 + len(spec.files)
+    (tmp_path / "ground_points.txt").write_text("P1 1 2\n")  # one column short
+    assert read_project_inputs(path) == (spec.name, spec.input_files)
+    assert_error(path, "ground_points.txt:1")
 
 
 def test_missing_files_key(tmp_path):

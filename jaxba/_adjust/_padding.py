@@ -25,7 +25,13 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from .._problem._bundle import BundleProblem, free_indices
-from .._problem._linearisation import LinearisationPlan, linearisation_plan, live_slots, pad_plans
+from .._problem._linearisation import (
+    LinearisationPlan,
+    _local_positions,
+    linearisation_plan,
+    live_slots,
+    pad_plans,
+)
 from .._problem._observations import AbstractObservationGroup
 from .._problem._parameters import Parameters, flatten, unflatten
 
@@ -150,9 +156,10 @@ def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
     )
 
 
-def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list]:
-    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices
-    and the live slots of the plans (`shape.live`, or the union over these problems)."""
+def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list, list]:
+    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices,
+    the live slots of the plans (`shape.live`, or the union over these problems) and the
+    padded problems' `_local_positions` where the live slots needed them (else Nones)."""
     shapes = Parameters(
         cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
                  for m, n in shape.cameras.items()},
@@ -182,11 +189,13 @@ def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndar
     for k, index in enumerate(indices):
         free_index[k, : len(index)] = index
     if shape.live is not None:
-        return padded, free_index, list(shape.live)
+        return padded, free_index, list(shape.live), [None] * len(padded)
     # One set of live slots for all: problems may free different IOPs.
-    lives = zip(*(live_slots(one, index) for one, index in zip(padded, free_index)))
+    locals_ = [_local_positions(one) for one in padded]
+    lives = zip(*(live_slots(one, index, local)
+                  for one, index, local in zip(padded, free_index, locals_)))
     live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
-    return padded, free_index, live
+    return padded, free_index, live, locals_
 
 
 def _structure(problem: BundleProblem, free_index: np.ndarray, live) -> bytes:
@@ -205,15 +214,27 @@ def _structure(problem: BundleProblem, free_index: np.ndarray, live) -> bytes:
     return digest.digest()
 
 
-def _plans(padded, free_index, live) -> list[LinearisationPlan]:
+# The plans of this process's padded problems by structure and padded shape: `batch_shape`
+# finds them and the chunks padded to its shape (`pad_problems`) use them again.
+_known_plans: dict[tuple, LinearisationPlan] = {}
+KNOWN_PLANS = 4096  # structures kept at most (the oldest are dropped)
+
+
+def _plans(padded, free_index, live, locals_) -> list[LinearisationPlan]:
     """`linearisation_plan` of every padded problem, computed once per distinct structure
-    (a batch of calibrations of one target and one set of images has one)."""
-    known, plans = {}, []
-    for one, index in zip(padded, free_index):
-        key = _structure(one, index, live)
-        if key not in known:
-            known[key] = linearisation_plan(one, index, live)
-        plans.append(known[key])
+    and padded shape in this process (a batch of calibrations of one target and one set of
+    images has one); `locals_`: their `_local_positions`, or None where not known yet."""
+    plans = []
+    for one, index, local in zip(padded, free_index, locals_):
+        key = (_structure(one, index, live),
+               tuple(np.shape(leaf) for leaf in jax.tree.leaves(one.initial)))
+        plan = _known_plans.get(key)
+        if plan is None:
+            plan = linearisation_plan(one, index, live, local)
+            while len(_known_plans) >= KNOWN_PLANS:
+                del _known_plans[next(iter(_known_plans))]
+            _known_plans[key] = plan
+        plans.append(plan)
     return plans
 
 
@@ -239,8 +260,8 @@ def batch_shape(problems) -> BatchShape:
     _check_kind(problems)
     blocks = _block_shape(problems)
     distinct = {_structure(p, free_indices(p), None): p for p in problems}
-    padded, free_index, live = _pad_each(tuple(distinct.values()), blocks)
-    plans = _plans(padded, free_index, live)
+    padded, free_index, live, locals_ = _pad_each(tuple(distinct.values()), blocks)
+    plans = _plans(padded, free_index, live, locals_)
     keys = tuple(None if slots is None else
                  tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
                  for g, slots in enumerate(live))
@@ -274,8 +295,8 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
-    padded, free_index, live = _pad_each(problems, shape)
-    plans = _plans(padded, free_index, live)
+    padded, free_index, live, locals_ = _pad_each(problems, shape)
+    plans = _plans(padded, free_index, live, locals_)
     # Padded in NumPy, stacked in NumPy, one transfer per leaf.
     stacked = jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
     if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated

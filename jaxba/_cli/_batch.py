@@ -65,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
             check_scheduler(args.scheduler)
     except SchedulerError as error:
         raise UsageError(str(error)) from None
-    entries = read_batch(args.projects, args.out)  # checks every report against every input
+    # Every report checked against every input; the tables are read where each project
+    # is adjusted (with --jobs, in the worker processes, each its share).
+    entries = read_batch(args.projects, args.out, tables=False)
     with output_lock(args.out):
         setup_jax()
         from jaxba._cli._batch_run import run_batch
@@ -76,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             from jaxba._gc import freeze_long_lived
 
             _report.write_batch_reports  # imported now, frozen with the rest
-            freeze_long_lived()  # the modules and the projects read live until the end
+            freeze_long_lived()  # the modules and the batch's entries live until the end
 
         with project_progress(len(args.projects), say, bar=args.progress) as progress:
             try:

@@ -2,8 +2,9 @@
 projects from end to end (build, solve, statistics, reports), so that every core works on
 the whole per-project pipeline, reports included, and not only on the compiled solve.
 
-The projects are read and every output checked once, here (`read_batch`); the pending ones
-are dealt out to `jobs` processes in contiguous shares (projects of one kind usually sit
+Every output is checked once, here (`read_batch`); the pending projects, read here whole or
+only their project files (the command line's: a worker reads the tables of its share), are
+dealt out to `jobs` processes in contiguous shares (projects of one kind usually sit
 together, so each share pads and compiles few shapes; the programs are shared through the
 persistent compilation cache). A worker sends its progress lines and one message per
 finished project back through a queue, and returns what became of each of its projects

@@ -10,10 +10,10 @@ import json
 import pathlib
 
 from .._files._paths import check_folder, check_targets, resolved
-from .._io._project import read_project
+from .._io._project import read_project, read_project_inputs
 from .._project import ProjectError
 from .._project._spec import ProjectSpec
-from .._report._outputs import check_outputs, report_paths
+from .._report._outputs import check_named_outputs, report_paths
 
 
 @dataclasses.dataclass
@@ -47,7 +47,7 @@ def _unique_folder(name: str, taken: set[str]) -> str:
     return folder
 
 
-def read_batch(paths, out_dir) -> list[BatchEntry]:
+def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
     """Read the project files `paths` and give each its report folder `out_dir/<name>/`
     (`<name>_2`, ... for repeated names).
 
@@ -55,27 +55,33 @@ def read_batch(paths, out_dir) -> list[BatchEntry]:
     "failed" and the reason. Raises `OutputError` when `out_dir` is not a writable folder,
     or when summary.csv, summary.json or any project's report would be an input file of any
     project of the batch (its TOML or a table it names) or a folder.
+
+    `tables`: read every project whole (`spec`); False: only its project file (its name and
+    files: `read_project_inputs`), `spec` left None for whoever adjusts it to read (worker
+    processes, each its share), a table it cannot read failing that project then.
     """
     out_dir = pathlib.Path(out_dir)
     check_folder(out_dir)
-    entries, taken = [], set()
+    entries, taken, files = [], set(), {}
     for path in map(pathlib.Path, paths):
         entry = BatchEntry(path=path, name=path.stem)
         entries.append(entry)
         try:
-            entry.spec = read_project(path)
+            if tables:
+                entry.spec = read_project(path)
+                entry.name, files[id(entry)] = entry.spec.name, entry.spec.input_files
+            else:
+                entry.name, files[id(entry)] = read_project_inputs(path)
         except ProjectError as error:
             entry.status, entry.reason = "failed", str(error)
             continue
-        entry.name = entry.spec.name
-        entry.out_dir = out_dir / _unique_folder(entry.spec.name, taken)
+        entry.out_dir = out_dir / _unique_folder(entry.name, taken)
     # Each input resolved once: every report of every project is checked against them all.
-    inputs = resolved(file for entry in entries
-                      for file in (entry.spec.input_files if entry.spec else (entry.path,)))
+    inputs = resolved(file for entry in entries for file in files.get(id(entry), (entry.path,)))
     check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
     for entry in entries:
-        if entry.spec is not None:
-            check_outputs(entry.spec, entry.out_dir, inputs=inputs)
+        if id(entry) in files:
+            check_named_outputs(entry.name, files[id(entry)], entry.out_dir, inputs=inputs)
     return entries
 
 
@@ -86,16 +92,16 @@ def finished_results(entry: BatchEntry) -> dict | None:
     """The results.json of `entry`'s earlier run when all its reports exist (they are
     written together, so all or none), none is empty (what a system crash can leave of
     reports not flushed to disk) and results.json can be read; None otherwise."""
-    if entry.spec is None:
+    if entry.out_dir is None:  # not read
         return None
-    paths = report_paths(entry.spec, entry.out_dir)
+    paths = report_paths(entry.name, entry.out_dir)
     if not all(path.is_file() and path.stat().st_size > 0 for path in paths.values()):
         return None
     try:
         results = json.loads(paths["json"].read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    if (not isinstance(results, dict) or results.get("project") != entry.spec.name
+    if (not isinstance(results, dict) or results.get("project") != entry.name
             or not RESUMED_KEYS <= results.keys()):
         return None
     return results

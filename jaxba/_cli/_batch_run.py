@@ -1,9 +1,10 @@
 """`jaxba batch`: adjust many project files in padded batches, write reports and a summary.
 
 Plain Python around the jitted core. Projects are read and their outputs checked first
-(`_batch_read.read_batch`, no jax); with `resume`, those whose reports are all there are
-skipped. The others are built one by one; a file or datum error marks that project failed
-and the others go on. Projects of one kind (same observation groups, camera models,
+(`_batch_read.read_batch`, no jax; the command line reads only the project files there, and
+each project's tables where it is adjusted); with `resume`, those whose reports are all
+there are skipped. The others are built one by one; a file or datum error marks that project
+failed and the others go on. Projects of one kind (same observation groups, camera models,
 iteration settings) are padded to one shape and solved in vmapped chunks of `CHUNK`
 (`_batch_solve`): one compiled program for all of them (datum check, solve, statistics).
 A project that asks for a robust loss, variance components or data snooping is adjusted
@@ -34,6 +35,7 @@ import numpy as np
 from .._adjust._padding import batch_kind, batch_shape
 from .._dask import check_scheduler, executor
 from .._files._atomic import replace_files
+from .._io._project import read_project
 from .._models._cameras import CAMERA_MODELS
 from .._project import ProjectError, build_project
 from .._statistics._summary import variance_test
@@ -147,6 +149,8 @@ def adjust_entries(
     that cannot be built fails alone."""
     for entry in entries:
         try:
+            if entry.spec is None:  # read its project file only (`read_batch(tables=False)`)
+                entry.spec = read_project(entry.path)
             entry.project = build_project(entry.spec)
         except (ProjectError, ValueError, OSError) as error:
             entry.status, entry.reason = "failed", str(error)
@@ -267,6 +271,11 @@ def _resume(entry: BatchEntry) -> None:
     results = finished_results(entry)
     if results is None:
         return
+    if entry.spec is None:  # its summary row needs its camera models
+        try:
+            entry.spec = read_project(entry.path)
+        except ProjectError:
+            return  # adjusting it fails it, with the reason
     entry.mode, entry.previous = "resumed", results
     entry.status = "ok" if results["converged"] else "not converged"
     entry.reason = "" if results["converged"] else results.get("message", "")

@@ -98,16 +98,18 @@ def live_slots(problem: BundleProblem, free_index: np.ndarray, local=None) -> li
 
 
 def linearisation_plan(
-    problem: BundleProblem, free_index: np.ndarray | None = None, live: list | None = None
+    problem: BundleProblem, free_index: np.ndarray | None = None, live: list | None = None,
+    local: list | None = None,
 ) -> LinearisationPlan:
     """The keys of `problem`'s rows (NumPy, before any tracing).
 
     `free_index` defaults to `free_indices(problem)`; a padded batch passes a longer one
     whose extra entries repeat an unreferenced position (their columns stay empty), and
     `live` (default `live_slots`) the union of the live slots of all its problems.
+    `local`: `_local_positions(problem)` where the caller has it already.
     """
     free_index = free_indices(problem) if free_index is None else np.asarray(free_index)
-    local = _local_positions(problem)
+    local = _local_positions(problem) if local is None else local
     live = live_slots(problem, free_index, local) if live is None else live
     column_of = _free_columns(problem, free_index)
     key_rows, key_columns = [], []
@@ -161,8 +163,8 @@ def pad_plans(plans: list[LinearisationPlan], keys: tuple | None = None) -> Line
 
     def pad(array, shape, fill):
         out = np.full(shape, fill)
-        out[: array.shape[0], : array.shape[1]] = array
-        return jnp.asarray(out)
+        out[: array.shape[0], : array.shape[1]] = np.asarray(array)
+        return out
 
     padded = []
     for plan in plans:
@@ -181,8 +183,11 @@ def pad_plans(plans: list[LinearisationPlan], keys: tuple | None = None) -> Line
                 n_keys, max_rows = keys[g]
             rows.append(pad(key_rows, (n_keys, max_rows), -1))
             columns.append(pad(key_columns, (n_keys, key_columns.shape[1]), plan.n_free))
-        padded.append(LinearisationPlan(plan.free_index, tuple(rows), tuple(columns), plan.live))
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *padded)
+        padded.append(LinearisationPlan(np.asarray(plan.free_index), tuple(rows),
+                                        tuple(columns), plan.live))
+    # Padded and stacked in NumPy, one transfer per leaf (jnp.stack compiled a program per
+    # shape and number of plans).
+    return jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
 
 
 def _robust(problem: BundleProblem, group, e: Array) -> tuple[Array, Array]:

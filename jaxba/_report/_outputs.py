@@ -10,14 +10,15 @@ from .._project._spec import ProjectSpec
 OBSERVATIONS_FILE = "observations.csv"
 
 
-def report_paths(spec: ProjectSpec, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of a project in `out_dir`: NAME.out, NAME.res, NAME.sigma, results.json
-    and observations.csv."""
+def report_paths(spec: ProjectSpec | str, out_dir) -> dict[str, pathlib.Path]:
+    """The report files of a project (its spec or name) in `out_dir`: NAME.out, NAME.res,
+    NAME.sigma, results.json and observations.csv."""
     out_dir = pathlib.Path(out_dir)
+    name = spec if isinstance(spec, str) else spec.name
     return {
-        "out": out_dir / f"{spec.name}.out",
-        "res": out_dir / f"{spec.name}.res",
-        "sigma": out_dir / f"{spec.name}.sigma",
+        "out": out_dir / f"{name}.out",
+        "res": out_dir / f"{name}.res",
+        "sigma": out_dir / f"{name}.sigma",
         "json": out_dir / "results.json",
         "observations": out_dir / OBSERVATIONS_FILE,
     }
@@ -37,8 +38,17 @@ def check_outputs(
 
     Raises `OutputError` naming the file; call it before adjusting to fail early.
     """
+    return check_named_outputs(spec.name, spec.input_files, out_dir, inputs=inputs)
+
+
+def check_named_outputs(
+    name: str, input_files: Iterable[os.PathLike], out_dir, *,
+    inputs: Iterable[os.PathLike] = (),
+) -> dict[str, pathlib.Path]:
+    """`check_outputs` of the project `name` whose files are `input_files` (its spec's
+    `input_files`, or `read_project_inputs`' before its tables are read)."""
     check_folder(out_dir)
-    paths = report_paths(spec, out_dir)
+    paths = report_paths(name, out_dir)
     inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)
-    check_targets(paths.values(), resolved(spec.input_files) | inputs, f"project {spec.name!r}")
+    check_targets(paths.values(), resolved(input_files) | inputs, f"project {name!r}")
     return paths

@@ -62,8 +62,20 @@ def read_project(path: str | os.PathLike) -> ProjectSpec:
         return _read_project(pathlib.Path(path))
 
 
-def _read_project(path: pathlib.Path) -> ProjectSpec:
-    """`read_project`."""
+def read_project_inputs(path: str | os.PathLike) -> tuple[str, tuple[pathlib.Path, ...]]:
+    """The project's name and every file it reads (resolved), from the project file alone:
+    `read_project(path)`'s `name` and `input_files` without reading the tables (a batch
+    checks its outputs against them before its projects are read in worker processes).
+
+    **Raises:** `ProjectError` for a problem with the project file itself.
+    """
+    path = pathlib.Path(path)
+    project_name, _, _, files = _project_file(path)
+    return project_name, _input_files(path, files)
+
+
+def _project_file(path: pathlib.Path) -> tuple[str, str, AdjustmentSettings, dict[str, InputFile]]:
+    """The project file: the project's name, image units, settings and `[files]`."""
     if not path.is_file():
         raise ProjectError(f"{path}: no such project file")
     name = path.name
@@ -74,9 +86,18 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     if "files" not in document:
         raise ProjectError(f"{name}: missing table [files]")
     files = _read_files_table(subtable(document, "files", name), path.parent, name)
-
     project_name, image_units = _read_project_table(project, name, path.stem)
-    settings = _read_settings(adjustment, f"{name}: [adjustment]")
+    return project_name, image_units, _read_settings(adjustment, f"{name}: [adjustment]"), files
+
+
+def _input_files(path: pathlib.Path, files: dict[str, InputFile]) -> tuple[pathlib.Path, ...]:
+    return tuple(dict.fromkeys([path.resolve(), *(file.path for file in files.values())]))
+
+
+def _read_project(path: pathlib.Path) -> ProjectSpec:
+    """`read_project`."""
+    project_name, image_units, settings, files = _project_file(path)
+    name = path.name
     cameras = read_cameras(files["cameras"], image_units, name)
     images = read_images(files["images"], cameras, files["cameras"].name)
     cameras, images = expand_per_image(cameras, images, files["cameras"].name)
@@ -89,7 +110,6 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     check_consistency(images, points, image_points, distances, files)
     rigs, frames = _read_rigs(files, cameras, images)
 
-    inputs = dict.fromkeys([path.resolve(), *(file.path for file in files.values())])
     return ProjectSpec(
         path=path.resolve(),
         name=project_name,
@@ -100,7 +120,7 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
         points=points,
         image_points=image_points,
         distances=distances,
-        input_files=tuple(inputs),
+        input_files=_input_files(path, files),
         files={key: file.path for key, file in files.items()},
         file_names={key: file.name for key, file in files.items()},
         rigs=rigs,
