@@ -38,7 +38,7 @@ from .._solvers._solution import Solution
 from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
-from .._statistics._datum import DatumError, check_columns, check_datum
+from .._statistics._datum import DatumError, check_datum, check_structure
 from .._statistics._reliability import reliability_from_redundancy
 from ._padding import (
     BatchShape,
@@ -217,17 +217,18 @@ def _screen_program(problem, plan, n_free, datum_rtol):
                  problem, plan, n_free, None)
 
 
-def _datum_error(problem, suspect: bool, labels, rtol: float) -> DatumError | None:
+def _datum_error(problem, suspect: bool, labels, rtol: float, n_observations: int,
+                 n_unknowns: int) -> DatumError | None:
     """`check_datum`'s error of one problem, or None: the exact check where the batched
-    screen found it `suspect`; otherwise the structural checks only (redundancy, separable
-    camera parameters: `check_columns`, its finite and observed columns screened)."""
+    screen found it `suspect`; otherwise only the checks that need no Jacobian
+    (`check_structure`: redundancy from the padding's counts, separable camera parameters),
+    the screen having found every column finite and observed."""
     try:
         if suspect:
             check_datum(problem, labels=labels, rtol=rtol)
         else:
-            n = problem.n_unknowns()
-            check_columns(problem, np.ones(n, bool), np.ones(n),
-                          labels or parameter_labels(problem.initial))
+            check_structure(problem, labels or parameter_labels(problem.initial),
+                            n_observations, n_unknowns)
     except DatumError as error:
         return error
     return None
@@ -243,8 +244,9 @@ def check_datum_batch(
     suspect = np.asarray(_screen_program(batch.problem, batch.plan, jax.device_put(batch.n_free),
                                          rtol))
     labels = labels if labels is not None else [None] * batch.n_batch
-    return [_datum_error(problem, bool(flag), names, rtol)
-            for problem, flag, names in zip(batch.problems, suspect, labels)]
+    return [_datum_error(problem, bool(flag), names, rtol, int(n_obs), int(n))
+            for problem, flag, names, n_obs, n in zip(batch.problems, suspect, labels,
+                                                      batch.n_observations, batch.n_free)]
 
 
 def adjust_batch(
@@ -305,7 +307,8 @@ def adjust_padded(
     results = []
     for k, problem in enumerate(batch.problems):
         if check:
-            error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol)
+            error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol,
+                                 int(batch.n_observations[k]), int(batch.n_free[k]))
             if error is not None:
                 results.append(error)
                 continue
