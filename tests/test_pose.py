@@ -13,7 +13,14 @@ from scipy.spatial.transform import Rotation
 
 import jaxba
 from jaxba._io._bal import bal_bundle, read_bal
-from jaxba._models._poses import POSE_MODELS, MatrixPose, OpkPose, RodriguesPose, image_frames
+from jaxba._models._poses import (
+    POSE_MODELS,
+    MatrixPose,
+    OpkPose,
+    RodriguesPose,
+    image_frames,
+    image_row_inputs,
+)
 
 POINT_RTOL = 1e-14  # camera-frame points of unit-sized scenes, two float64 formulas
 DERIVATIVE_RTOL = 1e-13  # row_frame's derivative vs the pose's own, unit-sized values
@@ -71,13 +78,14 @@ def test_poses_convert_into_each_other():
 
 @pytest.mark.parametrize("pose, values", [(OpkPose, OPK), (RodriguesPose, RODRIGUES)])
 def test_row_frame_has_the_pose_value_and_derivative(pose, values):
-    """A row's frame (from `row_inputs`, moved by δ) maps a point as the pose of the moved
-    parameters does, to first order: same value and Jacobian by δ at δ = 0."""
+    """A row's frame (from `row_inputs` made image by image as rows make them, moved by δ)
+    maps a point as the pose of the moved parameters does, to first order: same value and
+    Jacobian by δ at δ = 0."""
     images = jnp.asarray(np.stack([values, values * 0.5]))
     point = jnp.array([0.3, 1.5, -2.0])
 
     def by_row(delta, row):
-        inputs = jax.tree.map(lambda x: x[row], pose.row_inputs(images))
+        inputs = jax.tree.map(lambda x: x[row], image_row_inputs(pose, images))
         return pose.row_frame(inputs, delta).to_camera(point)
 
     def by_pose(delta, row):

@@ -25,19 +25,20 @@ from .._problem._bundle import (
 )
 from .._problem._linearisation import (
     LinearisationPlan,
-    _row_blocks,
     _whole_group_jacobian,
+    key_blocks,
     normal_equations,
 )
 from .._problem._parameters import Parameters, parameter_labels
 from .._programs import call_stored
-from .._solvers._dense import Dense, cofactors, equilibrated
+from .._solvers._compiled import solver_jit
+from .._solvers._dense import Dense, cofactors, equilibrated, scale_from_normal
 from .._solvers._progress import Iteration
 from .._solvers._solution import Solution
 from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
-from .._statistics._datum import DatumError, check_columns, check_datum
+from .._statistics._datum import DatumError, check_datum, check_structure
 from .._statistics._reliability import reliability_from_redundancy
 from ._padding import (
     BatchShape,
@@ -99,31 +100,39 @@ class BatchStatistics(eqx.Module):
     suspect: Bool[Array, " n_batch"]
 
 
-def _datum_suspect(problem: BundleProblem, plan: LinearisationPlan, n_free, rtol: float):
-    """False where the datum is surely defined at the approximations: N = JᵀJ finite, every
-    real column observed, and the equilibrated N's eigenvalues λ = s² (s the singular values
-    of the equilibrated J) with λ_min/λ_max above 4·rtol² + 1e-12: a defect, s_min/s_max <
-    rtol, lies below it even with N's rounding (~1e-16 λ_max). True: `check_datum` decides
-    (the exact test, from J itself, and the message)."""
-    normal = normal_equations(problem, problem.initial, plan)[0]
-    real = jnp.arange(plan.n_free) < n_free
+def _datum_suspect(normal: Float[Array, "n n"], n_free, rtol: float):
+    """False where the datum is surely defined at the approximations, from N = JᵀJ there
+    (`n_free` of its leading unknowns real): N finite, every real column observed, and the
+    equilibrated N's eigenvalues λ = s² (s the singular values of the equilibrated J) with
+    λ_min/λ_max above 4·rtol² + 1e-12: a defect, s_min/s_max < rtol, lies below it even with
+    N's rounding (~1e-16 λ_max). True: `check_datum` decides (the exact test, from J itself,
+    and the message)."""
+    n = normal.shape[0]
+    real = jnp.arange(n) < n_free
     finite = jnp.all(jnp.isfinite(normal))
     observed = jnp.all(jnp.where(real, jnp.diag(normal) > 0, True))
     scaled = equilibrated(jnp.where(finite, normal, 1.0), real)[0]
-    eigenvalues = jnp.linalg.eigvalsh(jnp.where(finite, scaled, jnp.eye(plan.n_free)))
+    eigenvalues = jnp.linalg.eigvalsh(jnp.where(finite, scaled, jnp.eye(n)))
     regular = eigenvalues[0] > (4 * rtol**2 + 1e-12) * eigenvalues[-1]
     return ~(finite & observed & regular)
 
 
-def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPlan, cofactor):
+def _initial_normal(problem: BundleProblem, plan: LinearisationPlan):
+    """N = JᵀJ at the approximations: the datum screen's and the solve's column scale's."""
+    return normal_equations(problem, problem.initial, plan)[0]
+
+
+def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPlan, cofactor,
+               keyed: tuple):
     """diag(J Q Jᵀ) of every residual entry (flat, in `problem.whitened`'s order), Q the
-    cofactor matrix (n_free, n_free): per key of the plan from the rows' Jacobian blocks and
-    Q's block of the key's columns (no dense Jacobian); whole groups from their Jacobian."""
+    cofactor matrix (n_free, n_free): per key of the plan from its rows' Jacobian blocks
+    (`keyed`: `key_blocks` at `params`) and Q's block of the key's columns (no dense
+    Jacobian); whole groups from their Jacobian."""
     n = plan.n_free
     padded = jnp.zeros((n + 1, n + 1), cofactor.dtype).at[:n, :n].set(cofactor)
     parts = []
-    for group, rows, columns, slots in zip(
-        problem.groups, plan.key_rows, plan.key_columns, plan.live
+    for group, rows, columns, slots, key in zip(
+        problem.groups, plan.key_rows, plan.key_columns, plan.live, keyed
     ):
         n_rows, k = jnp.shape(group.stddev)
         if slots is None:
@@ -133,8 +142,7 @@ def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPl
         if not slots:
             parts.append(jnp.zeros(n_rows * k, cofactor.dtype))
             continue
-        blocks = _row_blocks(problem, group, params)[1][:, :, list(slots)]
-        blocks = jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]
+        blocks = key[1]
         block_q = padded[columns[:, :, None], columns[:, None, :]]
         leverage = jnp.einsum("kmci,kij,kmcj->kmc", blocks, block_q, blocks)
         target = jnp.where(rows >= 0, rows, n_rows)  # key padding: a dropped extra row
@@ -144,13 +152,16 @@ def _leverages(problem: BundleProblem, params: Parameters, plan: LinearisationPl
 
 
 def _statistics_one(problem: BundleProblem, plan: LinearisationPlan, params: Parameters,
-                    n_free, datum_rtol: float) -> BatchStatistics:
+                    n_free, suspect) -> BatchStatistics:
+    """The statistics of one problem at its solution `params`, from one linearisation there
+    (`key_blocks`: N and the leverages); `suspect` as given (`_datum_suspect`)."""
     real = jnp.arange(plan.n_free) < n_free
-    cofactor = cofactors(normal_equations(problem, params, plan)[0], real)
+    keyed = key_blocks(problem, params, plan)
+    cofactor = cofactors(normal_equations(problem, params, plan, keyed)[0], real)
     whitened = jnp.concatenate([jnp.ravel(e) for e in problem.whitened(params)])
     initial = 0.5 * sum(jnp.sum(e**2) for e in problem.whitened(problem.initial))
-    return BatchStatistics(initial, cofactor, _leverages(problem, params, plan, cofactor),
-                           whitened, _datum_suspect(problem, plan, n_free, datum_rtol))
+    return BatchStatistics(initial, cofactor, _leverages(problem, params, plan, cofactor, keyed),
+                           whitened, suspect)
 
 
 def _each(function, problem, plan, n_free, chunk_size):
@@ -173,38 +184,51 @@ def batch_statistics(
     datum_rtol: float = 1e-9,
 ) -> BatchStatistics:
     """Dense statistics of every problem of a padded batch at `parameters`, vmapped."""
-    return jax.vmap(lambda problem, plan, params, n: _statistics_one(
-        problem, plan, params, n, datum_rtol))(problem, plan, parameters, n_free)
+
+    def one(problem, plan, params, n):
+        suspect = _datum_suspect(_initial_normal(problem, plan), n, datum_rtol)
+        return _statistics_one(problem, plan, params, n, suspect)
+
+    return jax.vmap(one)(problem, plan, parameters, n_free)
 
 
-@eqx.filter_jit
+@solver_jit
 def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, chunk_size):
-    """Solve and statistics of every problem of a padded batch: one compiled program."""
+    """Datum screen, solve and statistics of every problem of a padded batch: one compiled
+    program, two linearisations besides the solve's steps (the approximations' N serves
+    the screen and the solve's column scale; the solution's, the statistics). Compiled with
+    the solvers' XLA options (`solver_jit`: no YNNPACK reductions; Zhang-size chunks of 10
+    ran 1.4x faster)."""
 
     def one(problem, plan, n):
-        solution = solve(problem, Dense(plan), max_steps=max_steps, rtol=rtol, atol=atol)
-        return solution, _statistics_one(problem, plan, solution.parameters, n, datum_rtol)
+        normal = _initial_normal(problem, plan)
+        backend = Dense(plan, scale=scale_from_normal(normal))
+        solution = solve(problem, backend, max_steps=max_steps, rtol=rtol, atol=atol)
+        return solution, _statistics_one(problem, plan, solution.parameters, n,
+                                         _datum_suspect(normal, n, datum_rtol))
 
     return _each(one, problem, plan, n_free, chunk_size)
 
 
 @eqx.filter_jit
 def _screen_program(problem, plan, n_free, datum_rtol):
-    return _each(lambda problem, plan, n: _datum_suspect(problem, plan, n, datum_rtol),
+    return _each(lambda problem, plan, n: _datum_suspect(_initial_normal(problem, plan), n,
+                                                         datum_rtol),
                  problem, plan, n_free, None)
 
 
-def _datum_error(problem, suspect: bool, labels, rtol: float) -> DatumError | None:
+def _datum_error(problem, suspect: bool, labels, rtol: float, n_observations: int,
+                 n_unknowns: int) -> DatumError | None:
     """`check_datum`'s error of one problem, or None: the exact check where the batched
-    screen found it `suspect`; otherwise the structural checks only (redundancy, separable
-    camera parameters: `check_columns`, its finite and observed columns screened)."""
+    screen found it `suspect`; otherwise only the checks that need no Jacobian
+    (`check_structure`: redundancy from the padding's counts, separable camera parameters),
+    the screen having found every column finite and observed."""
     try:
         if suspect:
             check_datum(problem, labels=labels, rtol=rtol)
         else:
-            n = problem.n_unknowns()
-            check_columns(problem, np.ones(n, bool), np.ones(n),
-                          labels or parameter_labels(problem.initial))
+            check_structure(problem, labels or parameter_labels(problem.initial),
+                            n_observations, n_unknowns)
     except DatumError as error:
         return error
     return None
@@ -220,8 +244,9 @@ def check_datum_batch(
     suspect = np.asarray(_screen_program(batch.problem, batch.plan, jax.device_put(batch.n_free),
                                          rtol))
     labels = labels if labels is not None else [None] * batch.n_batch
-    return [_datum_error(problem, bool(flag), names, rtol)
-            for problem, flag, names in zip(batch.problems, suspect, labels)]
+    return [_datum_error(problem, bool(flag), names, rtol, int(n_obs), int(n))
+            for problem, flag, names, n_obs, n in zip(batch.problems, suspect, labels,
+                                                      batch.n_observations, batch.n_free)]
 
 
 def adjust_batch(
@@ -282,7 +307,8 @@ def adjust_padded(
     results = []
     for k, problem in enumerate(batch.problems):
         if check:
-            error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol)
+            error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol,
+                                 int(batch.n_observations[k]), int(batch.n_free[k]))
             if error is not None:
                 results.append(error)
                 continue

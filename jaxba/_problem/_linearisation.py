@@ -208,35 +208,48 @@ def _row_blocks(problem: BundleProblem, group, params: Parameters) -> tuple[Arra
     return e, jnp.where(mask[:, :, None], blocks * chain[:, :, None], 0.0)
 
 
+def key_blocks(problem: BundleProblem, params: Parameters, plan: LinearisationPlan) -> tuple:
+    """Per group, the residuals (n_keys, max_rows, k) and Jacobian blocks (n_keys, max_rows,
+    k, n_live) of `_row_blocks` gathered by the plan's keys (row -1: zeros), or None for a
+    group that is not row-local or has no live slot: one linearisation at `params`, which
+    `normal_equations` sums and the batch's leverages read again."""
+    keyed = []
+    for group, rows, slots in zip(problem.groups, plan.key_rows, plan.live):
+        if not slots:
+            keyed.append(None)
+            continue
+        e, blocks = _row_blocks(problem, group, params)
+        blocks = blocks[:, :, list(slots)]  # (n, k, n_live)
+        keyed.append((jnp.concatenate([e, jnp.zeros_like(e[:1])])[rows],
+                      jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]))
+    return tuple(keyed)
+
+
 def normal_equations(
-    problem: BundleProblem, params: Parameters, plan: LinearisationPlan
+    problem: BundleProblem, params: Parameters, plan: LinearisationPlan,
+    keyed: tuple | None = None,
 ) -> tuple[Float[Array, "n_free n_free"], Float[Array, " n_free"]]:
     """N = JᵀJ and g = Jᵀẽ of the residuals `problem.residuals` at `params`, J the
-    derivative w.r.t. the free unknowns `plan.free_index` (their own units)."""
+    derivative w.r.t. the free unknowns `plan.free_index` (their own units). `keyed`:
+    `key_blocks` at `params`, where already made."""
     n = plan.n_free
     dtype = ravel_pytree(params)[0].dtype
     normal = jnp.zeros((n + 1, n + 1), dtype)
     gradient = jnp.zeros(n + 1, dtype)
-    whole_groups = []
-    for group, rows, columns, slots in zip(
-        problem.groups, plan.key_rows, plan.key_columns, plan.live
-    ):
-        if slots is None:
-            whole_groups.append(group)
+    keyed = key_blocks(problem, params, plan) if keyed is None else keyed
+    for group, columns, key in zip(problem.groups, plan.key_columns, keyed):
+        if key is None:
             continue
-        if not slots:  # no free unknown in any row (a scale bar between fixed points)
-            continue
-        e, blocks = _row_blocks(problem, group, params)
-        blocks = blocks[:, :, list(slots)]  # (n, k, n_live)
-        # Gather every key's rows into (n_keys, max_rows·k, ·); row -1 is an appended zero.
-        blocks = jnp.concatenate([blocks, jnp.zeros_like(blocks[:1])])[rows]
-        blocks = blocks.reshape(rows.shape[0], -1, blocks.shape[-1])
-        e = jnp.concatenate([e, jnp.zeros_like(e[:1])])[rows].reshape(rows.shape[0], -1)
+        e, blocks = key
+        # Every key's rows as one (max_rows·k, n_live) matrix: one batched product.
+        blocks = blocks.reshape(blocks.shape[0], -1, blocks.shape[-1])
+        e = e.reshape(e.shape[0], -1)
         outer = jnp.einsum("kmi,kmj->kij", blocks, blocks)
         weighted = jnp.einsum("kmi,km->ki", blocks, e)
         normal = normal.at[columns[:, :, None], columns[:, None, :]].add(outer)
         gradient = gradient.at[columns].add(weighted)
     normal, gradient = normal[:n, :n], gradient[:n]
+    whole_groups = [g for g, slots in zip(problem.groups, plan.live) if slots is None]
     if whole_groups:
         rows, e = _whole_group_jacobian(problem, params, plan.free_index, whole_groups)
         normal = normal + rows.T @ rows

@@ -17,7 +17,13 @@ from jaxtyping import Array, Bool, Float, Int
 from .._custom_types import Vector2, Vector3
 from .._models._board_warp import warped_point
 from .._models._cameras import CAMERA_MODELS, AbstractRefraction
-from .._models._poses import POSE_MODELS, AbstractPose, ComposedPose, image_frames
+from .._models._poses import (
+    POSE_MODELS,
+    AbstractPose,
+    ComposedPose,
+    image_frames,
+    image_row_inputs,
+)
 from ._parameters import IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES, Parameters
 
 
@@ -316,9 +322,9 @@ class ImagePoints(AbstractObservationGroup):
         `row_inputs`, made once per image)."""
         pose = POSE_MODELS[self.pose]
         inputs = jax.tree.map(lambda x: x[self.image],
-                              pose.row_inputs(jnp.asarray(params.images)))
+                              image_row_inputs(pose, jnp.asarray(params.images)))
         if self.mount is not None:
-            mounts = pose.row_inputs(jnp.asarray(params.mounts))
+            mounts = image_row_inputs(pose, jnp.asarray(params.mounts))
             inputs = (inputs, jax.tree.map(lambda x: x[self.mount], mounts))
 
         def row(iop, delta, point, warp, pose_inputs, measured, sigma, shape):

@@ -39,7 +39,13 @@ def column_scale(problem: BundleProblem, plan: LinearisationPlan) -> Float[Array
     norm at the start and the Levenberg-Marquardt damping λI treats all unknowns alike.
     Masked residual entries are exactly 0 and add nothing to the norms.
     """
-    norms = jnp.sqrt(jnp.diag(normal_equations(problem, problem.initial, plan)[0]))
+    return scale_from_normal(normal_equations(problem, problem.initial, plan)[0])
+
+
+def scale_from_normal(normal: Float[Array, "n n"]) -> Float[Array, " n"]:
+    """`column_scale` from the normal matrix N = JᵀJ at the approximations: 1/√N_ii (1
+    for an empty column)."""
+    norms = jnp.sqrt(jnp.diag(normal))
     return 1.0 / jnp.where(norms > 0, norms, 1.0)
 
 
@@ -50,10 +56,13 @@ class Dense(Backend):
 
     `plan`: `linearisation_plan(problem)`, filled in by `ready` where not given; it must be
     given under `jax.vmap` / `jax.jit`, where the problem's index arrays are traced.
-    `block_size`: the Cholesky's block (None: tuned for vmapped batches)."""
+    `block_size`: the Cholesky's block (None: tuned for vmapped batches). `scale`:
+    `column_scale`, where the caller has the normal matrix at the approximations already
+    (`scale_from_normal`; None: made here)."""
 
     plan: LinearisationPlan | None = None
     block_size: int | None = eqx.field(static=True, default=None)
+    scale: Float[Array, " n_free"] | None = None
 
     name: ClassVar[str] = "dense"
     tolerance: ClassVar[float] = 1e-8
@@ -63,16 +72,17 @@ class Dense(Backend):
 
     def ready(self, problem):
         return self if self.plan is not None else Dense(linearisation_plan(problem),
-                                                        self.block_size)
+                                                        self.block_size, self.scale)
 
     def for_steps(self):
-        return Dense(self.plan, UNBATCHED_BLOCK)
+        return Dense(self.plan, UNBATCHED_BLOCK, self.scale)
 
     def least_squares(self, problem: BundleProblem, tolerances: Tolerances) -> LeastSquares:
         """The column scale is held constant under differentiation (`stop_gradient`): the
         optimum does not depend on it, so its derivative would only cancel."""
         plan = self.plan
-        scale = jax.lax.stop_gradient(column_scale(problem, plan))
+        scale = column_scale(problem, plan) if self.scale is None else self.scale
+        scale = jax.lax.stop_gradient(scale)
         solver = NormalLevenbergMarquardt(
             problem, plan, scale, tolerances.rtol, tolerances.atol,
             step_tolerance=tolerances.step, function_tolerance=tolerances.function,

@@ -215,13 +215,7 @@ def check_columns(
     parameters free together (`check_separable`), a finite model and an observation for
     every free unknown (`finite`, `column_norms`: (n_free,) per column of
     the whitened Jacobian at the approximations)."""
-    n_observations, n_unknowns = problem.n_observations(), problem.n_unknowns()
-    if n_observations <= n_unknowns:
-        raise DatumError(
-            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
-            "(redundancy must be positive)"
-        )
-    check_separable(problem, labels)
+    check_structure(problem, labels, problem.n_observations(), problem.n_unknowns())
     index = free_indices(problem)
     if not np.all(finite):
         error = nonfinite_start_error(problem, labels)
@@ -239,10 +233,25 @@ def check_columns(
             f" {it}, or start from approximations where {acts}")
 
 
+def check_structure(problem: BundleProblem, labels: list[str], n_observations: int,
+                    n_unknowns: int) -> None:
+    """`check_columns`' checks that need no Jacobian: a positive redundancy (`n_observations`
+    real observations, `n_unknowns` free unknowns: `problem`'s, counted by the caller) and
+    `check_separable`."""
+    if n_observations <= n_unknowns:
+        raise DatumError(
+            f"{n_observations} observations cannot determine {n_unknowns} unknowns "
+            "(redundancy must be positive)"
+        )
+    check_separable(problem, labels)
+
+
 def check_separable(problem: BundleProblem, labels: list[str]) -> None:
     """Refuse a camera whose model's inseparable pair (`INSEPARABLE_PARAMETERS`, e.g. SMAC's
     K0 and c) is free with no prior on either: the observations cannot tell them apart (a
     solve from there collapses, e.g. to c = 0, K0 = 1)."""
+    if not any(INSEPARABLE_PARAMETERS.get(lens_model(model)) for model in problem.free.cameras):
+        return
     # A tied parameter is as free as its source (`BundleProblem.ties`).
     estimated = unflatten(problem.free, flatten(problem.free)[tie_source(problem)])
     positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))

@@ -7,6 +7,7 @@ from ._abstract import (
     AbstractPose as AbstractPose,
     MatrixPose as MatrixPose,
     image_frames as image_frames,
+    image_row_inputs as image_row_inputs,
 )
 from ._composed import ComposedPose as ComposedPose
 from ._opk import OpkPose as OpkPose
