@@ -83,9 +83,7 @@ class BundleProblem(eqx.Module):
 
     def n_observations(self) -> int:
         """Number of real scalar observations over all groups."""
-        # np.isfinite(σ) is `group.mask()` outside a program, without the bound method an
-        # equinox Module makes on every method read (~0.1 ms; these run once per project)
-        return int(sum(np.sum(np.isfinite(np.asarray(group.stddev))) for group in self.groups))
+        return int(sum(np.sum(_host_mask(group)) for group in self.groups))
 
     def n_unknowns(self) -> int:
         """Number of free (estimated) scalars."""
@@ -96,8 +94,8 @@ def observed_minus_computed(problem: BundleProblem, whitened) -> tuple[np.ndarra
     """Residuals v = observed - computed in each group's units from its whitened e = v/σ
     (masked entries 0), as NumPy arrays of the groups' shapes."""
     return tuple(
-        np.asarray(e) * np.where(np.isfinite(sigma), sigma, 0.0)  # `g.mask()`, `g.sigma()`
-        for e, sigma in zip(whitened, (np.asarray(g.stddev) for g in problem.groups))
+        np.asarray(e) * np.where(_host_mask(g), np.asarray(g.stddev), 0.0)
+        for e, g in zip(whitened, problem.groups)
     )
 
 
@@ -154,10 +152,16 @@ def free_indices(problem: BundleProblem) -> np.ndarray:
     return np.flatnonzero(flatten(problem.free))
 
 
+def _host_mask(group: AbstractObservationGroup) -> Bool[np.ndarray, "n k"]:
+    """`group.mask()` outside a program (σ finite), without the bound method an equinox
+    Module makes on every method read (~0.1 ms; the host's bookkeeping runs once per
+    project of a batch)."""
+    return np.isfinite(np.asarray(group.stddev))
+
+
 def observation_mask(problem: BundleProblem) -> Bool[np.ndarray, " n_residuals"]:
     """Flat mask of real observations, in the order of the raveled residuals."""
-    return np.concatenate([np.ravel(np.isfinite(np.asarray(group.stddev)))  # `group.mask()`
-                           for group in problem.groups])
+    return np.concatenate([np.ravel(_host_mask(group)) for group in problem.groups])
 
 
 def params_from_free(
