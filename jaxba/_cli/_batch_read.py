@@ -26,6 +26,7 @@ class BatchEntry:
     reason: str = ""
     mode: str = ""  # batch | single | resumed
     spec: ProjectSpec | None = None
+    input_files: tuple[pathlib.Path, ...] = ()  # its TOML and tables, once its file is read
     project: object = None
     result: object = None
     out_dir: pathlib.Path | None = None
@@ -62,26 +63,26 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
     """
     out_dir = pathlib.Path(out_dir)
     check_folder(out_dir)
-    entries, taken, files = [], set(), {}
+    entries, taken = [], set()
     for path in map(pathlib.Path, paths):
         entry = BatchEntry(path=path, name=path.stem)
         entries.append(entry)
         try:
             if tables:
                 entry.spec = read_project(path)
-                entry.name, files[id(entry)] = entry.spec.name, entry.spec.input_files
+                entry.name, entry.input_files = entry.spec.name, entry.spec.input_files
             else:
-                entry.name, files[id(entry)] = read_project_inputs(path)
+                entry.name, entry.input_files = read_project_inputs(path)
         except ProjectError as error:
             entry.status, entry.reason = "failed", str(error)
             continue
         entry.out_dir = out_dir / _unique_folder(entry.name, taken)
     # Each input resolved once: every report of every project is checked against them all.
-    inputs = resolved(file for entry in entries for file in files.get(id(entry), (entry.path,)))
+    inputs = resolved(file for entry in entries for file in entry.input_files or (entry.path,))
     check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
     for entry in entries:
-        if id(entry) in files:
-            check_named_outputs(entry.name, files[id(entry)], entry.out_dir, inputs=inputs)
+        if entry.out_dir is not None:  # read
+            check_named_outputs(entry.name, entry.input_files, entry.out_dir, inputs=inputs)
     return entries
 
 

@@ -10,11 +10,10 @@ from .._project._spec import ProjectSpec
 OBSERVATIONS_FILE = "observations.csv"
 
 
-def report_paths(spec: ProjectSpec | str, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of a project (its spec or name) in `out_dir`: NAME.out, NAME.res,
-    NAME.sigma, results.json and observations.csv."""
+def report_paths(name: str, out_dir) -> dict[str, pathlib.Path]:
+    """The report files of the project `name` in `out_dir`: NAME.out, NAME.res, NAME.sigma,
+    results.json and observations.csv."""
     out_dir = pathlib.Path(out_dir)
-    name = spec if isinstance(spec, str) else spec.name
     return {
         "out": out_dir / f"{name}.out",
         "res": out_dir / f"{name}.res",

@@ -31,7 +31,7 @@ def write_batch_reports(project: Project, result: Adjustment, out_dir) -> None:
     """`write_reports` for a project of `jaxba batch`, whose outputs were all checked before
     anything was computed (`read_batch`): the same files, not checked again, replaced
     together but not flushed to disk one by one (`replace_files` without `durable`)."""
-    _replace(report_texts(project, result, report_paths(project.spec, out_dir)), out_dir,
+    _replace(report_texts(project, result, report_paths(project.spec.name, out_dir)), out_dir,
              durable=False)
 
 
