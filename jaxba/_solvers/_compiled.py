@@ -49,8 +49,8 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
 
     Only for programs called at the top level, never inside `jax.jit` or `jax.vmap` (jax
     refuses compiler options on a nested jit): the Schur backend's solve, normal equations
-    and cofactors, and the stepwise loop's steps, whose arguments are built in NumPy or
-    driven from Python anyway. Inside
+    and cofactors, the stepwise loop's steps, the batch's program and the inner-constraint
+    datum move, whose arguments are built in NumPy or driven from Python anyway. Inside
     another program (a stored export, `nested`) the options go to that program. The dense
     solve, which batches vmap, keeps the default options.
     """
