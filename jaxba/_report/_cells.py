@@ -59,5 +59,5 @@ def joined(columns: Sequence[Cells]) -> str:
         chars = np.concatenate([c.chars[rows] for c in columns], axis=1)
         keep = np.concatenate([np.broadcast_to(c.keep if len(c.keep) == 1 else c.keep[rows],
                                                c.chars[rows].shape) for c in columns], axis=1)
-        parts.append(chars[keep].tobytes())
+        parts.append(chars.ravel()[np.flatnonzero(keep)].tobytes())  # faster than chars[keep]
     return b"".join(parts).decode("utf-8")

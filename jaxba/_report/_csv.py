@@ -9,14 +9,15 @@ an observation removed by data snooping).
 
 import csv
 import io
-import itertools
 import pathlib
 
 import numpy as np
 
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
+from ._cells import Cells, constant, joined, texts as text_cells
 from ._collect import ScalarObservation, image_residuals, other_observations
+from ._numbers import general_cells
 
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
 NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
@@ -31,66 +32,71 @@ def _field(text: str) -> str:
     return text
 
 
-def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> str:
-    """CSV lines of rows, each ending in a newline: the text fields `texts` (one list per
-    column, already CSV fields), then the number and flag columns, `filled` ones from
-    `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where not finite, the others
-    empty. Each of the two parts is one `%` over all rows."""
-    numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
-    fmt = ",".join(
-        "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
-        for name in NUMBER_COLUMNS + FLAG_COLUMNS
-    )
-    formatted = (fmt + "\n") * len(numbers) % tuple(numbers.ravel().tolist())
-    # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
-    formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
-    row = "%s," * len(texts) + "%s\n"
-    fields = zip(*texts, formatted.split("\n")[:-1])
-    return row * len(numbers) % tuple(itertools.chain.from_iterable(fields))
+def _lines(labels: list[tuple[list[str], np.ndarray]], numbers: np.ndarray,
+           filled: tuple[str, ...]) -> str:
+    """CSV lines of n rows, each ending in a newline: the text fields `labels` ((strings,
+    codes (n,)): row i holds strings[codes[i]], already a CSV field), then the number and flag
+    columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where
+    not finite, the others empty; all rows laid out in one pass (`joined`)."""
+    n = len(numbers)
+    if not n:
+        return ""
+    numbers = np.asarray(numbers, dtype=float).reshape(n, len(filled))
+    measured = [j for j, name in enumerate(filled) if name not in FLAG_COLUMNS]
+    general = general_cells(numbers[:, measured], 10)
+    general = Cells(*(cells.reshape(n, len(measured), -1) for cells in general))
+    columns, separator = [], ""
+    for strings, codes in labels:
+        columns += [*([constant(separator, n)] if separator else []), text_cells(strings, codes)]
+        separator = ","
+    for name in NUMBER_COLUMNS + FLAG_COLUMNS:
+        if name in filled:
+            j = filled.index(name)
+            cells = (text_cells(["0", "1"], numbers[:, j].astype(int)) if name in FLAG_COLUMNS else
+                     Cells(*(c[:, measured.index(j)] for c in general)))
+            columns += [constant(separator, n), cells]
+            separator = ","
+        else:
+            separator += ","
+    return joined([*columns, constant(separator[1:] + "\n", n)])
 
 
 def _image_point_lines(project: Project, result: Adjustment) -> str:
     """Rows of the image points, each named by its group's part ("image_points:<camera>")."""
     residuals = image_residuals(project, result)
-    n = len(residuals.image)
-    image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
-    point_ids = np.array([_field(p) for p in project.point_ids], dtype=object)
-    cameras = np.array([_field(project.spec.images[i].camera) for i in project.image_ids],
-                       dtype=object)
-    empty = [""] * n
-    parts = np.array([_field(part) for part in residuals.parts], dtype=object)
-    texts = [
-        ["image_points"] * n,
-        parts[residuals.part_index].tolist(),
-        image_ids[residuals.image].tolist(),
-        point_ids[residuals.point].tolist(),
-        empty,
-        cameras[residuals.image].tolist(),
-        empty,
+    none = np.zeros(len(residuals.image), dtype=np.intp)
+    cameras = [_field(project.spec.images[i].camera) for i in project.image_ids]
+    labels = [
+        (["image_points"], none),
+        ([_field(part) for part in residuals.parts], residuals.part_index),
+        ([_field(i) for i in project.image_ids], residuals.image),
+        ([_field(p) for p in project.point_ids], residuals.point),
+        ([""], none),
+        (cameras, residuals.image),
+        ([""], none),
     ]
     numbers = np.column_stack([
         residuals.xy, residuals.v, residuals.redundancy, residuals.w, residuals.removed,
         residuals.outlier,
     ])
-    return _lines(texts, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
+    return _lines(labels, numbers, NUMBER_COLUMNS[:8] + FLAG_COLUMNS)
 
 
 def _scalar_lines(rows: list[ScalarObservation]) -> str:
     """Rows of the observations other than image points: their IDs, v, r, w and flags."""
-    texts = [
-        [_field(value) for value in column]
-        for column in zip(*(
-            (row.kind, row.group, row.ids.get("image", ""),
-             row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
-             row.ids.get("camera", ""), row.ids.get("coordinate", ""))
-            for row in rows
-        ))
+    fields = [
+        (row.kind, row.group, row.ids.get("image", ""),
+         row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
+         row.ids.get("camera", ""), row.ids.get("coordinate", ""))
+        for row in rows
     ]
+    each = np.arange(len(rows))
+    labels = [([_field(value) for value in column], each) for column in zip(*fields)]
     filled = ("v", "r", "w") + FLAG_COLUMNS
     numbers = np.array(
         [[row.v, row.r, row.w, row.removed, row.outlier] for row in rows], dtype=float,
     ).reshape(len(rows), len(filled))
-    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers, filled)
+    return _lines(labels, numbers, filled)
 
 
 def observations_csv(project: Project, result: Adjustment) -> str:
