@@ -42,23 +42,38 @@ def _lines(labels: list[tuple[list[str], np.ndarray]], numbers: np.ndarray,
     if not n:
         return ""
     numbers = np.asarray(numbers, dtype=float).reshape(n, len(filled))
-    measured = [j for j, name in enumerate(filled) if name not in FLAG_COLUMNS]
-    general = general_cells(numbers[:, measured], 10)
-    general = Cells(*(cells.reshape(n, len(measured), -1) for cells in general))
-    columns, separator = [], ""
-    for strings, codes in labels:
-        columns += [*([constant(separator, n)] if separator else []), text_cells(strings, codes)]
-        separator = ","
+    fields = [*([(strings, codes)] for strings, codes in labels)]
     for name in NUMBER_COLUMNS + FLAG_COLUMNS:
-        if name in filled:
-            j = filled.index(name)
-            cells = (text_cells(["0", "1"], numbers[:, j].astype(int)) if name in FLAG_COLUMNS else
-                     Cells(*(c[:, measured.index(j)] for c in general)))
-            columns += [constant(separator, n), cells]
-            separator = ","
+        j = filled.index(name) if name in filled else None
+        if j is None:
+            fields.append("")
+        elif name in FLAG_COLUMNS:
+            fields.append([(["0", "1"], numbers[:, j].astype(int))])
+        elif isinstance(fields[-1], list) or not fields[-1] or fields[-1][-1] != j - 1:
+            fields.append((j,))  # a run of numbers, columns of `numbers` side by side
         else:
-            separator += ","
-    return joined([*columns, constant(separator[1:] + "\n", n)])
+            fields[-1] += (j,)
+    columns, separator = [], ""
+    for k, field in enumerate(fields):
+        end = "\n" if k == len(fields) - 1 else ","
+        if field == "":
+            separator += end
+            continue
+        if separator:
+            columns.append(constant(separator, n))
+        if isinstance(field, list):
+            columns.append(text_cells(*field[0]))
+            separator = end
+        else:  # each number's cell and the separator after it, the run as one column
+            cells = general_cells(numbers[:, list(field)], 10)
+            chars = np.empty((n, len(field), cells.chars.shape[1] + 1), dtype=np.uint8)
+            keep = np.ones(chars.shape, dtype=bool)
+            chars[:, :, :-1], keep[:, :, :-1] = (a.reshape(n, len(field), -1) for a in cells)
+            chars[:, :, -1] = ord(",")
+            chars[:, -1, -1] = ord(end)
+            columns.append(Cells(chars.reshape(n, -1), keep.reshape(n, -1)))
+            separator = ""
+    return joined([*columns, *([constant(separator, n)] if separator else [])])
 
 
 def _image_point_lines(project: Project, result: Adjustment) -> str:
