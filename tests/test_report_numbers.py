@@ -49,10 +49,23 @@ def test_fixed_cells_decimals_per_value_and_missing_text():
             assert cells[k, j].tobytes().decode("ascii") == expected.rjust(30)
 
 
-def test_fixed_cells_refuse_a_number_wider_than_its_column():
+@pytest.mark.parametrize("copies", [1, 500])  # printed one by one, and all at once
+def test_fixed_cells_refuse_a_number_wider_than_its_column(copies):
     with pytest.raises(ValueError, match="wider than its column"):
-        fixed_cells(np.array([-123.25]), 2, 6)
-    assert fixed_cells(np.array([-123.25]), 2, 7).tobytes() == b"-123.25"
+        fixed_cells(np.full(copies, -123.25), 2, 6)
+    assert fixed_cells(np.full(copies, -123.25), 2, 7).tobytes() == b"-123.25" * copies
+
+
+def test_fixed_cells_of_a_few_values_as_of_many():
+    """A few values are printed one by one (below the arrays' fixed costs): the same cells,
+    the missing text and the padding included."""
+    values = _values()[:3000]
+    values[::11] = np.nan
+    places = np.random.default_rng(5).integers(0, 9, values.size)
+    many = fixed_cells(values, places, 30, missing=b"n/a", pad=b"*")
+    few = [fixed_cells(values[k:k + 7], places[k:k + 7], 30, missing=b"n/a", pad=b"*")
+           for k in range(0, values.size, 7)]
+    assert np.array_equal(np.concatenate(few), many)
 
 
 def test_fixed_cells_of_missing_values_need_only_the_missing_text_s_width():
@@ -80,7 +93,7 @@ def _general_values() -> np.ndarray:
                                np.nextafter(values, -np.inf)])
 
 
-@pytest.mark.parametrize("digits", [1, 2, 6, 10, 12])
+@pytest.mark.parametrize("digits", [1, 2, 6, 10, 15])
 def test_general_cells_print_as_percent_g(digits):
     values = _general_values()
     cells = general_cells(values, digits)

@@ -2,9 +2,10 @@
 
 Each value becomes one cell of ASCII codes, a row of an (n, width) uint8 array (right aligned
 for `%f`; for `%g`, with the bytes that are printed marked, `Cells`); the table writers put
-these side by side and decode the rows once. Digits come from integer arithmetic on
-round(|x| · 10^k), four at a time from a table; a value whose scaled magnitude lies too near a
-rounding tie to decide in float64 (or beyond its exact integers) is printed by Python
+these side by side and decode the rows once. Digits come from round(|x| · 10^k), an integer
+held exactly in a double, four at a time from a table; the cells are built a character (a row
+of the transposed cells) at a time over all values. A value whose scaled magnitude lies too
+near a rounding tie to decide in float64 (or beyond its exact integers) is printed by Python
 instead, so every cell is what `%` gives.
 """
 
@@ -21,8 +22,8 @@ _UP = np.array([10.0**k if k > 0 else 1.0 for k in range(-22, 23)])  # scale by 
 _DOWN = np.array([10.0**-k if k < 0 else 1.0 for k in range(-22, 23)])
 _QUAD_ZEROS = np.array([4] + [len(str(k)) - len(str(k).rstrip("0")) for k in range(1, 10_000)])
 _EXACT = 2.0**50  # scaled magnitudes below: ulp at most 1/4, so round() decidable
-_MOST_DIGITS = 16  # of an integer below _EXACT
 _CHUNK = 1 << 14  # values printed together: their temporaries stay in the cache
+_FEW = 100  # values printed one by one by Python: faster than the arrays' fixed costs
 
 
 def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
@@ -33,6 +34,13 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
     `width` is an error (the caller sizes the columns)."""
     x = np.asarray(values, dtype=float).ravel()
     d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), np.shape(values)).ravel()
+    if x.size <= _FEW:
+        printed = [b"%.*f" % (places, value) if np.isfinite(value) else missing
+                   for value, places in zip(x.tolist(), d.tolist())]
+        if max(map(len, printed), default=0) > width:
+            raise ValueError(f"a number is wider than its column ({width} characters)")
+        text = b"".join(cell.rjust(width, pad) for cell in printed)
+        return np.frombuffer(text, dtype=np.uint8).reshape(x.size, width).copy()
     cells = np.empty((x.size, width), dtype=np.uint8)
     finite = np.isfinite(x)  # only these are sized by their digits (a column of NaN: "nan")
     lowest = int(d.min(initial=0))
@@ -41,34 +49,42 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
         rows = np.flatnonzero(finite & (d == places) if len(present) > 1 else finite)
         for start in range(0, rows.size, _CHUNK):
             chunk = rows[start:start + _CHUNK]
-            cells[chunk] = _fixed(x[chunk], places, width, pad[0])
+            _put_rows(cells, chunk, _fixed(x[chunk], places, width, pad[0]))
     _put(cells, ~finite, lambda k: missing, pad)
     return cells
 
 
 def _fixed(x: np.ndarray, places: int, width: int, pad: int) -> np.ndarray:
-    """`fixed_cells` of `x` (n,) with `places` decimals, non-finite values left to the caller."""
+    """`fixed_cells` of `x` (n,) with `places` decimals, non-finite values left to the caller.
+
+    Built a character at a time over all values (a row of the transposed cells), then
+    transposed: the integer part and the decimals apart, digits four at a time."""
     finite = np.isfinite(x)
     scaled = np.where(finite, np.abs(x), 0.0) * _FLOAT_POWERS[places]
     decided = finite & _decidable(scaled)
-    m = np.where(decided, np.rint(scaled), 0.0).astype(np.int64)
-    digits = _digits(m)
-    whole = width - places - (places > 0)  # characters before the point
-    # The digits of m, the point `places` from the right, blanks left of the 16 digits.
-    cells = np.full((x.size, width), pad, dtype=np.uint8)
-    shown = min(whole, _MOST_DIGITS - places)
-    cells[:, whole - shown:whole] = digits[:, _MOST_DIGITS - places - shown:_MOST_DIGITS - places]
-    if places:
-        cells[:, whole] = ord(".")
-        cells[:, whole + 1:] = digits[:, _MOST_DIGITS - places:]
-    # Leading zeros of the whole part are blank (one digit stays), a "-" before the first.
-    start = whole - np.maximum(np.searchsorted(_POWERS, m // _POWERS[places], side="right"), 1)
+    m = np.rint(np.where(decided, scaled, 0.0))  # an integer below 2^50
+    whole = np.floor(m / _FLOAT_POWERS[places])  # exact: m / 10^places is 2^-50 from the next
     negative = np.signbit(x)
-    if np.any(start - negative < 0):
+    digits = np.maximum(np.searchsorted(_FLOAT_POWERS, whole, side="right"), 1)
+    whole_width = width - places - (places > 0)  # characters before the point
+    if np.any(digits + negative > whole_width):
         raise ValueError(f"a number is wider than its column ({width} characters)")
-    np.putmask(cells[:, :whole], np.arange(whole) < start[:, None], pad)
-    rows = np.flatnonzero(negative)
-    cells[rows, start[rows] - 1] = ord("-")
+    cells = np.empty((width, x.size), dtype=np.uint8)
+    if places:
+        cells[whole_width] = ord(".")
+        fraction = m - whole * _FLOAT_POWERS[places]
+        cells[whole_width + 1:] = _column_chars(_float_quads(fraction, places), places)
+    # Digit k of the integer part (10^k) in row whole_width - 1 - k where k < digits, a "-"
+    # where k == digits for a negative value, `pad` elsewhere.
+    most = int(digits.max(initial=1))
+    shown = _column_chars(_float_quads(whole, most), most)  # (most, n), 10^(most - 1) first
+    sign = np.where(negative, ord("-"), pad).astype(np.uint8)
+    cells[:max(whole_width - most - 1, 0)] = pad
+    for k in range(min(most + 1, whole_width)):
+        row = whole_width - 1 - k
+        beyond = np.where(k == digits, sign, pad) if k else sign
+        cells[row] = np.where(k < digits, shown[most - 1 - k], beyond) if k < most else beyond
+    cells = np.ascontiguousarray(cells.T)
     _put(cells, finite & ~decided, lambda k: b"%.*f" % (places, float(x[k])), bytes([pad]))
     return cells
 
@@ -102,7 +118,7 @@ def general_cells(values, digits: int) -> Cells:
     order = np.argsort(layout.astype(np.int8), kind="stable")
     layout, exponent, scaled = layout[order], exponent[order], scaled[order]
     quads = _float_quads(scaled, digits)
-    shown = np.concatenate([_quad_chars(q) for q in quads[::-1]])[-digits:]  # (digits, n)
+    shown = _column_chars(quads, digits)  # (digits, n)
     significant = digits - _trailing_zeros(quads)
     bounds = np.searchsorted(layout, np.arange(-4, digits + 2)).tolist()
     # The characters in layout order; a row of each form's own width (cut by `keep`).
@@ -120,7 +136,7 @@ def general_cells(values, digits: int) -> Cells:
             rows[0], rows[1] = shown[0, start:stop], ord(".")
             rows[2:digits + 1], rows[digits + 1] = shown[1:, start:stop], ord("e")
             rows[digits + 2] = np.where(power < 0, ord("-"), ord("+"))
-            rows[digits + 3:] = _quad_chars(np.abs(power))[1:]
+            rows[digits + 3:] = _column_chars(_float_quads(np.abs(power).astype(float), 3), 3)
             mantissa = np.where(kept > 1, kept + 1, 1)
             printed[:, start:stop] = (places < mantissa) | (places > digits)
             printed[digits + 3, start:stop] = np.abs(power) >= 100
@@ -146,6 +162,12 @@ def general_cells(values, digits: int) -> Cells:
     return Cells(chars, keep)
 
 
+def _put_rows(table: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
+    """`table[rows] = values` of a C-ordered (n, w) table, each row put as one item."""
+    void = f"V{table.shape[1] * table.itemsize}"
+    table.view(void).ravel()[rows] = np.ascontiguousarray(values).view(void).ravel()
+
+
 def _rows(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """`table[rows]` of a C-ordered (n, w) table, each row taken as one item (many times
     faster than row by row for narrow tables)."""
@@ -164,10 +186,11 @@ def _float_quads(m: np.ndarray, digits: int) -> list[np.ndarray]:
     return quads
 
 
-def _quad_chars(quad: np.ndarray) -> np.ndarray:
-    """The four digits of `quad` (k,) (0 to 9999) as ASCII, transposed: (4, k)."""
-    codes = _QUADS[quad]
-    return np.stack([(codes >> (8 * b)).astype(np.uint8) for b in range(4)])
+def _column_chars(quads: list[np.ndarray], digits: int) -> np.ndarray:
+    """The last `digits` decimal digits of `_float_quads` as ASCII, transposed: (digits, k)."""
+    codes = [_QUADS[quad] for quad in quads[::-1]]
+    rows = [(code >> (8 * b)).astype(np.uint8) for code in codes for b in range(4)]
+    return np.stack(rows[len(rows) - digits:])
 
 
 def _decidable(scaled: np.ndarray) -> np.ndarray:
@@ -175,26 +198,6 @@ def _decidable(scaled: np.ndarray) -> np.ndarray:
     rounding the exact product gives: far enough from a tie, within the exact integers."""
     distance = np.abs(scaled - np.floor(scaled) - 0.5)
     return (scaled < _EXACT) & (distance > 4 * np.spacing(scaled))
-
-
-def _quads(m: np.ndarray) -> list[np.ndarray]:
-    """The integers `m` (n,), 0 <= m < 10^16, in base 10^4: four (n,) arrays, the last
-    digits first."""
-    quads, rest = [], m
-    for _ in range(_MOST_DIGITS // 4):
-        rest, last = np.divmod(rest, 10_000)
-        quads.append(last)
-    return quads
-
-
-def _quad_digits(quads: list[np.ndarray]) -> np.ndarray:
-    """The 16 decimal digits of `_quads`, as ASCII, (n, 16)."""
-    return np.stack([_QUADS[q] for q in quads[::-1]], axis=1).view(np.uint8)
-
-
-def _digits(m: np.ndarray) -> np.ndarray:
-    """The 16 decimal digits of the integers `m` (n,), 0 <= m < 10^16, as ASCII, (n, 16)."""
-    return _quad_digits(_quads(m))
 
 
 def _trailing_zeros(quads: list[np.ndarray]) -> np.ndarray:
