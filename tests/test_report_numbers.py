@@ -1,17 +1,15 @@
-"""`jaxba._report._numbers.fixed_cells` and `general_cells` against Python's own `%` on the
-same floats.
+"""`jaxba._report._numbers.fixed_cells` against Python's own `%` on the same floats.
 
 Seeded values over many magnitudes, exact halves (ties at every decimal count), values a
 hair either side of a tie, signed zeros, non-finite values and values too large for the
 integer path: every finite cell must be byte for byte what `"%{width}.{d}f" % x` prints (the
-same as `f"{x:{width}.{d}f}"`), every other the missing text; every `%g` cell what
-`"%.{d}g" % x` prints, an empty one for a value not finite.
+same as `f"{x:{width}.{d}f}"`), every other the missing text.
 """
 
 import numpy as np
 import pytest
 
-from jaxba._report._numbers import fixed_cells, general_cells
+from jaxba._report._numbers import fixed_cells
 
 
 def _values() -> np.ndarray:
@@ -73,30 +71,3 @@ def test_fixed_cells_of_missing_values_need_only_the_missing_text_s_width():
     its numbers would have had."""
     cells = fixed_cells(np.array([np.nan, np.inf, np.nan]), 8, 3, missing=b"nan")
     assert [row.tobytes() for row in cells] == [b"nan"] * 3
-
-
-def _general_values() -> np.ndarray:
-    """Every magnitude of the doubles, the edges of `%g`'s forms (10^-5, 10^-4, 10^digits),
-    values that round up to the next power of ten, ties and their neighbours."""
-    rng = np.random.default_rng(11)
-    spread = rng.normal(size=6000) * 10.0 ** rng.integers(-320, 300, 6000)
-    usual = rng.normal(size=6000) * 10.0 ** rng.integers(-7, 13, 6000)
-    ties = rng.integers(-10**6, 10**6, 2000) / 8.0 + rng.integers(0, 2, 2000) * 1e-7
-    edges = [10.0**k * s for k in range(-8, 18) for s in (1.0, 0.99999999995, 0.9999995,
-                                                          9.9999999995, 1.00000000005, 5.0)]
-    special = [0.0, -0.0, 9.99995, 9.9999999995, 0.5, 2.5, -1.5, 1e300, 1.7976931348623157e308,
-               5e-324, -2.2250738585072014e-308, 1e-310, 0.0001, 9.99999999995e-5, 1e22,
-               1e23, 123456789012345.0, 1 / 3, -2 / 3, np.nan, np.inf, -np.inf]
-    values = np.concatenate([spread, usual, ties, edges, special])
-    with np.errstate(over="ignore"):  # the largest double's neighbour is inf
-        return np.concatenate([values, -values, np.nextafter(values, np.inf),
-                               np.nextafter(values, -np.inf)])
-
-
-@pytest.mark.parametrize("digits", [1, 2, 6, 10, 15])
-def test_general_cells_print_as_percent_g(digits):
-    values = _general_values()
-    cells = general_cells(values, digits)
-    printed = [chars[kept].tobytes().decode("ascii") for chars, kept in zip(*cells)]
-    expected = [f"{x:.{digits}g}" if np.isfinite(x) else "" for x in values.tolist()]
-    assert printed == expected

@@ -85,9 +85,7 @@ def test_observation_lines_are_the_row_by_row_csv():
     filled = NUMBER_COLUMNS[:8] + FLAG_COLUMNS
     numbers = _awkward(n, len(filled), seed=4)
     numbers[:, -2:] = rng.integers(0, 2, (n, 2))
-    fields = [_field(text) for text in IDS]
-    labels = [(fields, rng.integers(0, len(IDS), n)) for _ in range(7)]
-    texts = [[fields[k] for k in codes.tolist()] for _, codes in labels]
+    texts = [[_field(IDS[k]) for k in rng.integers(0, len(IDS), n).tolist()] for _ in range(7)]
 
     def field(name, x):
         if name not in filled or not math.isfinite(x):
@@ -99,4 +97,4 @@ def test_observation_lines_are_the_row_by_row_csv():
                   *(field(name, row[filled.index(name)] if name in filled else math.nan)
                     for name in NUMBER_COLUMNS + FLAG_COLUMNS)]) + "\n"
         for i, row in enumerate(numbers.tolist()))
-    assert _lines(labels, numbers, filled) == expected
+    assert _lines(texts, numbers, filled) == expected
