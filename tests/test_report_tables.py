@@ -9,6 +9,7 @@ exact rounding ties; the IDs long, non-ASCII (their width counted in characters,
 import math
 
 import numpy as np
+import pytest
 
 from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines
 from jaxba._report._text import number_table
@@ -79,12 +80,15 @@ def test_residual_table_of_ascii_ids_and_of_no_rows():
     assert empty == "# id  x\n"
 
 
-def test_observation_lines_are_the_row_by_row_csv():
+@pytest.mark.parametrize("finite", [False, True])  # rows in one `%`, or the numbers first
+def test_observation_lines_are_the_row_by_row_csv(finite):
     n = 300
     rng = np.random.default_rng(9)
     filled = NUMBER_COLUMNS[:8] + FLAG_COLUMNS
     numbers = _awkward(n, len(filled), seed=4)
     numbers[:, -2:] = rng.integers(0, 2, (n, 2))
+    if finite:
+        numbers = np.where(np.isfinite(numbers), numbers, -0.0)
     texts = [[_field(IDS[k]) for k in rng.integers(0, len(IDS), n).tolist()] for _ in range(7)]
 
     def field(name, x):

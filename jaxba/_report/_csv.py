@@ -35,12 +35,20 @@ def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...])
     """CSV lines of rows, each ending in a newline: the text fields `texts` (one list per
     column, already CSV fields), then the number and flag columns, `filled` ones from
     `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where not finite, the others
-    empty. Each of the two parts is one `%` over all rows."""
+    empty. One `%` over all rows when every number is finite; otherwise the numbers first
+    (their "nan" and "inf" then cut), the rows around them in a second `%`."""
     numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
     fmt = ",".join(
         "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
         for name in NUMBER_COLUMNS + FLAG_COLUMNS
     )
+    if np.isfinite(numbers).all():  # the fields of every row side by side, taken row by row
+        fields = np.empty((len(numbers), len(texts) + len(filled)), dtype=object)
+        for k, column in enumerate(texts):
+            fields[:, k] = column
+        fields[:, len(texts):] = numbers
+        row = "%s," * len(texts) + fmt + "\n"
+        return row * len(numbers) % tuple(fields.ravel().tolist())
     formatted = (fmt + "\n") * len(numbers) % tuple(numbers.ravel().tolist())
     # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
     formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
