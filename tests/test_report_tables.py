@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from jaxba._report._cells import texts
 from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines
 from jaxba._report._text import number_table
 
@@ -102,3 +103,16 @@ def test_observation_lines_are_the_row_by_row_csv(finite):
                     for name in NUMBER_COLUMNS + FLAG_COLUMNS)]) + "\n"
         for i, row in enumerate(numbers.tolist()))
     assert _lines(texts, numbers, filled) == expected
+
+
+@pytest.mark.parametrize("strings", [["a", "bb", "a-much-longer-id", ""], IDS])
+@pytest.mark.parametrize("width", [0, 2, 20])
+def test_text_cells_are_the_strings_left_justified(strings, width):
+    """ASCII strings (encoded all at once) and any others, some longer than `width`, some
+    used by no row: each cell is its string as `str.ljust(width)` makes it, in UTF-8."""
+    codes = np.random.default_rng(1).integers(0, 2, 50)  # the first two strings only
+    cells = texts(strings, codes, width=width)
+    assert cells.chars.shape[0] == 50
+    expected = [strings[k].ljust(width).encode() for k in codes.tolist()]
+    kept = np.broadcast_to(cells.keep, cells.chars.shape)
+    assert [row[keep].tobytes() for row, keep in zip(cells.chars, kept)] == expected

@@ -35,12 +35,19 @@ def constant(text: str, n: int) -> Cells:
 
 def texts(strings: Sequence[str], codes: np.ndarray, *, width: int = 0) -> Cells:
     """The cells `strings[codes[i]]` (codes (n,) int), each left justified to `width`
-    characters as `str.ljust` does, in UTF-8; every string is encoded once."""
-    encoded = [text.ljust(width).encode() for text in strings]
-    most = max(map(len, encoded), default=0)
-    table = np.frombuffer(b"".join(e.ljust(most, b" ") for e in encoded), dtype=np.uint8)
-    table = table.reshape(len(encoded), most)
-    lengths = np.fromiter(map(len, encoded), dtype=np.int64, count=len(encoded))
+    characters as `str.ljust` does, in UTF-8; the strings are encoded once (all together when
+    they are ASCII, the usual IDs)."""
+    if "".join(strings).isascii():  # a character is a byte: pad as str, encode once
+        most = max(width, max(map(len, strings), default=0))
+        table = "".join(text.ljust(most) for text in strings).encode()
+        lengths = np.maximum(np.fromiter(map(len, strings), dtype=np.int64, count=len(strings)),
+                             width)
+    else:
+        encoded = [text.ljust(width).encode() for text in strings]
+        most = max(map(len, encoded), default=0)
+        table = b"".join(e.ljust(most, b" ") for e in encoded)
+        lengths = np.fromiter(map(len, encoded), dtype=np.int64, count=len(encoded))
+    table = np.frombuffer(table, dtype=np.uint8).reshape(len(strings), most)
     codes = np.asarray(codes, dtype=np.int64)
     if np.all(lengths == most):  # every cell as wide (ASCII IDs justified alike)
         return whole(table[codes])
