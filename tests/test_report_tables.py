@@ -1,4 +1,4 @@
-"""The per-observation tables written in one pass (NAME.res: `number_table`; observations.csv:
+"""The per-observation tables written in one pass (NAME.res: `number_table`, its text cells;
 `_csv._lines`) against the plain way to write them, one row at a time with Python's `%`.
 
 The values are awkward on purpose: signed zeros, NaN and infinities, huge and tiny magnitudes,
