@@ -1,5 +1,6 @@
 """The per-observation tables written in one pass (NAME.res: `number_table`, its text cells;
-`_csv._lines`) against the plain way to write them, one row at a time with Python's `%`.
+observations.csv: `_csv._lines`) against the plain way to write them, one row at a time with
+Python's `%`.
 
 The values are awkward on purpose: signed zeros, NaN and infinities, huge and tiny magnitudes,
 exact rounding ties; the IDs long, non-ASCII (their width counted in characters, as
