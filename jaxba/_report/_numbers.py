@@ -8,6 +8,8 @@ scaled magnitude lies too near a rounding tie to decide in float64 (or beyond it
 integers) is printed by Python instead, so every cell is what `%` gives.
 """
 
+import math
+
 import numpy as np
 
 _FLOAT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
@@ -26,7 +28,7 @@ def fixed_cells(values, decimals, width: int, *, missing: bytes = b"-",
     x = np.asarray(values, dtype=float).ravel()
     d = np.broadcast_to(np.asarray(decimals, dtype=np.int64), np.shape(values)).ravel()
     if x.size <= _FEW:
-        printed = [b"%.*f" % (places, value) if np.isfinite(value) else missing
+        printed = [b"%.*f" % (places, value) if math.isfinite(value) else missing
                    for value, places in zip(x.tolist(), d.tolist())]
         if max(map(len, printed), default=0) > width:
             raise ValueError(f"a number is wider than its column ({width} characters)")
