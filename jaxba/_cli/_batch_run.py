@@ -63,9 +63,10 @@ def run_batch(
     or a `distributed.Client` (`jaxba._dask.executor`; `SchedulerError` when it cannot be
     used: Dask missing or a malformed name before anything is built, no answer from the
     address before anything is solved). `chunk_size`: projects per vmapped solve (one task;
-    default `CHUNK`): chunks are the same wherever they run, and so are the results (to
-    rounding, they depend on the chunk length). `resume`: a project whose reports all
-    exist is not adjusted again; its row is read from its results.json (mode "resumed").
+    default `_batch_adjust.CHUNK`): chunks are the same wherever they run, and so are the
+    results (to rounding, they depend on the chunk length). `resume`: a project whose
+    reports all exist is not adjusted again; its row is read from its results.json (mode
+    "resumed").
     `jobs`: worker processes of this machine that each adjust a share of the projects
     from end to end, reports included (`_batch_processes`; at most one per `SHARE` projects,
     so that a worker's start-up is paid for; not with a `scheduler`); 1: all in this process.
