@@ -9,8 +9,6 @@ progress reports: under `jax.vmap` a `jax.debug.callback` is unrolled once per b
 element, which would make compile time grow with the batch size.
 """
 
-import dataclasses
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -336,8 +334,15 @@ def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familyw
                   sigma0**2 * 2 * float(stats.initial_cost) / max(redundancy, 1)),
         Iteration(1, final_cost, sigma0_squared),
     ]
+    reliability = None
+    if alpha is not None:
+        leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
+                                                                          stats.leverage)])
+        flat_e = np.concatenate([np.ravel(e) for e in whitened])
+        reliability = reliability_from_redundancy(problem, 1.0 - leverage[mask], flat_e[mask],
+                                                  alpha=alpha, familywise=familywise)
     converged = bool(solution.converged)
-    result = Adjustment(
+    return Adjustment(
         problem=problem,
         parameters=params,
         precision=prec,
@@ -347,16 +352,8 @@ def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familyw
         message="converged" if converged else str(optx.RESULTS[solution.result]),
         steps=int(solution.steps),
         sigma0_prior=float(sigma0),
+        reliability=reliability,
     )
-    if alpha is None:
-        return result
-    leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
-                                                                      stats.leverage)])
-    flat_e = np.concatenate([np.ravel(e) for e in whitened])
-    r, e = 1.0 - leverage[mask], flat_e[mask]
-    return dataclasses.replace(result, reliability=reliability_from_redundancy(
-        problem, r, e, alpha=alpha, familywise=familywise
-    ))
 
 
 __all__ = [

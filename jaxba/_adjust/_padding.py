@@ -73,44 +73,26 @@ def batch_kind(problem: BundleProblem) -> tuple:
     return groups, cameras, problem.initial.mounts is None, problem.refraction, problem.robust
 
 
-def _pad_rows(array, n: int, fill=None):
-    """Pad the leading axis of `array` to `n` rows by repeating row 0 (or with `fill`)."""
-    array = np.asarray(array)
-    extra = n - array.shape[0]
-    if extra == 0:
-        return array
-    if fill is None:
-        rows = np.repeat(array[:1], extra, axis=0)
-    else:
-        rows = np.full((extra, *array.shape[1:]), fill, dtype=array.dtype)
-    return np.concatenate([array, rows])
+def _stack_rows(leaves, n: int, fill=None) -> np.ndarray:
+    """Arrays padded along their leading axis to `n` rows (repeating each one's row 0, or
+    with `fill`) and stacked: (len(leaves), n, ...)."""
+    leaves = [np.asarray(leaf) for leaf in leaves]
+    out = np.empty((len(leaves), n, *leaves[0].shape[1:]), np.result_type(*leaves))
+    for k, leaf in enumerate(leaves):
+        out[k, : len(leaf)] = leaf
+        out[k, len(leaf):] = leaf[:1] if fill is None else fill
+    return out
 
 
-def _pad_group(group: AbstractObservationGroup, n: int, name: str) -> AbstractObservationGroup:
-    """Rows repeated from row 0 up to `n`, σ = inf on the added rows; `name` unified."""
-    n_real = np.shape(group.stddev)[0]
-    leaves = {
-        field.name: getattr(group, field.name)
-        for field in dataclasses.fields(group)
-        if not field.metadata.get("static", False) and field.name != "stddev"
-        and getattr(group, field.name) is not None
-    }
-    padded = {key: _pad_rows(value, n) for key, value in leaves.items()}
-    stddev = np.array(_pad_rows(group.stddev, n, fill=np.inf))
-    stddev[n_real:] = np.inf
-    padded["stddev"] = stddev
-    group = eqx.tree_at(lambda g: [getattr(g, k) for k in padded], group, list(padded.values()))
-    return dataclasses.replace(group, name=name) if hasattr(group, "name") else group
-
-
-def _pad_parameters(params: Parameters, shapes: Parameters, fill_free: bool | None) -> Parameters:
-    def pad(leaf, like):
-        n = np.shape(like)[0]
-        if fill_free is None:
-            return _pad_rows(leaf, n)
-        return _pad_rows(leaf, n, fill=fill_free)
-
-    return jax.tree.map(pad, params, shapes)
+def _stack_groups(groups: list[AbstractObservationGroup], n: int) -> AbstractObservationGroup:
+    """One group of each problem padded to `n` rows and stacked: rows repeated from row 0,
+    σ = inf on the added rows; the first one's static fields (its name)."""
+    first = groups[0]
+    names = [field.name for field in dataclasses.fields(first)
+             if not field.metadata.get("static", False) and getattr(first, field.name) is not None]
+    stacked = [_stack_rows([getattr(g, name) for g in groups], n,
+                           np.inf if name == "stddev" else None) for name in names]
+    return eqx.tree_at(lambda g: [getattr(g, name) for name in names], first, stacked)
 
 
 def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
@@ -156,10 +138,11 @@ def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
     )
 
 
-def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndarray, list, list]:
-    """Every problem padded to `shape`'s blocks, the (n, shape.free) padded free indices,
-    the live slots of the plans (`shape.live`, or the union over these problems) and the
-    padded problems' `_local_positions` where the live slots needed them (else Nones)."""
+def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, list, list]:
+    """Every problem padded to `shape`'s blocks and stacked (a BundleProblem of NumPy leaves
+    with a leading batch axis), the (n, shape.free) padded free indices, the live slots of
+    the plans (`shape.live`, or the union over these problems) and the padded problems'
+    `_local_positions` where the live slots needed them (else Nones)."""
     shapes = Parameters(
         cameras={m: np.zeros((n, problems[0].initial.cameras[m].shape[1]))
                  for m, n in shape.cameras.items()},
@@ -167,51 +150,68 @@ def _pad_each(problems, shape: BatchShape) -> tuple[list[BundleProblem], np.ndar
         points=np.zeros((shape.points, 3)),
         mounts=None if shape.mounts is None else np.zeros((shape.mounts, 6)),
     )
-    names = [g.name for g in problems[0].groups]
-    padded, indices = [], []
-    ties = {_padded_ties(problem, shapes) for problem in problems}
+    ties = {_padded_ties(problem, shapes) if problem.ties else () for problem in problems}
     if len(ties) > 1:
         raise ValueError("the problems tie different camera parameters (BundleProblem.ties);"
                          " pad only problems with the same ties")
-    for problem in problems:
-        initial = _pad_parameters(problem.initial, shapes, None)
-        free = _pad_parameters(problem.free, shapes, False)
-        groups = tuple(_pad_group(g, n, name)
-                       for g, n, name in zip(problem.groups, shape.rows, names))
-        one = BundleProblem(initial, free, groups, problem.refraction, problem.robust,
-                            ties=next(iter(ties)))
-        padded.append(one)
-        indices.append(free_indices(one))
-    size = flatten(padded[0].initial).size
-    spare = int(np.asarray(unflatten(padded[0].initial, np.arange(size)).points)[-1, 0])
+    first = problems[0]
+    stacked = BundleProblem(
+        jax.tree.map(lambda like, *leaves: _stack_rows(leaves, len(like)), shapes,
+                     *(p.initial for p in problems)),
+        jax.tree.map(lambda like, *leaves: _stack_rows(leaves, len(like), False), shapes,
+                     *(p.free for p in problems)),
+        tuple(_stack_groups([p.groups[g] for p in problems], n)
+              for g, n in enumerate(shape.rows)),
+        jax.tree.map(lambda *leaves: np.stack(leaves), *(p.refraction for p in problems)),
+        None if first.robust is None
+        else jax.tree.map(lambda *leaves: np.stack(leaves), *(p.robust for p in problems)),
+        ties=next(iter(ties)),
+    )
+    flat_free = np.concatenate([leaf.reshape(len(problems), -1)
+                                for leaf in jax.tree.leaves(stacked.free)], axis=1)
+    size = flat_free.shape[1]
+    spare = int(unflatten(shapes, np.arange(size)).points[-1, 0])
     # X of the spare (last) point; points are not the last block where there are mounts
     free_index = np.full((len(problems), shape.free), spare)
-    for k, index in enumerate(indices):
+    for k, row in enumerate(flat_free):
+        index = np.flatnonzero(row)
         free_index[k, : len(index)] = index
     if shape.live is not None:
-        return padded, free_index, list(shape.live), [None] * len(padded)
+        return stacked, free_index, list(shape.live), [None] * len(problems)
     # One set of live slots for all: problems may free different IOPs.
+    padded = [_take(stacked, k) for k in range(len(problems))]
     locals_ = [_local_positions(one) for one in padded]
     lives = zip(*(live_slots(one, index, local)
                   for one, index, local in zip(padded, free_index, locals_)))
     live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
-    return padded, free_index, live, locals_
+    return stacked, free_index, live, locals_
 
 
-def _structure(problem: BundleProblem, free_index: np.ndarray, live) -> bytes:
-    """A digest of all that `linearisation_plan(problem, free_index, live)` reads: the
+def _digests(stacked: BundleProblem, free_index: np.ndarray, live) -> list[bytes]:
+    """Per problem of `stacked` (NumPy leaves with a leading batch axis; `free_index` (n,
+    n_free)) a digest of all that `linearisation_plan(problem, free_index, live)` reads: the
     integer (index) arrays and observed entries of every group, the free index, the ties and
     the live slots. Padded problems of one kind and equal digests have equal plans."""
-    digest = hashlib.blake2b(repr((problem.ties, live)).encode())
-    digest.update(np.asarray(free_index).tobytes())
-    for group in problem.groups:
+    digests = [hashlib.blake2b(repr((stacked.ties, live)).encode()) for _ in free_index]
+    for digest, index in zip(digests, free_index):
+        digest.update(np.ascontiguousarray(index).tobytes())
+    for group in stacked.groups:
         for leaf in jax.tree.leaves(group):
             leaf = np.asarray(leaf)
             if leaf.dtype.kind in "biu":
-                digest.update(repr(leaf.shape).encode())
-                digest.update(leaf.tobytes())
-        digest.update(np.isfinite(np.asarray(group.stddev)).tobytes())
-    return digest.digest()
+                layout = repr(leaf.shape[1:]).encode()
+                for digest, rows in zip(digests, leaf):
+                    digest.update(layout)
+                    digest.update(np.ascontiguousarray(rows).tobytes())
+        for digest, observed in zip(digests, np.isfinite(np.asarray(group.stddev))):
+            digest.update(observed.tobytes())
+    return [digest.digest() for digest in digests]
+
+
+def _structure(problem: BundleProblem) -> bytes:
+    """`_digests` of one (unpadded) problem with its own free indices."""
+    one = jax.tree.map(lambda leaf: np.asarray(leaf)[None], problem)
+    return _digests(one, free_indices(problem)[None], None)[0]
 
 
 # The plans of this process's padded problems by structure and padded shape: `batch_shape`
@@ -220,17 +220,18 @@ _known_plans: dict[tuple, LinearisationPlan] = {}
 KNOWN_PLANS = 4096  # structures kept at most (the oldest are dropped)
 
 
-def _plans(padded, free_index, live, locals_) -> list[LinearisationPlan]:
-    """`linearisation_plan` of every padded problem, computed once per distinct structure
-    and padded shape in this process (a batch of calibrations of one target and one set of
-    images has one); `locals_`: their `_local_positions`, or None where not known yet."""
+def _plans(stacked: BundleProblem, free_index, live, locals_) -> list[LinearisationPlan]:
+    """`linearisation_plan` of every padded problem of `stacked`, computed once per distinct
+    structure and padded shape in this process (a batch of calibrations of one target and
+    one set of images has one); `locals_`: their `_local_positions`, or None where not
+    known yet."""
+    blocks = tuple(np.shape(leaf)[1:] for leaf in jax.tree.leaves(stacked.initial))
     plans = []
-    for one, index, local in zip(padded, free_index, locals_):
-        key = (_structure(one, index, live),
-               tuple(np.shape(leaf) for leaf in jax.tree.leaves(one.initial)))
+    for k, digest in enumerate(_digests(stacked, free_index, live)):
+        key = (digest, blocks)
         plan = _known_plans.get(key)
         if plan is None:
-            plan = linearisation_plan(one, index, live, local)
+            plan = linearisation_plan(_take(stacked, k), free_index[k], live, locals_[k])
             while len(_known_plans) >= KNOWN_PLANS:
                 del _known_plans[next(iter(_known_plans))]
             _known_plans[key] = plan
@@ -259,9 +260,9 @@ def batch_shape(problems) -> BatchShape:
     problems = tuple(problems)
     _check_kind(problems)
     blocks = _block_shape(problems)
-    distinct = {_structure(p, free_indices(p), None): p for p in problems}
-    padded, free_index, live, locals_ = _pad_each(tuple(distinct.values()), blocks)
-    plans = _plans(padded, free_index, live, locals_)
+    distinct = {_structure(p): p for p in problems}
+    stacked, free_index, live, locals_ = _pad_each(tuple(distinct.values()), blocks)
+    plans = _plans(stacked, free_index, live, locals_)
     keys = tuple(None if slots is None else
                  tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
                  for g, slots in enumerate(live))
@@ -295,21 +296,22 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
-    padded, free_index, live, locals_ = _pad_each(problems, shape)
-    plans = _plans(padded, free_index, live, locals_)
-    # Padded in NumPy, stacked in NumPy, one transfer per leaf.
-    stacked = jax.tree.map(lambda *leaves: jax.device_put(np.stack(leaves)), *padded)
+    stacked, free_index, live, locals_ = _pad_each(problems, shape)
+    plans = _plans(stacked, free_index, live, locals_)
     if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated
         one = pad_plans(plans[:1], shape.keys)
-        plan = jax.tree.map(lambda leaf: jax.device_put(np.repeat(leaf, len(plans), 0)), one)
+        plan = jax.tree.map(lambda leaf: np.repeat(np.asarray(leaf), len(plans), 0), one)
     else:
         plan = pad_plans(plans, shape.keys)
+    observed = sum(np.isfinite(np.asarray(g.stddev)).reshape(len(problems), -1).sum(1)
+                   for g in stacked.groups)
     return PaddedBatch(
-        problem=stacked,
-        plan=plan,
+        problem=jax.device_put(stacked),  # padded and stacked in NumPy: one transfer
+        plan=jax.device_put(plan),
         problems=problems,
-        n_free=np.array([p.n_unknowns() for p in problems]),
-        n_observations=np.array([p.n_observations() for p in problems]),
+        n_free=sum(leaf.reshape(len(problems), -1).sum(1)
+                   for leaf in jax.tree.leaves(stacked.free)),
+        n_observations=np.asarray(observed),
     )
 
 

@@ -65,29 +65,37 @@ def run(args: argparse.Namespace) -> int:
             check_scheduler(args.scheduler)
     except SchedulerError as error:
         raise UsageError(str(error)) from None
-    # Every report checked against every input; the tables are read where each project
-    # is adjusted (with --jobs, in the worker processes, each its share).
-    entries = read_batch(args.projects, args.out, tables=False)
-    with output_lock(args.out):
-        setup_jax()
-        from jaxba._cli._batch_run import run_batch
-        from jaxba._cli._progress_bar import project_progress
+    from jaxba._cli._batch_processes import worker_processes
+    from jaxba._cli._batch_run import worker_count
 
-        if args.own_process:
-            from jaxba import _report
-            from jaxba._gc import freeze_long_lived
+    jobs = args.jobs or _cpus()
+    # Worker processes started first: their start-up (jax, the pipeline) overlaps the
+    # reading. Every report checked against every input; the tables are read where each
+    # project is adjusted (with workers, in the workers, each its share).
+    expected = 1 if args.scheduler is not None else worker_count(len(args.projects), jobs)
+    with worker_processes(expected) as workers:
+        entries = read_batch(args.projects, args.out, tables=False)
+        with output_lock(args.out):
+            from jaxba._cli._batch_run import run_batch
+            from jaxba._cli._progress_bar import project_progress
 
-            _report.write_batch_reports  # imported now, frozen with the rest
-            freeze_long_lived()  # the modules and the batch's entries live until the end
+            if workers is None:  # adjusted here
+                setup_jax()
+                if args.own_process:
+                    from jaxba import _report
+                    from jaxba._gc import freeze_long_lived
 
-        with project_progress(len(args.projects), say, bar=args.progress) as progress:
-            try:
-                rows = run_batch(args.projects, args.out, progress=progress.say,
-                                 advance=progress.advance, entries=entries,
-                                 scheduler=args.scheduler, chunk_size=args.chunk,
-                                 resume=args.resume, jobs=args.jobs or _cpus())
-            except SchedulerError as error:
-                raise UsageError(str(error)) from None
+                    _report.write_batch_reports  # imported now, frozen with the rest
+                    freeze_long_lived()  # the modules and the entries live until the end
+
+            with project_progress(len(args.projects), say, bar=args.progress) as progress:
+                try:
+                    rows = run_batch(args.projects, args.out, progress=progress.say,
+                                     advance=progress.advance, entries=entries,
+                                     scheduler=args.scheduler, chunk_size=args.chunk,
+                                     resume=args.resume, jobs=jobs, workers=workers)
+                except SchedulerError as error:
+                    raise UsageError(str(error)) from None
     ok = sum(row["status"] == "ok" for row in rows)
     say(f"{ok} of {len(rows)} projects converged")
     return EXIT_OK if ok == len(rows) else EXIT_NOT_CONVERGED

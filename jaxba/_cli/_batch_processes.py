@@ -10,16 +10,19 @@ persistent compilation cache). A worker sends its progress lines and one message
 finished project back through a queue, and returns what became of each of its projects
 (status, reason, mode and summary row), from which the caller writes the summary.
 Processes are started with "spawn": a forked copy of a process that runs jax's threads is
-not safe.
+not safe. They are started before the projects are read (`worker_processes`): each sets up
+jax and imports the pipeline (~1.5 CPU s) while the caller reads the project files, and the
+caller itself never loads jax.
 """
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import math
 import multiprocessing
 import queue as queue_module
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from ._batch_read import BatchEntry
 
@@ -37,6 +40,37 @@ class Share:
     chunk_size: int | None
 
 
+@dataclasses.dataclass(frozen=True)
+class Workers:
+    """Started worker processes (`worker_processes`): the pool, the channel their messages
+    come back on, and how many there are."""
+
+    pool: concurrent.futures.ProcessPoolExecutor
+    channel: object
+    size: int
+
+
+@contextlib.contextmanager
+def worker_processes(n: int) -> Iterator[Workers | None]:
+    """`n` worker processes started now, each setting up jax and importing the pipeline
+    while the caller goes on (reading the projects); shut down when the block ends, after
+    their work. None for n < 2 (nothing started: all in the calling process)."""
+    if n < 2:
+        yield None
+        return
+    context = multiprocessing.get_context("spawn")
+    channel = context.Queue()
+    with concurrent.futures.ProcessPoolExecutor(
+            n, mp_context=context, initializer=_start_worker, initargs=(channel,)) as pool:
+        for _ in range(n):  # a process is spawned per task while none is idle: all n now
+            pool.submit(_started)
+        yield Workers(pool, channel, n)
+
+
+def _started() -> None:
+    """A task that does nothing: submitting it starts a worker."""
+
+
 def shares(entries: list[BatchEntry], jobs: int) -> list[list[BatchEntry]]:
     """`entries` cut into at most `jobs` contiguous shares of nearly equal length."""
     jobs = max(1, min(jobs, len(entries)))
@@ -51,37 +85,32 @@ def shares(entries: list[BatchEntry], jobs: int) -> list[list[BatchEntry]]:
 
 def run_on_processes(
     entries: list[BatchEntry],
+    workers: Workers,
     jobs: int,
     chunk_size: int | None,
     say: Callable[[str], None],
     finished: Callable[[], None],
-    adjust_entries: Callable,
 ) -> None:
-    """Adjust the pending `entries` on `jobs` worker processes (`adjust_entries`, the
-    in-process pipeline, runs in each); fills in each entry's status, reason, mode and
-    `row` (its summary row). A worker that dies (killed, out of memory) fails its projects
-    that were not finished, with that reason; the others go on."""
-    context = multiprocessing.get_context("spawn")
-    channel = context.Queue()
+    """Adjust the pending `entries` in `jobs` shares on `workers` (the in-process pipeline,
+    `_batch_adjust.adjust_entries`, runs in each); fills in each entry's status, reason,
+    mode and `row` (its summary row). A worker that dies (killed, out of memory) fails its
+    projects that were not finished, with that reason; the others go on."""
     parts = shares(entries, jobs)
     say(f"adjusting on {len(parts)} worker processes")
-    with concurrent.futures.ProcessPoolExecutor(
-            len(parts), mp_context=context, initializer=_start_worker,
-            initargs=(channel,)) as pool:
-        futures = {pool.submit(_adjust_share, Share(_portable(part), chunk_size),
-                               adjust_entries): part for part in parts}
-        # A share's result can reach the pool before its last messages reach the channel
-        # (a queue's feeder thread): relay until every share that returned said it was done.
-        # (A worker killed in between never says so: wait for it at most LAST_MESSAGES s.)
-        pending, shares_done, returned, last = set(futures), 0, 0, math.inf
-        while pending or (shares_done < returned and time.monotonic() < last):
-            shares_done += _relay(channel, say, finished, timeout=0.1)
-            done = {future for future in pending if future.done()}
-            for future in done:
-                returned += _record(futures[future], future)
-            pending -= done
-            if not pending and last == math.inf:
-                last = time.monotonic() + LAST_MESSAGES
+    futures = {workers.pool.submit(_adjust_share, Share(_portable(part), chunk_size)): part
+               for part in parts}
+    # A share's result can reach the pool before its last messages reach the channel
+    # (a queue's feeder thread): relay until every share that returned said it was done.
+    # (A worker killed in between never says so: wait for it at most LAST_MESSAGES s.)
+    pending, shares_done, returned, last = set(futures), 0, 0, math.inf
+    while pending or (shares_done < returned and time.monotonic() < last):
+        shares_done += _relay(workers.channel, say, finished, timeout=0.1)
+        done = {future for future in pending if future.done()}
+        for future in done:
+            returned += _record(futures[future], future)
+        pending -= done
+        if not pending and last == math.inf:
+            last = time.monotonic() + LAST_MESSAGES
 
 
 def _portable(part: list[BatchEntry]) -> list[BatchEntry]:
@@ -123,17 +152,27 @@ def _record(part: list[BatchEntry], future: concurrent.futures.Future) -> bool:
 
 
 def _start_worker(channel) -> None:
-    """A worker's start: jax set up as the command line does, the channel kept."""
+    """A worker's start: jax set up as the command line does, the pipeline and the reports
+    imported and frozen (`freeze_long_lived`: they live as long as the worker), the
+    channel kept."""
     global _queue
+    from .. import _report
+    from .._gc import freeze_long_lived
     from .._jax_setup import setup_jax
+    from . import _batch_adjust
 
     setup_jax()
+    _batch_adjust.adjust_entries  # imported now, frozen with the rest
+    _report.write_batch_reports
+    freeze_long_lived()
     _queue = channel
 
 
-def _adjust_share(share: Share, adjust_entries: Callable) -> list[tuple]:
+def _adjust_share(share: Share) -> list[tuple]:
     """In a worker: adjust the share's projects and return (status, reason, mode, summary
     row) of each, in order."""
+    from ._batch_adjust import adjust_entries
+
     adjust_entries(share.entries, lambda line: _queue.put(("say", line)),
                    lambda: _queue.put(("finished", "")), share.chunk_size)
     _queue.put(("done", ""))  # after this share's messages: the channel keeps their order

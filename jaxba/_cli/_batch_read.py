@@ -77,12 +77,13 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
             entry.status, entry.reason = "failed", str(error)
             continue
         entry.out_dir = out_dir / _unique_folder(entry.name, taken)
-    # Each input resolved once: every report of every project is checked against them all.
+    # Each input resolved once: every report of every project is checked against them all
+    # (a project's own among them: not given again, they would be resolved again).
     inputs = resolved(file for entry in entries for file in entry.input_files or (entry.path,))
     check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
     for entry in entries:
         if entry.out_dir is not None:  # read
-            check_named_outputs(entry.name, entry.input_files, entry.out_dir, inputs=inputs)
+            check_named_outputs(entry.name, (), entry.out_dir, inputs=inputs)
     return entries
 
 
