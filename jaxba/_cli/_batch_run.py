@@ -20,8 +20,8 @@ from ._batch_processes import Workers, run_on_processes, worker_processes
 from ._batch_read import BatchEntry, finished_results, read_batch
 from ._batch_rows import summary_row, write_summary
 
-# Projects per worker process at least: a worker costs ~5 CPU s of its own (imports, the
-# chunk program traced), a Zhang-size project ~30 ms; fewer are faster in one process.
+# Projects per worker process at least: a worker costs ~2.5 CPU s of its own (imports,
+# loading the chunk program), a Zhang-size project ~40 ms; fewer are faster in one process.
 SHARE = 100
 
 
