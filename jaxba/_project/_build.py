@@ -192,11 +192,11 @@ def pixel_grid(camera) -> PixelGrid | None:
     return PixelGrid(tuple(camera.pixel_size), tuple(camera.sensor))
 
 
-def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
+def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray | slice,
                  grid: PixelGrid | None) -> tuple[np.ndarray, np.ndarray]:
-    """The image points `rows` of the table (all of camera `camera_id`) and their σ in its
-    model's units: pixels -> mm for a mm-model in a pixel project (`grid`); a pixel model in
-    a mm project is refused."""
+    """The image points `rows` (indices or a slice) of the table (all of camera `camera_id`)
+    and their σ in its model's units: pixels -> mm for a mm-model in a pixel project
+    (`grid`); a pixel model in a mm project is refused."""
     table = spec.image_points
     model = spec.cameras[camera_id].model
     model_units = CAMERA_MODELS[model].image_units
@@ -224,9 +224,9 @@ def _image_point_groups(spec, camera_rows, image_rows, point_index, grids, image
     row (None: no rigs); `point_index`: point ID -> its row of the points block; `point_warp`:
     (n_points, 2) every point's `warp_shape` on the board (warp row 0; None: flat)."""
     table = spec.image_points
-    n = len(table)
+    n_rows = len(table)
     position = {iid: k for k, iid in enumerate(spec.images)}
-    of_image = np.fromiter(map(position.__getitem__, table.image), dtype=int, count=n)
+    of_image = np.fromiter(map(position.__getitem__, table.image), dtype=int, count=n_rows)
     # The cameras in order of first use (their codes), each image's camera's code, each row's.
     seen, first = np.unique(of_image, return_index=True)
     images = list(spec.images.values())
@@ -235,12 +235,13 @@ def _image_point_groups(spec, camera_rows, image_rows, point_index, grids, image
     camera_code = np.array([codes.get(image.camera, -1) for image in images],
                            dtype=int)[of_image]
     image = np.asarray(image_rows)[of_image]
-    point = np.fromiter(map(point_index.__getitem__, table.point), dtype=int, count=n)
+    point = np.fromiter(map(point_index.__getitem__, table.point), dtype=int, count=n_rows)
     mount = None if image_mounts is None else np.asarray(image_mounts)[of_image]
-    xy, sigma = np.zeros((n, 2)), np.zeros((n, 2))
-    row = np.zeros(n, dtype=int)
+    xy, sigma = np.zeros((n_rows, 2)), np.zeros((n_rows, 2))
+    row = np.zeros(n_rows, dtype=int)
     kinds: dict[tuple, list[int]] = {}
-    by_camera = [np.arange(n)] if len(codes) == 1 else _split(camera_code, len(codes))
+    everything = slice(None)  # one camera, one kind: no copies
+    by_camera = [everything] if len(codes) == 1 else _split(camera_code, len(codes))
     for camera_id, rows in zip(codes, by_camera):
         model, row[rows] = camera_rows[camera_id][0], camera_rows[camera_id][1]
         xy[rows], sigma[rows] = measurements(spec, camera_id, rows, grids[camera_id])
@@ -250,7 +251,8 @@ def _image_point_groups(spec, camera_rows, image_rows, point_index, grids, image
     models = [model for model, _ in kinds]
     groups = []
     for k, ((model, constants), members) in enumerate(kinds.items()):
-        rows = np.arange(n) if len(kinds) == 1 else np.flatnonzero(np.isin(camera_code, members))
+        rows = (everything if len(kinds) == 1
+                else np.flatnonzero(np.isin(camera_code, members)))
         name = ("image_points" if len(kinds) == 1 else f"image_points:{model}"
                 if models.count(model) == 1 else f"image_points:{model}:{k}")
         groups.append(ImagePoints(
@@ -264,7 +266,7 @@ def _image_point_groups(spec, camera_rows, image_rows, point_index, grids, image
             constants=constants,
             per_camera=True,
             mount=None if mount is None else mount[rows],
-            board=None if point_warp is None else np.zeros(rows.size, dtype=int),
+            board=None if point_warp is None else np.zeros(len(point[rows]), dtype=int),
             warp_shape=None if point_warp is None else point_warp[point[rows]],
         ))
     return groups
@@ -369,6 +371,28 @@ def _on_device(problem: BundleProblem) -> BundleProblem:
     return jax.tree.unflatten(treedef, leaves)
 
 
+def _labels(initial: Parameters, camera_ids: dict[str, list[str]], frame_ids: list[str],
+            point_ids: list[str], mount_ids: list[str] | None, board_ids: list[str]
+            ) -> list[str]:
+    """`parameter_labels` of a project (every block's rows named), made once for each set of
+    IDs: a batch's projects often have the same cameras, images and points."""
+    key = (tuple((model, CAMERA_MODELS[model].parameter_names, tuple(ids))
+                 for model, ids in camera_ids.items()), tuple(frame_ids),
+           tuple(point_ids), None if mount_ids is None else tuple(mount_ids), tuple(board_ids))
+    labels = _LABELS.get(key)
+    if labels is None:
+        labels = parameter_labels(initial, camera_ids, frame_ids, point_ids, mount_ids,
+                                  board_ids)
+        if len(_LABELS) >= _LABELS_SIZE:
+            _LABELS.pop(next(iter(_LABELS)))
+        _LABELS[key] = labels
+    return list(labels)
+
+
+_LABELS: dict[tuple, list[str]] = {}  # the IDs of `_labels` -> their labels
+_LABELS_SIZE = 16
+
+
 def build_project(spec: ProjectSpec) -> Project:
     """The BundleProblem of a project, in mm (image) and object units; angles in radians.
 
@@ -448,8 +472,8 @@ def build_project(spec: ProjectSpec) -> Project:
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
     board_ids = (BOARD_ID,) if warped else ()
-    labels = parameter_labels(initial, camera_ids, frame_ids, point_ids,
-                              None if rigs is None else rigs.mount_ids, list(board_ids))
+    labels = _labels(initial, camera_ids, frame_ids, point_ids,
+                     None if rigs is None else rigs.mount_ids, list(board_ids))
     if settings.datum == "free":
         problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
     return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum,
