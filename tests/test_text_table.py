@@ -1,6 +1,6 @@
-"""Tests of the text tables' reading (`TextTable`): every table, read whole when it is ASCII
-of one layout or line by line otherwise, gives the tokens and line numbers that splitting
-each line (comments cut) gives; the camera files read before come back unchanged."""
+"""Tests of the text tables' reading (`TextTable`): every table gives the tokens and line
+numbers that splitting each line (comments cut) gives, and the errors name the line and
+column; the cameras and points read before come back equal, in fresh containers."""
 
 import math
 import pathlib
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jaxba._io._project._cameras import read_cameras
+from jaxba._io._project._tables import read_points
 from jaxba._io._project._text_table import TextTable
 from jaxba._project._errors import ProjectError
 from jaxba._project._spec import InputFile
@@ -115,3 +116,15 @@ def test_cameras_read_again_are_equal_and_fresh(tmp_path):
     for _ in range(2):  # an error is not kept: raised again
         with pytest.raises(ProjectError, match=r"cameras.toml: \[C1\] sensor: missing"):
             read_cameras(InputFile(first, "cameras.toml"), "pixel", "p.toml")
+
+
+def test_points_read_again_are_equal_and_fresh(tmp_path):
+    path = tmp_path / "points.txt"
+    path.write_text("# board\n1 0 0 0 0 0 0\n2 0.5 0 0 0 0 0\n")
+    first = read_points(InputFile(path, "points.txt"))
+    first.pop("1")
+    again = read_points(InputFile(path, "points.txt"))
+    assert list(again) == ["1", "2"] and again["2"].xyz == (0.5, 0.0, 0.0)
+    assert again["2"].sigma == (0.0, 0.0, 0.0) and again["2"].line == 3
+    path.write_text("1 0 0 0 0 0 0\n2 0.5 0 0 0 0 0\n")  # the same points, other lines
+    assert read_points(InputFile(path, "points.txt"))["2"].line == 2

@@ -17,6 +17,7 @@ from ..._models._cameras._names import (
 )
 from ..._project._errors import ProjectError
 from ..._project._spec import CameraSpec, InputFile
+from ._content import once
 from ._port import read_refraction
 from ._rigs import read_platform_mount
 from ._ties import TIE_KEYS, read_camera_ties, resolve_ties
@@ -38,23 +39,13 @@ _CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", 
 
 
 def read_cameras(file: InputFile, image_units: str, project: str) -> dict[str, CameraSpec]:
-    """cameras.toml: one table per camera id. A text read before with the same arguments
-    gives the same `CameraSpec` objects again, read once (a batch's cameras.toml files are
-    often alike; nothing changes a spec in place)."""
+    """cameras.toml: one table per camera id (a text read before with the same arguments:
+    its cameras again, `once`; not for a user model, whose names may change)."""
     data = read_bytes(file.path, file.name)
-    key = (data, file.name, image_units, project)
-    cameras = _READ.get(key)
-    if cameras is None:
-        cameras = _read_cameras(parse_toml(data, file.name), file.name, image_units, project)
-        if all(camera.model in CAMERA_PARAMETER_NAMES for camera in cameras.values()):
-            if len(_READ) >= _READ_SIZE:  # a user model's names may change: never kept
-                _READ.pop(next(iter(_READ)))
-            _READ[key] = cameras
-    return dict(cameras)
-
-
-_READ: dict[tuple, dict[str, CameraSpec]] = {}  # (text, name, units, project) -> cameras
-_READ_SIZE = 64
+    return dict(once(
+        ("cameras", data, file.name, image_units, project), data,
+        lambda: _read_cameras(parse_toml(data, file.name), file.name, image_units, project),
+        lambda cameras: all(c.model in CAMERA_PARAMETER_NAMES for c in cameras.values())))
 
 
 def _read_cameras(document: dict, file: str, image_units: str, project: str

@@ -27,7 +27,9 @@ from ..._project._spec import (
     InputFile,
     PointSpec,
 )
+from ._content import once
 from ._text_table import TextTable
+from ._toml import read_bytes
 
 IMAGE_COLUMNS = (
     *("image_id", "camera_id", "X0", "Y0", "Z0", "omega", "phi", "kappa"),
@@ -44,8 +46,17 @@ def read_images(
 ) -> dict[str, ImageSpec]:
     """images: `image_id camera_id X0 Y0 Z0 omega phi kappa [sX0 sY0 sZ0 somega sphi skappa]`;
     `-` in all six EOP columns (or none) for an image without approximation, whose σ
-    columns must then be `-` too."""
-    table = TextTable(file, IMAGE_COLUMNS, 8)
+    columns must then be `-` too (a text read before with the same cameras: its images
+    again, `once`)."""
+    data = read_bytes(file.path, file.name)
+    return dict(once(("images", data, file.name, tuple(cameras), cameras_file), data,
+                     lambda: _read_images(TextTable(file, IMAGE_COLUMNS, 8, data), cameras,
+                                          cameras_file)))
+
+
+def _read_images(table: TextTable, cameras: Mapping[str, CameraSpec], cameras_file: str
+                 ) -> dict[str, ImageSpec]:
+    """`read_images` of its table."""
     table.known(1, cameras, lambda camera_id: (
         f"unknown camera {camera_id!r} (not in {cameras_file}; "
         f"known: {', '.join(cameras) or 'none'})"))
@@ -69,7 +80,7 @@ def read_images(
     table.unique((0,), lambda image_id: f"image {image_id!r}")
     table.check()
     if not len(table):
-        raise ProjectError(f"{file.name}: no images")
+        raise ProjectError(f"{table.name}: no images")
     return {
         image_id: ImageSpec(image_id, camera_id, tuple(eop_k) if given_k else None,
                             sigma_k, line)
@@ -80,8 +91,15 @@ def read_images(
 
 
 def read_points(file: InputFile) -> dict[str, PointSpec]:
-    """points: `point_id X Y Z [sX sY sZ]`; without σ columns the point is a tie point."""
-    table = TextTable(file, POINT_COLUMNS, 4)
+    """points: `point_id X Y Z [sX sY sZ]`; without σ columns the point is a tie point (a
+    text read before: its points again, `once`)."""
+    data = read_bytes(file.path, file.name)
+    return dict(once(("points", data, file.name), data,
+                     lambda: _read_points(TextTable(file, POINT_COLUMNS, 4, data))))
+
+
+def _read_points(table: TextTable) -> dict[str, PointSpec]:
+    """`read_points` of its table."""
     xyz = table.numbers((1, 2, 3))
     sigma = table.sigmas((4, 5, 6))
     ids = table.column(0)

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..._project._errors import ProjectError
 from ..._project._spec import InputFile
+from ._toml import read_bytes
 
 # The largest magnitude of a number in a text table (coordinates, angles, image points,
 # distances): anything larger is a typo or a unit mistake, and would overflow the model
@@ -30,38 +31,20 @@ class TextTable:
     """The data rows of a text table as columns of tokens, and the failures noted so far.
 
     `columns` names the columns in order; a row has the first `n_required` of them or all.
-    `lines` (n,) holds the line numbers of the n data rows.
+    `data`: the file's content, if it was read already. `lines` (n,) holds the line numbers
+    of the n data rows.
     """
 
-    def __init__(self, file: InputFile, columns: tuple[str, ...], n_required: int):
+    def __init__(self, file: InputFile, columns: tuple[str, ...], n_required: int,
+                 data: bytes | None = None):
         self.name, self.columns = file.name, columns
         self._failures: list[tuple[int, int, str, int | None]] = []
-        text = _read_text(file)
-        counts = sorted({n_required, len(columns)})
-        if not self._read_uniform(text, counts):
-            self._read_rows(text, n_required, counts)
-
-    def _read_uniform(self, text: str, counts: list[int]) -> bool:
-        """Read `text` whole if it is ASCII and every data line has one of the column
-        `counts`, the same (the tokens split in C, counted per line in NumPy); False
-        otherwise, nothing read."""
-        if not text.isascii():
-            return False
-        data = np.frombuffer(text.encode("ascii"), dtype=np.uint8)
-        starts = np.flatnonzero(np.diff(_SPACE[data].view(np.int8), prepend=1) < 0)
-        per_line = np.bincount(np.searchsorted(np.flatnonzero(data == ord("\n")), starts))
-        lines = np.flatnonzero(per_line)
-        width = int(per_line[lines[0]]) if len(lines) else 0
-        if width not in counts or (per_line[lines] != width).any():
-            return False
-        tokens, n = text.split(), len(lines)  # str.split's whitespace is _SPACE in ASCII
-        self.lines = lines + 1
-        self._columns = ([tuple(tokens[k::width]) for k in range(width)]
-                         + [("-",) * n] * (len(self.columns) - width))
-        return True
+        text = _table_text(file, read_bytes(file.path, file.name) if data is None else data)
+        self._read_rows(text, n_required, sorted({n_required, len(columns)}))
 
     def _read_rows(self, text: str, n_required: int, counts: list[int]) -> None:
-        """Read `text` line by line, a failure noted at the first row of a wrong count."""
+        """Read `text` line by line, a failure noted at the first row of a wrong count (not
+        one of `counts`)."""
         rows = list(map(str.split, text.split("\n")))
         sizes = np.fromiter(map(len, rows), dtype=int, count=len(rows))
         self.lines = np.flatnonzero(sizes) + 1
@@ -204,19 +187,19 @@ class Row:
         return self.table.error(self.index, message, column)
 
 
-def _read_text(file: InputFile) -> str:
-    """The text of a table, comments cut (BOM dropped, any line ending read as "\\n")."""
+def _table_text(file: InputFile, data: bytes) -> str:
+    """The text of a table, its content `data`: comments cut, BOM dropped, any line ending
+    read as "\\n"."""
     try:
-        with file.path.open(encoding="utf-8-sig") as stream:
-            text = stream.read()
-    except (OSError, UnicodeDecodeError) as error:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
         raise ProjectError(f"{file.name}: cannot read {file.path}: {error}") from None
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
     return _COMMENT.sub("", text) if "#" in text else text
 
 
 _COMMENT = re.compile("#[^\n]*")  # from "#" to the end of its line
-_SPACE = np.zeros(256, dtype=bool)  # the ASCII characters that str.split splits at
-_SPACE[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
 
 
 def _as_columns(rows: list[list[str]], sizes: np.ndarray, n: int) -> list[tuple[str, ...]]:
