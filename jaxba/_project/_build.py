@@ -6,7 +6,6 @@ The arrays are built in NumPy and put on the device together, in one transfer pe
 import dataclasses
 import math
 
-import equinox as eqx
 import jax
 import numpy as np
 
@@ -193,11 +192,11 @@ def pixel_grid(camera) -> PixelGrid | None:
     return PixelGrid(tuple(camera.pixel_size), tuple(camera.sensor))
 
 
-def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
+def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray | slice,
                  grid: PixelGrid | None) -> tuple[np.ndarray, np.ndarray]:
-    """The image points `rows` of the table (all of camera `camera_id`) and their σ in its
-    model's units: pixels -> mm for a mm-model in a pixel project (`grid`); a pixel model in
-    a mm project is refused."""
+    """The image points `rows` (indices or a slice) of the table (all of camera `camera_id`)
+    and their σ in its model's units: pixels -> mm for a mm-model in a pixel project
+    (`grid`); a pixel model in a mm project is refused."""
     table = spec.image_points
     model = spec.cameras[camera_id].model
     model_units = CAMERA_MODELS[model].image_units
@@ -214,30 +213,36 @@ def measurements(spec: ProjectSpec, camera_id: str, rows: np.ndarray,
     return xy, sigma
 
 
-def _image_point_groups(spec, camera_rows, image_index, point_index, grids, mount_index=None,
+def _image_point_groups(spec, camera_rows, image_rows, point_index, grids, image_mounts=None,
                         point_warp=None):
     """One ImagePoints group per camera model and constants (`per_camera`: reports and
     variance components still part it by camera), each row's camera its row of the model's
     block; pixels -> mm per row's camera for mm-models. Named "image_points" where there is
     one group, else "image_points:<model>" (and ":<k>" for a model's cameras with different
-    constants). `image_index`: image ID -> its row of the images block (its frame's with
-    rigs); `mount_index`: image ID -> its camera's mounts row (None: no rigs); `point_warp`:
+    constants). `image_rows` (n_images,): every image's row of the images block (its frame's
+    with rigs), in the images table's order; `image_mounts` (n_images,): its camera's mounts
+    row (None: no rigs); `point_index`: point ID -> its row of the points block; `point_warp`:
     (n_points, 2) every point's `warp_shape` on the board (warp row 0; None: flat)."""
     table = spec.image_points
-    camera_of = {iid: image.camera for iid, image in spec.images.items()}
-    cameras = [camera_of[iid] for iid in table.image]
-    codes = {cid: k for k, cid in enumerate(dict.fromkeys(cameras))}  # order of first use
-    camera_code = np.array([codes[cid] for cid in cameras], dtype=int)
-    image = np.array([image_index[iid] for iid in table.image], dtype=int)
-    point = np.array([point_index[pid] for pid in table.point], dtype=int)
-    mount = (None if mount_index is None
-             else np.array([mount_index[iid] for iid in table.image], dtype=int))
-    xy, sigma = np.zeros((len(cameras), 2)), np.zeros((len(cameras), 2))
-    row = np.zeros(len(cameras), dtype=int)
+    n_rows = len(table)
+    position = {iid: k for k, iid in enumerate(spec.images)}
+    of_image = np.fromiter(map(position.__getitem__, table.image), dtype=int, count=n_rows)
+    # The cameras in order of first use (their codes), each image's camera's code, each row's.
+    seen, first = np.unique(of_image, return_index=True)
+    images = list(spec.images.values())
+    codes = {cid: k for k, cid in enumerate(dict.fromkeys(
+        images[k].camera for k in seen[np.argsort(first)].tolist()))}
+    camera_code = np.array([codes.get(image.camera, -1) for image in images],
+                           dtype=int)[of_image]
+    image = np.asarray(image_rows)[of_image]
+    point = np.fromiter(map(point_index.__getitem__, table.point), dtype=int, count=n_rows)
+    mount = None if image_mounts is None else np.asarray(image_mounts)[of_image]
+    xy, sigma = np.zeros((n_rows, 2)), np.zeros((n_rows, 2))
+    row = np.zeros(n_rows, dtype=int)
     kinds: dict[tuple, list[int]] = {}
-    order = np.argsort(camera_code, kind="stable")
-    starts = np.flatnonzero(np.diff(camera_code[order], prepend=-1))
-    for camera_id, rows in zip(codes, np.split(order, starts[1:])):
+    everything = slice(None)  # one camera, one kind: no copies
+    by_camera = [everything] if len(codes) == 1 else _split(camera_code, len(codes))
+    for camera_id, rows in zip(codes, by_camera):
         model, row[rows] = camera_rows[camera_id][0], camera_rows[camera_id][1]
         xy[rows], sigma[rows] = measurements(spec, camera_id, rows, grids[camera_id])
         constants = spec.cameras[camera_id].constants
@@ -246,7 +251,8 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids, moun
     models = [model for model, _ in kinds]
     groups = []
     for k, ((model, constants), members) in enumerate(kinds.items()):
-        rows = np.flatnonzero(np.isin(camera_code, members))
+        rows = (everything if len(kinds) == 1
+                else np.flatnonzero(np.isin(camera_code, members)))
         name = ("image_points" if len(kinds) == 1 else f"image_points:{model}"
                 if models.count(model) == 1 else f"image_points:{model}:{k}")
         groups.append(ImagePoints(
@@ -260,10 +266,16 @@ def _image_point_groups(spec, camera_rows, image_index, point_index, grids, moun
             constants=constants,
             per_camera=True,
             mount=None if mount is None else mount[rows],
-            board=None if point_warp is None else np.zeros(rows.size, dtype=int),
+            board=None if point_warp is None else np.zeros(len(point[rows]), dtype=int),
             warp_shape=None if point_warp is None else point_warp[point[rows]],
         ))
     return groups
+
+
+def _split(codes: np.ndarray, n: int) -> list[np.ndarray]:
+    """The rows of each code 0 .. n-1 of `codes` (n_rows,), each in row order."""
+    order = np.argsort(codes, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(codes, minlength=n))[:-1])
 
 
 def _datum_rows(spec: ProjectSpec, point_index: dict[str, int]) -> list[int] | None:
@@ -312,6 +324,8 @@ def _dependent_datum(spec: ProjectSpec, image_ids: list[str], eop: np.ndarray,
 def _gauge_positions(initial: Parameters, images: np.ndarray) -> tuple[int, ...]:
     """The `flatten` positions of the EOPs `images` (n_images, 6) marks: the dependent
     datum's unknowns (`BundleProblem.gauge`)."""
+    if not images.any():
+        return ()
     positions = unflatten(initial, np.arange(flatten(initial).size)).images
     return tuple(np.asarray(positions)[images].tolist())
 
@@ -350,8 +364,33 @@ def missing_approximations(spec: ProjectSpec) -> str:
 
 def _on_device(problem: BundleProblem) -> BundleProblem:
     """`problem` with its NumPy arrays put on the device in one transfer."""
-    arrays, rest = eqx.partition(problem, lambda leaf: isinstance(leaf, np.ndarray))
-    return eqx.combine(jax.device_put(arrays), rest)
+    leaves, treedef = jax.tree.flatten(problem)
+    host = [k for k, leaf in enumerate(leaves) if isinstance(leaf, np.ndarray)]
+    for k, leaf in zip(host, jax.device_put([leaves[k] for k in host])):
+        leaves[k] = leaf
+    return jax.tree.unflatten(treedef, leaves)
+
+
+def _labels(initial: Parameters, camera_ids: dict[str, list[str]], frame_ids: list[str],
+            point_ids: list[str], mount_ids: list[str] | None, board_ids: list[str]
+            ) -> list[str]:
+    """`parameter_labels` of a project (every block's rows named), made once for each set of
+    IDs: a batch's projects often have the same cameras, images and points."""
+    key = (tuple((model, CAMERA_MODELS[model].parameter_names, tuple(ids))
+                 for model, ids in camera_ids.items()), tuple(frame_ids),
+           tuple(point_ids), None if mount_ids is None else tuple(mount_ids), tuple(board_ids))
+    labels = _LABELS.get(key)
+    if labels is None:
+        labels = parameter_labels(initial, camera_ids, frame_ids, point_ids, mount_ids,
+                                  board_ids)
+        if len(_LABELS) >= _LABELS_SIZE:
+            _LABELS.pop(next(iter(_LABELS)))
+        _LABELS[key] = labels
+    return list(labels)
+
+
+_LABELS: dict[tuple, list[str]] = {}  # the IDs of `_labels` -> their labels
+_LABELS_SIZE = 16
 
 
 def build_project(spec: ProjectSpec) -> Project:
@@ -369,14 +408,13 @@ def build_project(spec: ProjectSpec) -> Project:
     point_ids = used_points(spec)
     eop, eop_free, eop_sigma = _images(spec)
     frame_ids, rigs = image_ids, None
-    image_index = {iid: k for k, iid in enumerate(image_ids)}
-    mount_index = mounts = mounts_free = None
+    image_rows, image_mounts = np.arange(len(image_ids)), None
+    mounts = mounts_free = None
     if spec.rigs or any(camera.mount is not None for camera in spec.cameras.values()):
         rigs = rig_layout(spec, image_ids, eop, eop_free, eop_sigma)
         frame_ids, eop, eop_free, eop_sigma = (rigs.frame_ids, rigs.frames, rigs.frame_free,
                                                rigs.frame_sigma)
-        image_index = dict(zip(image_ids, rigs.image_frame.tolist()))
-        mount_index = dict(zip(image_ids, rigs.image_mount.tolist()))
+        image_rows, image_mounts = rigs.image_frame, rigs.image_mount
         mounts, mounts_free = rigs.mounts, rigs.mount_free
     gnss = _weighted_rows("gnss_ins", "images", eop, eop_sigma)
     if rigs is not None:
@@ -391,8 +429,8 @@ def build_project(spec: ProjectSpec) -> Project:
     point_warp = _board_warp(spec, point_ids, xyz, xyz_free)
     grids = {cid: pixel_grid(camera) for cid, camera in spec.cameras.items()}
     point_index = {pid: k for k, pid in enumerate(point_ids)}
-    groups = _image_point_groups(spec, camera_rows, image_index, point_index, grids,
-                                 mount_index, point_warp)
+    groups = _image_point_groups(spec, camera_rows, image_rows, point_index, grids,
+                                 image_mounts, point_warp)
     groups += control + gnss + camera_priors
     if spec.distances:
         groups.append(Distances(
@@ -434,8 +472,8 @@ def build_project(spec: ProjectSpec) -> Project:
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
     board_ids = (BOARD_ID,) if warped else ()
-    labels = parameter_labels(initial, camera_ids, frame_ids, point_ids,
-                              None if rigs is None else rigs.mount_ids, list(board_ids))
+    labels = _labels(initial, camera_ids, frame_ids, point_ids,
+                     None if rigs is None else rigs.mount_ids, list(board_ids))
     if settings.datum == "free":
         problem = inner_constraints(problem, datum_points=_datum_rows(spec, point_index))
     return Project(spec, problem, camera_rows, image_ids, point_ids, grids, labels, datum=datum,

@@ -17,15 +17,17 @@ from ..._models._cameras._names import (
 )
 from ..._project._errors import ProjectError
 from ..._project._spec import CameraSpec, InputFile
+from ._content import once
 from ._port import read_refraction
 from ._rigs import read_platform_mount
 from ._ties import TIE_KEYS, read_camera_ties, resolve_ties
 from ._toml import (
     check_keys,
     check_not_weighted,
-    load_toml,
     name_list,
+    parse_toml,
     prior_table,
+    read_bytes,
     toml_float,
     toml_int,
     toml_pair,
@@ -37,28 +39,38 @@ _CAMERA_KEYS = ("model", "free", "sigma", "pixel_size", "sensor", "refraction", 
 
 
 def read_cameras(file: InputFile, image_units: str, project: str) -> dict[str, CameraSpec]:
-    """cameras.toml: one table per camera id."""
-    document = load_toml(file.path, file.name)
+    """cameras.toml: one table per camera id (a text read before with the same arguments:
+    its cameras again, `once`; not for a user model, whose names may change)."""
+    data = read_bytes(file.path, file.name)
+    return dict(once(
+        ("cameras", data, file.name, image_units, project), data,
+        lambda: _read_cameras(parse_toml(data, file.name), file.name, image_units, project),
+        lambda cameras: all(c.model in CAMERA_PARAMETER_NAMES for c in cameras.values())))
+
+
+def _read_cameras(document: dict, file: str, image_units: str, project: str
+                  ) -> dict[str, CameraSpec]:
+    """`read_cameras` of the parsed document of `file`."""
     cameras = {}
     for camera_id, table in document.items():
         if not isinstance(table, dict):
             raise ProjectError(
-                f"{file.name}: {camera_id}: expected a table [{camera_id}] per camera, "
+                f"{file}: {camera_id}: expected a table [{camera_id}] per camera, "
                 f"got {table!r}"
             )
-        camera = _read_camera(camera_id, table, file.name)
+        camera = _read_camera(camera_id, table, file)
         if image_units == "pixel":
             # A pixel model computes pixels itself: it needs no pixel size.
             needed = ("sensor",) if camera.model in PIXEL_MODELS else ("pixel_size", "sensor")
             missing = [key for key in needed if table.get(key) is None]
             if missing:
                 raise ProjectError(
-                    f"{file.name}: [{camera_id}] {missing[0]}: missing; {project} has "
+                    f"{file}: [{camera_id}] {missing[0]}: missing; {project} has "
                     f'image_units = "pixel", so model {camera.model!r} needs '
                     + " and ".join(needed)
                 )
         cameras[camera_id] = camera
-    return resolve_ties(cameras, document, file.name)
+    return resolve_ties(cameras, document, file)
 
 
 def _read_camera(camera_id: str, table: dict, file: str) -> CameraSpec:

@@ -10,6 +10,7 @@ where there is one, the line and the column or key. The project file itself (`[p
 import dataclasses
 import os
 import pathlib
+import stat
 
 from ..._gc import paused_gc
 from ..._project._errors import ProjectError
@@ -69,13 +70,14 @@ def read_project_inputs(path: str | os.PathLike) -> tuple[str, tuple[pathlib.Pat
 
     **Raises:** `ProjectError` for a problem with the project file itself.
     """
-    path = pathlib.Path(path)
-    project_name, _, _, files = _project_file(path)
-    return project_name, _input_files(path, files)
+    resolved, project_name, _, _, files = _project_file(pathlib.Path(path))
+    return project_name, _input_files(resolved, files)
 
 
-def _project_file(path: pathlib.Path) -> tuple[str, str, AdjustmentSettings, dict[str, InputFile]]:
-    """The project file: the project's name, image units, settings and `[files]`."""
+def _project_file(path: pathlib.Path
+                  ) -> tuple[pathlib.Path, str, str, AdjustmentSettings, dict[str, InputFile]]:
+    """The project file: its resolved path, the project's name, image units, settings and
+    `[files]`."""
     if not path.is_file():
         raise ProjectError(f"{path}: no such project file")
     name = path.name
@@ -85,18 +87,34 @@ def _project_file(path: pathlib.Path) -> tuple[str, str, AdjustmentSettings, dic
     adjustment = subtable(document, "adjustment", name)
     if "files" not in document:
         raise ProjectError(f"{name}: missing table [files]")
-    files = _read_files_table(subtable(document, "files", name), path.parent, name)
+    base = path.parent.resolve()
+    files = _read_files_table(subtable(document, "files", name), base, name)
     project_name, image_units = _read_project_table(project, name, path.stem)
-    return project_name, image_units, _read_settings(adjustment, f"{name}: [adjustment]"), files
+    settings = _read_settings(adjustment, f"{name}: [adjustment]")
+    return _resolve_in(base, name), project_name, image_units, settings, files
+
+
+def _resolve_in(directory: pathlib.Path, name: str) -> pathlib.Path:
+    """`(directory / name).resolve()` for a resolved `directory`: where `name` is a plain
+    file name, one `lstat` (is it a link?) instead of one per part of the path."""
+    path = directory / name
+    if os.path.basename(name) != name or name in ("", ".", ".."):
+        return path.resolve()
+    try:
+        link = stat.S_ISLNK(os.lstat(path).st_mode)
+    except OSError:
+        link = False  # no such file: resolve() leaves the name as it is
+    return path.resolve() if link else path
 
 
 def _input_files(path: pathlib.Path, files: dict[str, InputFile]) -> tuple[pathlib.Path, ...]:
-    return tuple(dict.fromkeys([path.resolve(), *(file.path for file in files.values())]))
+    """The resolved project file `path` and the files of its `[files]` table, each once."""
+    return tuple(dict.fromkeys([path, *(file.path for file in files.values())]))
 
 
 def _read_project(path: pathlib.Path) -> ProjectSpec:
     """`read_project`."""
-    project_name, image_units, settings, files = _project_file(path)
+    resolved, project_name, image_units, settings, files = _project_file(path)
     name = path.name
     cameras = read_cameras(files["cameras"], image_units, name)
     images = read_images(files["images"], cameras, files["cameras"].name)
@@ -111,7 +129,7 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     rigs, frames = _read_rigs(files, cameras, images)
 
     return ProjectSpec(
-        path=path.resolve(),
+        path=resolved,
         name=project_name,
         image_units=image_units,
         settings=settings,
@@ -120,7 +138,7 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
         points=points,
         image_points=image_points,
         distances=distances,
-        input_files=_input_files(path, files),
+        input_files=_input_files(resolved, files),
         files={key: file.path for key, file in files.items()},
         file_names={key: file.name for key, file in files.items()},
         rigs=rigs,
@@ -163,7 +181,8 @@ def _read_project_table(table: dict, where: str, default_name: str) -> tuple[str
 
 
 def _read_files_table(table: dict, base: pathlib.Path, where: str) -> dict[str, InputFile]:
-    """`[files]`: resolve every path relative to the project file and check it exists."""
+    """`[files]`: resolve every path relative to the project file's resolved directory `base`
+    and check it exists."""
     check_keys(table, _REQUIRED_FILES + _OPTIONAL_FILES, f"{where}: [files]")
     files = {}
     for key in _REQUIRED_FILES + _OPTIONAL_FILES:
@@ -174,7 +193,7 @@ def _read_files_table(table: dict, base: pathlib.Path, where: str) -> dict[str, 
                 )
             continue
         value = toml_value(table[key], str, f"{where}: [files] {key}", "a string")
-        resolved = (base / value).resolve()
+        resolved = _resolve_in(base, value)
         if not resolved.is_file():
             raise ProjectError(f"{where}: [files] {key}: no such file: {resolved}")
         files[key] = InputFile(resolved, value)

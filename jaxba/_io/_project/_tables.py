@@ -14,7 +14,6 @@ points in the order of first measurement).
 """
 
 import collections
-import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -28,7 +27,9 @@ from ..._project._spec import (
     InputFile,
     PointSpec,
 )
+from ._content import once
 from ._text_table import TextTable
+from ._toml import read_bytes
 
 IMAGE_COLUMNS = (
     *("image_id", "camera_id", "X0", "Y0", "Z0", "omega", "phi", "kappa"),
@@ -45,18 +46,26 @@ def read_images(
 ) -> dict[str, ImageSpec]:
     """images: `image_id camera_id X0 Y0 Z0 omega phi kappa [sX0 sY0 sZ0 somega sphi skappa]`;
     `-` in all six EOP columns (or none) for an image without approximation, whose σ
-    columns must then be `-` too."""
-    table = TextTable(file, IMAGE_COLUMNS, 8)
+    columns must then be `-` too (a text read before with the same cameras: its images
+    again, `once`)."""
+    data = read_bytes(file.path, file.name)
+    return dict(once(("images", data, file.name, tuple(cameras), cameras_file), data,
+                     lambda: _read_images(TextTable(file, IMAGE_COLUMNS, 8, data), cameras,
+                                          cameras_file)))
+
+
+def _read_images(table: TextTable, cameras: Mapping[str, CameraSpec], cameras_file: str
+                 ) -> dict[str, ImageSpec]:
+    """`read_images` of its table."""
     table.known(1, cameras, lambda camera_id: (
         f"unknown camera {camera_id!r} (not in {cameras_file}; "
         f"known: {', '.join(cameras) or 'none'})"))
-    sigma = np.column_stack([table.sigmas(k + 6) for k in _EOP]).reshape(-1, 6)
-    missing = np.column_stack([
-        np.fromiter((token == "-" for token in table.column(k)), dtype=bool, count=len(table))
-        for k in _EOP]).reshape(-1, 6)
+    sigma = table.sigmas(tuple(k + 6 for k in _EOP))
+    missing = np.array([[token == "-" for token in table.column(k)] for k in _EOP],
+                       dtype=bool).reshape(6, -1).T
     given, none = ~missing.any(axis=1), missing.all(axis=1)
     mixed = ~given & ~none
-    eop = np.column_stack([table.numbers(k, where=given) for k in _EOP]).reshape(-1, 6)
+    eop = table.numbers(tuple(_EOP), where=given)
     odd = np.argmax(missing != missing[:, :1], axis=1)  # the first column off X0's pattern
     for k in range(6):
         table.fail(mixed & (odd == k), lambda r: (
@@ -68,32 +77,36 @@ def read_images(
             f"{IMAGE_COLUMNS[2 + k]} {'fixed' if sigma[r, k] == 0 else 'weighted'}: a fixed or"
             " weighted EOP needs its value"), 8 + k)
     ids = table.column(0)
-    table.unique(ids, lambda image_id: f"image {image_id!r}")
+    table.unique((0,), lambda image_id: f"image {image_id!r}")
     table.check()
     if not len(table):
-        raise ProjectError(f"{file.name}: no images")
+        raise ProjectError(f"{table.name}: no images")
     return {
         image_id: ImageSpec(image_id, camera_id, tuple(eop_k) if given_k else None,
-                            _optional(sigma_k), line)
+                            sigma_k, line)
         for image_id, camera_id, eop_k, given_k, sigma_k, line in zip(
-            ids, table.column(1), eop.tolist(), given.tolist(), sigma.tolist(),
+            ids, table.column(1), eop.tolist(), given.tolist(), _optional(sigma),
             table.lines.tolist())
     }
 
 
 def read_points(file: InputFile) -> dict[str, PointSpec]:
-    """points: `point_id X Y Z [sX sY sZ]`; without σ columns the point is a tie point."""
-    table = TextTable(file, POINT_COLUMNS, 4)
-    xyz = np.column_stack([table.numbers(k) for k in (1, 2, 3)]).reshape(-1, 3)
-    sigma = np.column_stack([table.sigmas(k) for k in (4, 5, 6)]).reshape(-1, 3)
+    """points: `point_id X Y Z [sX sY sZ]`; without σ columns the point is a tie point (a
+    text read before: its points again, `once`)."""
+    data = read_bytes(file.path, file.name)
+    return dict(once(("points", data, file.name), data,
+                     lambda: _read_points(TextTable(file, POINT_COLUMNS, 4, data))))
+
+
+def _read_points(table: TextTable) -> dict[str, PointSpec]:
+    """`read_points` of its table."""
+    xyz = table.numbers((1, 2, 3))
+    sigma = table.sigmas((4, 5, 6))
     ids = table.column(0)
-    table.unique(ids, lambda point_id: f"point {point_id!r}")
+    table.unique((0,), lambda point_id: f"point {point_id!r}")
     table.check()
-    return {
-        point_id: PointSpec(point_id, tuple(xyz_k), _optional(sigma_k), line)
-        for point_id, xyz_k, sigma_k, line in zip(
-            ids, xyz.tolist(), sigma.tolist(), table.lines.tolist())
-    }
+    return dict(zip(ids, map(PointSpec, ids, map(tuple, xyz.tolist()), _optional(sigma),
+                             table.lines.tolist())))
 
 
 def read_image_points(
@@ -102,18 +115,16 @@ def read_image_points(
     """image points: `image_id point_id x y [sx sy]`, σ both given (> 0) or both `-`/absent.
     A point need not be in the points table (`missing_points`)."""
     table = TextTable(file, IMAGE_POINT_COLUMNS, 4)
-    xy = np.column_stack([table.numbers(k) for k in (2, 3)]).reshape(-1, 2)
-    sigma = np.column_stack([table.sigmas(k, fixed=False) for k in (4, 5)]).reshape(-1, 2)
+    xy = table.numbers((2, 3))
+    sigma = table.sigmas((4, 5), fixed=False)
     none = np.isnan(sigma)
     for k in (0, 1):
         table.fail(none[:, k] & ~none[:, 1 - k], lambda r: "give both sx and sy, or '-' for both",
                    4 + k)
     table.known(0, images, lambda image_id: f"unknown image {image_id!r} (not in {images_file})")
-    image, point = table.column(0), table.column(1)
-    table.unique(list(zip(image, point)), lambda key: (
-        f"measurement of point {key[1]!r} in image {key[0]!r}"))
+    table.unique((0, 1), lambda key: f"measurement of point {key[1]!r} in image {key[0]!r}")
     table.check()
-    return ImagePointTable(list(image), list(point), xy, sigma, table.lines)
+    return ImagePointTable(list(table.column(0)), list(table.column(1)), xy, sigma, table.lines)
 
 
 def read_distances(
@@ -121,7 +132,7 @@ def read_distances(
 ) -> list[DistanceSpec]:
     """distances: `point_a point_b distance sigma`, both > 0, two different known points."""
     table = TextTable(file, DISTANCE_COLUMNS, 4)
-    distance, sigma = table.numbers(2, positive=True), table.numbers(3, positive=True)
+    distance, sigma = table.numbers((2, 3), positive=True).T
     for k in (0, 1):
         table.known(k, points, lambda point_id: f"unknown point {point_id!r} (not in "
                     f"{points_file})")
@@ -197,6 +208,11 @@ def check_consistency(
             )
 
 
-def _optional(sigma: list[float]) -> tuple[float | None, ...]:
-    """σ as read (NaN for `-`) as the specs hold them: None for none given."""
-    return tuple(None if math.isnan(s) else s for s in sigma)
+def _optional(sigma: np.ndarray) -> list[tuple[float | None, ...]]:
+    """σ as read, (n, k) with NaN for `-`, as the specs hold them: a tuple per row, None for
+    none given."""
+    missing = np.isnan(sigma)
+    if missing.any():
+        sigma = sigma.astype(object)
+        sigma[missing] = None
+    return list(map(tuple, sigma.tolist()))

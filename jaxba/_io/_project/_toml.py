@@ -13,9 +13,21 @@ from ..._project._errors import ProjectError
 def load_toml(path: pathlib.Path, name: str) -> dict:
     """Parse the TOML file `path` (`name` in messages), turning syntax errors into
     `ProjectError`."""
+    return parse_toml(read_bytes(path, name), name)
+
+
+def read_bytes(path: pathlib.Path, name: str) -> bytes:
+    """The content of the file `path` (`name` in messages)."""
     try:
-        with path.open("rb") as stream:
-            return tomllib.load(stream)
+        return path.read_bytes()
+    except OSError as error:
+        raise ProjectError(f"{name}: cannot read {path}: {error}") from None
+
+
+def parse_toml(data: bytes, name: str) -> dict:
+    """The TOML document `data`, the content of the file `name` (in messages)."""
+    try:
+        return tomllib.loads(data.decode())
     except tomllib.TOMLDecodeError as error:
         raise ProjectError(f"{name}: invalid TOML: {error}") from None
     except UnicodeDecodeError as error:
@@ -24,8 +36,6 @@ def load_toml(path: pathlib.Path, name: str) -> dict:
             f"{name}:{line}: not UTF-8 text (byte 0x{error.object[error.start]:02x}); save"
             " the file as UTF-8"
         ) from None
-    except OSError as error:
-        raise ProjectError(f"{name}: cannot read {path}: {error}") from None
 
 
 def subtable(document: dict, key: str, where: str) -> dict:
