@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from .._problem._observations import named_parts
+from .._problem._observations import host_query, named_parts
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import MM, ImageResiduals, image_residuals, project_ids, shared
@@ -75,7 +75,7 @@ def group_summaries(project: Project, result: Adjustment) -> dict[str, dict]:
     summaries = {}
     camera_ids = project_ids(project).cameras
     for group, residual in zip(result.problem.groups, result.residuals):
-        sigma = np.asarray(group.sigma(), dtype=float)
+        sigma = np.asarray(host_query(group, "sigma"), dtype=float)
         mask = np.isfinite(sigma)  # `group.mask()`, without a jax call
         sigma = np.where(mask, sigma, 1.0)
         normalised = np.where(mask, np.asarray(residual, dtype=float) / sigma, 0.0)

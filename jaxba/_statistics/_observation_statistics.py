@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._problem._observations import AbstractObservationGroup
+from .._problem._observations import AbstractObservationGroup, host_query
 from ._ids import Ids
 
 
@@ -88,7 +88,7 @@ def name_rows(ids: Ids, group: AbstractObservationGroup, rows) -> list[dict[str,
     point, the two points of a distance, the point, image or camera of a parameter
     observation), else the row number."""
     rows = np.asarray(rows, dtype=int)
-    references = group.row_references()
+    references = host_query(group, "row_references")
     if not references:
         return [{"row": str(row)} for row in rows.tolist()]
     columns = {
@@ -102,7 +102,7 @@ def name_rows(ids: Ids, group: AbstractObservationGroup, rows) -> list[dict[str,
 def with_coordinate(group: AbstractObservationGroup, ids: dict[str, str], coordinate: int) -> dict:
     """`ids` of a row and the name of its observed coordinate (none where the group names
     none: a distance)."""
-    names = group.coordinate_names()
+    names = host_query(group, "coordinate_names")
     return {**ids, "coordinate": names[coordinate]} if names else ids
 
 
@@ -168,7 +168,7 @@ def group_statistics(result) -> list[GroupStatistics]:
         with np.errstate(invalid="ignore"):
             outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
         statistics.append(GroupStatistics(
-            group, group.kind(), observed, removed, v, r, w, outlier & observed))
+            group, host_query(group, "kind"), observed, removed, v, r, w, outlier & observed))
     return statistics
 
 
@@ -212,7 +212,7 @@ def row_part_index(groups, rows: ImagePointRows, camera_ids) -> tuple[tuple[str,
     names, index = [], np.zeros(len(rows.group), dtype=int)
     for k in np.unique(rows.group).tolist():
         here = rows.group == k
-        group_names, group_index = groups[k].parts(camera_ids)
+        group_names, group_index = host_query(groups[k], "parts", camera_ids)
         index[here] = len(names) + np.asarray(group_index, dtype=int)[rows.row[here]]
         names += group_names
     return tuple(names), index
