@@ -176,26 +176,27 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
     """The image points of `group_statistics`, one row per measured point (removed ones
     included), sorted by image."""
     parts = [(k, s) for k, s in enumerate(statistics) if s.kind == "image_points"]
+    image = np.concatenate([np.asarray(s.group.image) for _, s in parts] or [np.zeros(0)])
+    order = None if np.all(image[1:] >= image[:-1]) else np.argsort(image, kind="stable")
 
-    def stack(get, shape=(0,)):
-        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
+    def stack(get, shape=(0,)):  # in file order, usually by image already: sorted if not
+        column = np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
+        return column if order is None else column[order]
 
-    image = stack(lambda k, s: s.group.image).astype(int)
-    order = np.argsort(image, kind="stable")
     return ImagePointRows(
-        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
-        row=stack(lambda k, s: np.arange(len(s.v))).astype(int)[order],
-        camera=stack(lambda k, s: s.group.camera).astype(int)[order],
-        image=image[order],
-        point=stack(lambda k, s: s.group.point).astype(int)[order],
+        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int),
+        row=stack(lambda k, s: np.arange(len(s.v))).astype(int),
+        camera=stack(lambda k, s: s.group.camera).astype(int),
+        image=image.astype(int) if order is None else image[order].astype(int),
+        point=stack(lambda k, s: s.group.point).astype(int),
         mount=stack(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
-                    else s.group.mount).astype(int)[order],
-        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
-        v=stack(lambda k, s: s.v, (0, 2))[order],
-        r=stack(lambda k, s: s.r, (0, 2))[order],
-        w=stack(lambda k, s: s.w, (0, 2))[order],
-        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
-        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
+                    else s.group.mount).astype(int),
+        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2)),
+        v=stack(lambda k, s: s.v, (0, 2)),
+        r=stack(lambda k, s: s.r, (0, 2)),
+        w=stack(lambda k, s: s.w, (0, 2)),
+        removed=stack(lambda k, s: s.removed[:, 0] | s.removed[:, 1]).astype(bool),  # x or y
+        outlier=stack(lambda k, s: s.outlier[:, 0] | s.outlier[:, 1]).astype(bool),
     )
 
 
