@@ -15,14 +15,16 @@ from ._collect import MM, ImageResiduals, image_residuals, part_rows, project_id
 _SUMS = 7
 
 
-def _summary_entries(residuals: ImageResiduals, codes: np.ndarray, k: int) -> list[dict]:
-    """The n and RMS entries (`residual_summaries`) of k sets of rows at once: row i counts in
-    the sets `codes[i]` (n, m), each its n, n_removed and RMS of vx, vy in mm and in pixels
-    over its rows not removed by data snooping, all from one `np.bincount` (row by row, as
-    a sum over the set's rows alone)."""
+def _summary_entries(residuals: ImageResiduals, pixels: np.ndarray, codes: np.ndarray,
+                     k: int) -> list[dict]:
+    """The n and RMS entries (`residual_summaries`) of k sets of rows at once (`pixels` (n,):
+    True for rows in pixels): row i counts in the sets `codes[i]` (n, m), each its n,
+    n_removed and RMS of vx, vy in mm and in pixels over its rows not removed by data
+    snooping, all from one `np.bincount` (row by row, as a sum over the set's rows alone)."""
     used = ~residuals.removed[:, None]
-    values = np.column_stack([residuals.v ** 2, residuals.v_px ** 2, residuals.units != MM,
-                              np.ones(len(used)), residuals.removed])
+    values = np.empty((len(used), _SUMS))
+    values[:, :2], values[:, 2:4] = residuals.v ** 2, residuals.v_px ** 2
+    values[:, 4], values[:, 5], values[:, 6] = pixels, 1.0, residuals.removed
     values[:, :-1] = np.where(used, values[:, :-1], 0.0)  # a removed row: counted as removed
     index = codes[:, :, None] * _SUMS + np.arange(_SUMS)
     weights = np.broadcast_to(values[:, None, :], index.shape)
@@ -51,7 +53,9 @@ def residual_summaries(residuals: ImageResiduals) -> dict:
     were); cameras and images with rows only, in the order of the rows (sorted by image).
     The mm RMS is NaN when a row is in pixels (pixel-unit model), the pixel RMS when a row
     has no pixel size; both are NaN for no rows."""
-    _, first, image_codes = np.unique(residuals.image, return_index=True, return_inverse=True)
+    starts = np.ones(len(residuals.image), dtype=bool)  # rows sorted by image: its first rows
+    starts[1:] = residuals.image[1:] != residuals.image[:-1]
+    first, image_codes = np.flatnonzero(starts), np.cumsum(starts) - 1
     image_cameras = residuals.camera_ids[first].tolist()
     cameras = list(dict.fromkeys(image_cameras))
     camera_codes = np.array([cameras.index(c) for c in image_cameras], dtype=int).reshape(-1)
@@ -59,7 +63,8 @@ def residual_summaries(residuals: ImageResiduals) -> dict:
     codes = np.column_stack([np.zeros(len(residuals.image), dtype=int),
                              1 + camera_codes[image_codes].reshape(-1),
                              1 + len(cameras) + image_codes.reshape(-1)])
-    entries = _summary_entries(residuals, codes, 1 + len(cameras) + len(images))
+    pixels = (residuals.units[first] != MM)[image_codes]  # units per image, not per row
+    entries = _summary_entries(residuals, pixels, codes, 1 + len(cameras) + len(images))
     return {
         "all": entries[0],
         "cameras": dict(zip(cameras, entries[1:1 + len(cameras)])),
