@@ -268,8 +268,10 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
 @shared
 def point_table(project: Project, result: Adjustment) -> ParameterTable:
     """Object points used by the adjustment (those observed in images or by distances)."""
-    sigma = [project.spec.points[pid].sigma for pid in project.point_ids]
-    status = status_table(project.problem.free.points, sigma)
+    free = np.asarray(project.problem.free.points, dtype=bool)
+    sigma = ([project.spec.points[pid].sigma for pid in project.point_ids] if free.any()
+             else np.zeros(free.shape))  # no point estimated (a calibration's targets): fixed
+    status = status_table(free, sigma)
     return ParameterTable(
         POINT_PARAMETER_NAMES,
         list(project.point_ids),

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from .._problem._observations import host_query, part_name
-from .._problem._parameters import flatten, unflatten
+from .._problem._parameters import flatten, positions_of
 from ._free_network import inner_constraint_group
 from ._ids import Ids
 from ._observation_statistics import (
@@ -80,7 +80,7 @@ def variance_test(result, alpha: float = VARIANCE_TEST_ALPHA) -> VarianceTest | 
 def datum_description(problem) -> str:
     """How the datum is defined, e.g. "free network: inner constraints (7 conditions) over 80
     points" or "control: 3 control points (6 fixed, 0 weighted coordinates), 4 distances"."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
     point_positions = np.asarray(positions.points)
     inner = inner_constraint_group(problem)
     if inner is not None:
