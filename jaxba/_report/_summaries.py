@@ -60,15 +60,17 @@ def residual_summaries(residuals: ImageResiduals) -> dict:
     cameras = list(dict.fromkeys(image_cameras))
     camera_codes = np.array([cameras.index(c) for c in image_cameras], dtype=int).reshape(-1)
     images = residuals.image_ids[first].tolist()
-    codes = np.column_stack([np.zeros(len(residuals.image), dtype=int),
-                             1 + camera_codes[image_codes].reshape(-1),
-                             1 + len(cameras) + image_codes.reshape(-1)])
     pixels = (residuals.units[first] != MM)[image_codes]  # units per image, not per row
-    entries = _summary_entries(residuals, pixels, codes, 1 + len(cameras) + len(images))
+    several = len(cameras) > 1  # one camera: its rows are all rows, its entry the overall one
+    levels = [np.zeros(len(residuals.image), dtype=int), 1 + image_codes]
+    levels += [1 + len(images) + camera_codes[image_codes].reshape(-1)] if several else []
+    entries = _summary_entries(residuals, pixels, np.column_stack(levels),
+                               1 + len(images) + several * len(cameras))
     return {
         "all": entries[0],
-        "cameras": dict(zip(cameras, entries[1:1 + len(cameras)])),
-        "images": dict(zip(images, entries[1 + len(cameras):])),
+        "cameras": (dict(zip(cameras, entries[1 + len(images):])) if several
+                    else {cid: dict(entries[0]) for cid in cameras}),
+        "images": dict(zip(images, entries[1:1 + len(images)])),
     }
 
 

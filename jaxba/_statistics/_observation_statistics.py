@@ -211,10 +211,15 @@ def row_part_index(groups, rows: ImagePointRows, camera_ids) -> tuple[tuple[str,
     """`row_parts` as (names, index (n,) of every row's part in names): the parts of the
     groups of `rows`, in the order of the groups."""
     names, index = [], np.zeros(len(rows.group), dtype=int)
-    for k in np.unique(rows.group).tolist():
-        here = rows.group == k
+    found = np.unique(rows.group).tolist()
+    for k in found:
         group_names, group_index = host_query(groups[k], "parts", camera_ids)
-        index[here] = len(names) + np.asarray(group_index, dtype=int)[rows.row[here]]
+        group_index = np.asarray(group_index, dtype=int)
+        if len(found) == 1:  # every row of that group
+            index = group_index[rows.row]
+        else:
+            here = rows.group == k
+            index[here] = len(names) + group_index[rows.row[here]]
         names += group_names
     return tuple(names), index
 
