@@ -183,20 +183,23 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
         column = np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
         return column if order is None else column[order]
 
+    def index(get):  # fresh arrays: no copy where they are ints already
+        return stack(get).astype(int, copy=False)
+
     return ImagePointRows(
-        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int),
-        row=stack(lambda k, s: np.arange(len(s.v))).astype(int),
-        camera=stack(lambda k, s: s.group.camera).astype(int),
-        image=image.astype(int) if order is None else image[order].astype(int),
-        point=stack(lambda k, s: s.group.point).astype(int),
-        mount=stack(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
-                    else s.group.mount).astype(int),
+        group=index(lambda k, s: np.full(len(s.v), k)),
+        row=index(lambda k, s: np.arange(len(s.v))),
+        camera=index(lambda k, s: s.group.camera),
+        image=(image if order is None else image[order]).astype(int),
+        point=index(lambda k, s: s.group.point),
+        mount=index(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
+                    else s.group.mount),
         xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2)),
         v=stack(lambda k, s: s.v, (0, 2)),
         r=stack(lambda k, s: s.r, (0, 2)),
         w=stack(lambda k, s: s.w, (0, 2)),
-        removed=stack(lambda k, s: s.removed[:, 0] | s.removed[:, 1]).astype(bool),  # x or y
-        outlier=stack(lambda k, s: s.outlier[:, 0] | s.outlier[:, 1]).astype(bool),
+        removed=stack(lambda k, s: s.removed[:, 0] | s.removed[:, 1]).astype(bool, copy=False),
+        outlier=stack(lambda k, s: s.outlier[:, 0] | s.outlier[:, 1]).astype(bool, copy=False),
     )
 
 
