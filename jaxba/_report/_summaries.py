@@ -10,34 +10,30 @@ from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import MM, ImageResiduals, image_residuals, part_rows, project_ids, shared
 
-# The sums a summary entry is made of, per row: vx², vy² in mm, in pixels, 1 where the row is
-# in pixels (its mm RMS none), 1 per used row, 1 per removed row.
-_SUMS = 7
-
 
 def _summary_entries(residuals: ImageResiduals, pixels: np.ndarray, codes: np.ndarray,
                      k: int) -> list[dict]:
     """The n and RMS entries (`residual_summaries`) of k sets of rows at once (`pixels` (n,):
     True for rows in pixels): row i counts in the sets `codes[i]` (n, m), each its n,
     n_removed and RMS of vx, vy in mm and in pixels over its rows not removed by data
-    snooping, all from one `np.bincount` (row by row, as a sum over the set's rows alone)."""
-    used = ~residuals.removed[:, None]
-    values = np.empty((len(used), _SUMS))
-    values[:, :2], values[:, 2:4] = residuals.v ** 2, residuals.v_px ** 2
-    values[:, 4], values[:, 5], values[:, 6] = pixels, 1.0, residuals.removed
-    values[:, :-1] = np.where(used, values[:, :-1], 0.0)  # a removed row: counted as removed
-    index = codes[:, :, None] * _SUMS + np.arange(_SUMS)
-    weights = np.broadcast_to(values[:, None, :], index.shape)
-    sums = np.bincount(index.ravel(), weights=weights.ravel(), minlength=k * _SUMS)
-    sums = sums.reshape(k, _SUMS)
-    n = sums[:, 5]
+    snooping, the squares summed by one `np.bincount` (row by row, as a sum over the set's
+    rows alone)."""
+    used = ~residuals.removed
+    squares = np.empty((len(used), 4))  # vx², vy² in mm, in pixels; 0 for removed rows
+    squares[:, :2], squares[:, 2:] = residuals.v ** 2, residuals.v_px ** 2
+    squares[~used] = 0.0
+    index = codes[:, :, None] * 4 + np.arange(4)
+    weights = np.broadcast_to(squares[:, None, :], index.shape)
+    sums = np.bincount(index.ravel(), weights=weights.ravel(), minlength=k * 4).reshape(k, 4)
+    n = np.bincount(codes[used].ravel(), minlength=k)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(sums[:, :4] / n[:, None])
-    rms[sums[:, 4] > 0, :2] = math.nan
+        rms = np.sqrt(sums / n[:, None])
+    rms[np.bincount(codes[used & pixels].ravel(), minlength=k) > 0, :2] = math.nan
+    n_removed = np.bincount(codes[~used].ravel(), minlength=k)
     return [
         {
             "n": int(n[c]),
-            "n_removed": int(sums[c, 6]),
+            "n_removed": int(n_removed[c]),
             "rms_x_mm": float(rms[c, 0]),
             "rms_y_mm": float(rms[c, 1]),
             "rms_x_px": float(rms[c, 2]),
