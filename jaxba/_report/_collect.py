@@ -310,7 +310,14 @@ def outlier_check(project: Project, result: Adjustment) -> OutlierSummary | None
 
 
 def project_ids(project: Project) -> Ids:
-    """The project's IDs of the blocks' rows, as an adjustment's `Ids`."""
+    """The project's IDs of the blocks' rows, as an adjustment's `Ids` (shared while
+    `shared_tables` is open: the reports ask for them several times)."""
+    return _project_ids(project, None)
+
+
+@shared
+def _project_ids(project: Project, result: None) -> Ids:
+    del result
     cameras: dict[str, list[str]] = {}
     for cid, (model, row) in sorted(project.camera_rows.items(), key=lambda item: item[1]):
         cameras.setdefault(model, []).append(cid)
