@@ -141,17 +141,28 @@ class AbstractObservationGroup(eqx.Module):
         return self.stddev
 
 
+def host_query(group: AbstractObservationGroup, method: str, *args):
+    """`group.<method>(*args)` called through the group's class: an equinox Module's bound
+    method is itself a Module, built (its arguments' leaves checked) on every access, ~0.1 ms;
+    for the host-side queries (`kind`, `parts`, `row_references`, ...) of the reports."""
+    return getattr(type(group), method)(group, *args)
+
+
 def part_name(group: AbstractObservationGroup, camera_ids: Mapping[str, Sequence[Hashable]],
               row: int) -> str:
     """The name of the part (`parts`) that row `row` of `group` belongs to."""
-    names, index = group.parts(camera_ids)
+    names, index = host_query(group, "parts", camera_ids)
     return names[int(index[row])]
 
 
 def named_parts(group: AbstractObservationGroup, camera_ids: Mapping[str, Sequence[Hashable]]
                 ) -> Iterator[tuple[str, np.ndarray]]:
     """(name, rows (m,)) of every part of `group` with rows, in the order of `parts`."""
-    names, index = group.parts(camera_ids)
+    names, index = host_query(group, "parts", camera_ids)
+    if len(names) == 1:  # one part: every row (no sort)
+        if len(index):
+            yield names[0], np.arange(len(index))
+        return
     order = np.argsort(index, kind="stable")
     parts, starts = np.unique(index[order], return_index=True)
     for k, rows in zip(parts.tolist(), np.split(order, starts[1:])):

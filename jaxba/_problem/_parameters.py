@@ -73,6 +73,13 @@ def unflatten(like: Parameters, vector) -> Parameters:
     return jax.tree.unflatten(treedef, out)
 
 
+def positions_of(like: Parameters) -> Parameters:
+    """A Parameters tree shaped like `like` holding each scalar's position in `flatten`
+    order (NumPy leaves; `like`'s values are not read)."""
+    size = sum(int(np.size(leaf)) for leaf in jax.tree.leaves(like))
+    return unflatten(like, np.arange(size))
+
+
 def parameter_labels(
     params: Parameters,
     camera_ids: dict[str, list[str]] | None = None,

@@ -268,8 +268,10 @@ def image_table(project: Project, result: Adjustment) -> ParameterTable:
 @shared
 def point_table(project: Project, result: Adjustment) -> ParameterTable:
     """Object points used by the adjustment (those observed in images or by distances)."""
-    sigma = [project.spec.points[pid].sigma for pid in project.point_ids]
-    status = status_table(project.problem.free.points, sigma)
+    free = np.asarray(project.problem.free.points, dtype=bool)
+    sigma = ([project.spec.points[pid].sigma for pid in project.point_ids] if free.any()
+             else np.zeros(free.shape))  # no point estimated (a calibration's targets): fixed
+    status = status_table(free, sigma)
     return ParameterTable(
         POINT_PARAMETER_NAMES,
         list(project.point_ids),
@@ -308,7 +310,14 @@ def outlier_check(project: Project, result: Adjustment) -> OutlierSummary | None
 
 
 def project_ids(project: Project) -> Ids:
-    """The project's IDs of the blocks' rows, as an adjustment's `Ids`."""
+    """The project's IDs of the blocks' rows, as an adjustment's `Ids` (shared while
+    `shared_tables` is open: the reports ask for them several times)."""
+    return _project_ids(project, None)
+
+
+@shared
+def _project_ids(project: Project, result: None) -> Ids:
+    del result
     cameras: dict[str, list[str]] = {}
     for cid, (model, row) in sorted(project.camera_rows.items(), key=lambda item: item[1]):
         cameras.setdefault(model, []).append(cid)
@@ -436,6 +445,13 @@ def rejections(project: Project, result: Adjustment) -> list[dict]:
     ]
 
 
+def part_rows(group, camera_ids, n: int):
+    """`named_parts` of `group` (n rows), a part of all rows as slice(None): views of the
+    group's tables, not copies."""
+    for name, rows in named_parts(group, camera_ids):
+        yield name, slice(None) if len(rows) == n else rows
+
+
 @shared
 def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySummary | None:
     """Min/mean/sum of the redundancy numbers and the largest |w|, overall and per group.
@@ -447,33 +463,37 @@ def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySumm
     if reliability is None:
         return None
     parts, groups, worst = [], {}, (-1.0, "")
-    camera_ids = project_ids(project).cameras
+    ids = project_ids(project)
     for stats in group_statistics(project, result):
         if not is_measurement(stats.group):
             continue
-        for name, rows in named_parts(stats.group, camera_ids):
-            used = stats.observed[rows] & ~stats.removed[rows]
-            r, w = stats.r[rows][used], np.abs(stats.w[rows][used])
-            finite_w = w[np.isfinite(w)]
-            groups[name] = {
-                "n": int(np.count_nonzero(used)),
-                "redundancy_sum": float(np.nansum(r)),
-                "min_redundancy": float(np.nanmin(r)) if np.isfinite(r).any() else math.nan,
-                "mean_redundancy": float(np.nanmean(r)) if np.isfinite(r).any() else math.nan,
-                "max_abs_w": float(finite_w.max()) if finite_w.size else math.nan,
-                "n_outliers": int(np.count_nonzero(stats.outlier[rows] & used)),
-                "n_removed": int(np.count_nonzero(stats.removed[rows])),
-            }
-            parts.append(r)
         used = stats.observed & ~stats.removed
-        finite_w = np.abs(stats.w[used])
+        abs_w = np.abs(stats.w)
+        with np.errstate(invalid="ignore"):
+            for name, rows in part_rows(stats.group, ids.cameras, len(used)):
+                here = used[rows]
+                r, w = stats.r[rows][here], abs_w[rows][here]
+                known = ~np.isnan(r)  # np.nansum, nanmin, nanmean as numpy has them
+                total, some = np.sum(np.where(known, r, 0.0)), np.isfinite(r).any()
+                finite_w = w[np.isfinite(w)]
+                groups[name] = {
+                    "n": int(np.count_nonzero(here)),
+                    "redundancy_sum": float(total),
+                    "min_redundancy": float(np.fmin.reduce(r)) if some else math.nan,
+                    "mean_redundancy": float(total / np.count_nonzero(known)) if some else math.nan,
+                    "max_abs_w": float(finite_w.max()) if finite_w.size else math.nan,
+                    "n_outliers": int(np.count_nonzero(stats.outlier[rows] & here)),
+                    "n_removed": int(np.count_nonzero(stats.removed[rows])),
+                }
+                parts.append(r)
+        finite_w = abs_w[used]
         finite_w = finite_w[np.isfinite(finite_w)]
         if finite_w.size and finite_w.max() > worst[0]:
-            abs_w = np.where(used, np.abs(np.nan_to_num(stats.w, nan=0.0)), -1.0)
-            row, coordinate = np.unravel_index(np.argmax(abs_w), abs_w.shape)
-            ids = observation_ids(project, stats.group, int(row), int(coordinate))
-            named = part_name(stats.group, camera_ids, int(row))
-            worst = (float(finite_w.max()), f"{named} {describe(ids)}")
+            where = np.argmax(np.where(used & ~np.isnan(abs_w), abs_w, np.where(used, 0.0, -1.0)))
+            row, coordinate = np.unravel_index(where, abs_w.shape)
+            named = ids_of_observation(ids, stats.group, int(row), int(coordinate))
+            part = part_name(stats.group, ids.cameras, int(row))
+            worst = (float(finite_w.max()), f"{part} {describe(named)}")
     r = np.concatenate(parts) if parts else np.zeros(0)
     finite = np.isfinite(r)
     return ReliabilitySummary(

@@ -472,7 +472,7 @@ def out_text(project: Project, result: Adjustment) -> str:
 
 
 def _rms_comment(label: str, summary: dict) -> str:
-    """`# RMS label  n ...  vx .. vy .. mm  vx .. vy .. px`, from a `residual_summary` entry."""
+    """`# RMS label  n ...  vx .. vy .. mm  vx .. vy .. px`, from a `residual_summaries` entry."""
     text = f"# RMS {label}  n {summary['n']}"
     if math.isfinite(summary["rms_x_mm"]):
         text += f"  vx {fixed(summary['rms_x_mm'], _MM_DECIMALS)}"

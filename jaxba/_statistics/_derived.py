@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._models._cameras import CAMERA_MODELS
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, flatten, positions_of, unflatten
 from ._adjustment import Adjustment
 
 
@@ -31,15 +31,11 @@ def correlation(covariance: np.ndarray) -> np.ndarray:
     return covariance * scale[:, None] * scale[None, :]
 
 
-def _positions(result: Adjustment) -> Parameters:
-    """A Parameters tree holding each scalar's position in `flatten` order."""
-    return unflatten(result.parameters, np.arange(flatten(result.parameters).size))
-
-
 def camera_covariance(result: Adjustment, model: str, row: int) -> np.ndarray:
     """Cxx (p, p) of all parameters of camera `row` of `model`, in the order of its
     `parameter_names`; rows and columns of fixed parameters 0."""
-    return result.precision.covariance_of(np.asarray(_positions(result).cameras[model][row]))
+    positions = positions_of(result.parameters).cameras[model][row]
+    return result.precision.covariance_of(np.asarray(positions))
 
 
 def camera_correlation(result: Adjustment, model: str, row: int) -> tuple[list[str], np.ndarray]:
@@ -55,7 +51,8 @@ def point_covariances(result: Adjustment) -> Float[np.ndarray, "n_points 3 3"]:
     precision = result.precision
     if precision.schur is not None:
         return precision.schur.points
-    rows = precision.covariance_rows(np.asarray(_positions(result).points))  # (n_points, 3)
+    positions = positions_of(result.parameters).points
+    rows = precision.covariance_rows(np.asarray(positions))  # (n_points, 3)
     free = rows >= 0
     safe = np.where(free, rows, 0)
     blocks = precision.covariance[safe[:, :, None], safe[:, None, :]]

@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._problem._observations import AbstractObservationGroup
+from .._problem._observations import AbstractObservationGroup, host_query
 from ._ids import Ids
 
 
@@ -88,7 +88,7 @@ def name_rows(ids: Ids, group: AbstractObservationGroup, rows) -> list[dict[str,
     point, the two points of a distance, the point, image or camera of a parameter
     observation), else the row number."""
     rows = np.asarray(rows, dtype=int)
-    references = group.row_references()
+    references = host_query(group, "row_references")
     if not references:
         return [{"row": str(row)} for row in rows.tolist()]
     columns = {
@@ -102,7 +102,7 @@ def name_rows(ids: Ids, group: AbstractObservationGroup, rows) -> list[dict[str,
 def with_coordinate(group: AbstractObservationGroup, ids: dict[str, str], coordinate: int) -> dict:
     """`ids` of a row and the name of its observed coordinate (none where the group names
     none: a distance)."""
-    names = group.coordinate_names()
+    names = host_query(group, "coordinate_names")
     return {**ids, "coordinate": names[coordinate]} if names else ids
 
 
@@ -168,7 +168,7 @@ def group_statistics(result) -> list[GroupStatistics]:
         with np.errstate(invalid="ignore"):
             outlier = removed | (np.abs(np.nan_to_num(w, nan=0.0)) > critical)
         statistics.append(GroupStatistics(
-            group, group.kind(), observed, removed, v, r, w, outlier & observed))
+            group, host_query(group, "kind"), observed, removed, v, r, w, outlier & observed))
     return statistics
 
 
@@ -176,26 +176,30 @@ def image_point_rows(statistics: list[GroupStatistics]) -> ImagePointRows:
     """The image points of `group_statistics`, one row per measured point (removed ones
     included), sorted by image."""
     parts = [(k, s) for k, s in enumerate(statistics) if s.kind == "image_points"]
+    image = np.concatenate([np.asarray(s.group.image) for _, s in parts] or [np.zeros(0)])
+    order = None if np.all(image[1:] >= image[:-1]) else np.argsort(image, kind="stable")
 
-    def stack(get, shape=(0,)):
-        return np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
+    def stack(get, shape=(0,)):  # in file order, usually by image already: sorted if not
+        column = np.concatenate([np.asarray(get(k, s)) for k, s in parts] or [np.zeros(shape)])
+        return column if order is None else column[order]
 
-    image = stack(lambda k, s: s.group.image).astype(int)
-    order = np.argsort(image, kind="stable")
+    def index(get):  # fresh arrays: no copy where they are ints already
+        return stack(get).astype(int, copy=False)
+
     return ImagePointRows(
-        group=stack(lambda k, s: np.full(len(s.v), k)).astype(int)[order],
-        row=stack(lambda k, s: np.arange(len(s.v))).astype(int)[order],
-        camera=stack(lambda k, s: s.group.camera).astype(int)[order],
-        image=image[order],
-        point=stack(lambda k, s: s.group.point).astype(int)[order],
-        mount=stack(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
-                    else s.group.mount).astype(int)[order],
-        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2))[order],
-        v=stack(lambda k, s: s.v, (0, 2))[order],
-        r=stack(lambda k, s: s.r, (0, 2))[order],
-        w=stack(lambda k, s: s.w, (0, 2))[order],
-        removed=stack(lambda k, s: s.removed.any(axis=1)).astype(bool)[order],
-        outlier=stack(lambda k, s: s.outlier.any(axis=1)).astype(bool)[order],
+        group=index(lambda k, s: np.full(len(s.v), k)),
+        row=index(lambda k, s: np.arange(len(s.v))),
+        camera=index(lambda k, s: s.group.camera),
+        image=(image if order is None else image[order]).astype(int),
+        point=index(lambda k, s: s.group.point),
+        mount=index(lambda k, s: np.full(len(s.v), -1) if s.group.mount is None
+                    else s.group.mount),
+        xy=stack(lambda k, s: np.asarray(s.group.measured, dtype=float), (0, 2)),
+        v=stack(lambda k, s: s.v, (0, 2)),
+        r=stack(lambda k, s: s.r, (0, 2)),
+        w=stack(lambda k, s: s.w, (0, 2)),
+        removed=stack(lambda k, s: s.removed[:, 0] | s.removed[:, 1]).astype(bool, copy=False),
+        outlier=stack(lambda k, s: s.outlier[:, 0] | s.outlier[:, 1]).astype(bool, copy=False),
     )
 
 
@@ -210,10 +214,15 @@ def row_part_index(groups, rows: ImagePointRows, camera_ids) -> tuple[tuple[str,
     """`row_parts` as (names, index (n,) of every row's part in names): the parts of the
     groups of `rows`, in the order of the groups."""
     names, index = [], np.zeros(len(rows.group), dtype=int)
-    for k in np.unique(rows.group).tolist():
-        here = rows.group == k
-        group_names, group_index = groups[k].parts(camera_ids)
-        index[here] = len(names) + np.asarray(group_index, dtype=int)[rows.row[here]]
+    found = np.unique(rows.group).tolist()
+    for k in found:
+        group_names, group_index = host_query(groups[k], "parts", camera_ids)
+        group_index = np.asarray(group_index, dtype=int)
+        if len(found) == 1:  # every row of that group
+            index = group_index[rows.row]
+        else:
+            here = rows.group == k
+            index[here] = len(names) + group_index[rows.row[here]]
         names += group_names
     return tuple(names), index
 

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from .._problem._observations import part_name
-from .._problem._parameters import flatten, unflatten
+from .._problem._observations import host_query, part_name
+from .._problem._parameters import flatten, positions_of
 from ._free_network import inner_constraint_group
 from ._ids import Ids
 from ._observation_statistics import (
@@ -80,7 +80,7 @@ def variance_test(result, alpha: float = VARIANCE_TEST_ALPHA) -> VarianceTest | 
 def datum_description(problem) -> str:
     """How the datum is defined, e.g. "free network: inner constraints (7 conditions) over 80
     points" or "control: 3 control points (6 fixed, 0 weighted coordinates), 4 distances"."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
     point_positions = np.asarray(positions.points)
     inner = inner_constraint_group(problem)
     if inner is not None:
@@ -91,7 +91,7 @@ def datum_description(problem) -> str:
     free = flatten(problem.free).astype(bool)
     weighted = np.zeros(free.shape, dtype=bool)
     for group in problem.groups:
-        weighted[group.prior_positions(positions)] = True
+        weighted[host_query(group, "prior_positions", positions)] = True
     fixed_xyz, weighted_xyz = ~free[point_positions], weighted[point_positions]
     control = (fixed_xyz | weighted_xyz).any(axis=1)
     parts = []
@@ -104,7 +104,7 @@ def datum_description(problem) -> str:
         if n_images:
             parts.append(f"{n_images} images with {what} EOPs")
     n_distances = sum(int(np.isfinite(np.asarray(g.stddev)).sum()) for g in problem.groups
-                      if g.kind() == "distances")
+                      if host_query(g, "kind") == "distances")
     if n_distances:
         parts.append(f"{n_distances} distances")
     return "control: " + (", ".join(parts) if parts else "none (no fixed or weighted unknowns)")
