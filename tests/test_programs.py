@@ -4,6 +4,7 @@ unusable file, an unexportable program, arguments without a key or no cache fold
 to tracing; a changed structure gets a new key."""
 
 import pathlib
+import threading
 
 import equinox as eqx
 import jax
@@ -15,6 +16,7 @@ from jaxtyping import Array, Float
 import jaxba
 from jaxba import _programs
 from jaxba._adjust import _batch
+from jaxba._timing import CompileLog
 
 # The exported and the traced batch program compile to the same arithmetic: bit-identical
 # with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
@@ -313,3 +315,44 @@ def test_under_a_transformation_the_program_is_nested(folder):
     numeric = (total(1.0 + step) - total(1.0 - step)) / (2 * step)
     assert np.isclose(jax.grad(total)(1.0), numeric, rtol=1e-6)
     assert np.isclose(jax.jit(total)(1.0), total(1.0))
+
+
+def test_a_program_compiled_ahead_is_compiled_once_and_counted_where_called(folder,
+                                                                            monkeypatch):
+    """`compile_ahead` with shapes only (`jax.ShapeDtypeStruct`): the worker exports and
+    compiles; the later call with arrays of those shapes compiles nothing more, gives the
+    traced results and counts the program (and the seconds waited) in the caller's log,
+    none in a log of the worker's thread's events."""
+    monkeypatch.setattr(_programs, "_ahead", {})
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), (box, y))
+    compiled = []
+
+    def on_duration(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(threading.get_ident())
+
+    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    try:
+        with CompileLog() as before:
+            _programs.compile_ahead("test_box", _program, shapes, (2,))
+            _programs.compile_ahead("test_box", _program, shapes, (2,))  # on its way: no job
+        with CompileLog() as log:
+            first = _call(box, y)
+        second = _call(box, y)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_duration)
+    assert _equal(first, _program(box, y, 2)) and _equal(second, first)
+    assert len(compiled) == 1 and compiled[0] != threading.get_ident()  # the worker's
+    assert before.count == 0 and log.count == 1 and log.seconds >= 0.0
+    assert not _programs._ahead and len(list(folder.iterdir())) == 1
+
+
+def test_nothing_compiled_ahead_without_a_key(folder, monkeypatch):
+    """Arguments without a key (a lambda) or no cache folder: no job, the call traces."""
+    monkeypatch.setattr(_programs, "_ahead", {})
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _programs.compile_ahead("test_box", _program, (box, y), (lambda: 2,))
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    _programs.compile_ahead("test_box", _program, (box, y), (2,))
+    assert not _programs._ahead and not _programs._loaded
