@@ -46,6 +46,7 @@ arrays of those shapes waits for it instead of compiling (`jaxba._timing.compile
 counts it there, with the seconds waited).
 """
 
+import atexit
 import concurrent.futures
 import contextlib
 import enum
@@ -215,21 +216,32 @@ def _is_array_or_shape(leaf) -> bool:
 
 @functools.cache
 def _jobs() -> queue.SimpleQueue:
-    """`compile_ahead`'s queue of (future, job), served by one daemon thread (a process that
-    ends, e.g. on an error, does not wait for a compilation nobody needs)."""
-    jobs = queue.SimpleQueue()
+    """`compile_ahead`'s queue of (future, job), served by one daemon thread. At exit the
+    jobs not started are cancelled and the one running is waited for (`_drain`): a thread
+    still tracing or compiling while the interpreter finalizes crashed the process."""
+    jobs, busy = queue.SimpleQueue(), threading.Lock()
 
     def serve():
         while True:
             future, job = jobs.get()
-            if future.set_running_or_notify_cancel():
-                try:
-                    future.set_result(job())
-                except Exception:  # e.g. XLA out of memory: the caller compiles as usual
-                    future.set_result((None, CompileLog()))
+            with busy:
+                if future.set_running_or_notify_cancel():
+                    try:
+                        future.set_result(job())
+                    except Exception:  # e.g. XLA out of memory: the caller compiles as usual
+                        future.set_result((None, CompileLog()))
 
     threading.Thread(target=serve, name="jaxba-compile-ahead", daemon=True).start()
+    atexit.register(_drain, jobs, busy)
     return jobs
+
+
+def _drain(jobs: queue.SimpleQueue, busy: threading.Lock) -> None:
+    """Cancel the jobs not started, wait for the one running; no job runs after."""
+    with contextlib.suppress(queue.Empty):
+        while True:
+            jobs.get_nowait()[0].cancel()
+    busy.acquire()
 
 
 def _prepare(name, program, key, path, tree, leaves, rest, static, compile=False):

@@ -3,7 +3,11 @@ traced program's results (bit for bit; the batch's to `EXPORT_RTOL`); a corrupt,
 unusable file, an unexportable program, arguments without a key or no cache folder fall back
 to tracing; a changed structure gets a new key."""
 
+import os
 import pathlib
+import subprocess
+import sys
+import textwrap
 import threading
 
 import equinox as eqx
@@ -17,6 +21,8 @@ import jaxba
 from jaxba import _programs
 from jaxba._adjust import _batch
 from jaxba._timing import CompileLog
+
+ROOT = pathlib.Path(jaxba.__file__).resolve().parents[1]
 
 # The exported and the traced batch program compile to the same arithmetic: bit-identical
 # with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
@@ -356,3 +362,38 @@ def test_nothing_compiled_ahead_without_a_key(folder, monkeypatch):
     monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
     _programs.compile_ahead("test_box", _program, (box, y), (2,))
     assert not _programs._ahead and not _programs._loaded
+
+
+def test_a_process_ending_while_a_program_compiles_ahead_ends_cleanly(tmp_path):
+    """A process that exits (an error, a refused datum) while the worker traces or compiles
+    exits with its own status: the running job is waited for (a thread compiling while the
+    interpreter finalized crashed the process: SIGSEGV, SIGABRT)."""
+    script = tmp_path / "exit.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys
+        import time
+        import equinox as eqx
+        import jax
+        import jax.numpy as jnp
+        jax.config.update("jax_enable_x64", True)
+        jax.config.update("jax_compilation_cache_dir", {str(tmp_path / "cache")!r})
+        from jaxba import _programs
+        _programs._KNOWN = _programs._KNOWN | {{"__main__"}}
+
+        @eqx.filter_jit
+        def program(x):
+            for k in range(60):  # some kernels: a compilation of a second or so
+                x = jnp.sin(x) * k + jnp.cos(x * 0.5 + k)
+                x = x.at[k % 50].set(jnp.sum(x))
+            return x
+
+        _programs.compile_ahead("exiting", program, (jax.ShapeDtypeStruct((50,), float),))
+        (ahead,) = _programs._ahead.values()
+        while not ahead.running():
+            time.sleep(0.01)
+        time.sleep(0.3)  # traced by now: compiling
+        sys.exit(3)
+    """))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
+    assert done.returncode == 3, done.stderr
