@@ -328,7 +328,7 @@ def test_a_program_compiled_ahead_is_compiled_once_and_counted_where_called(fold
     """`compile_ahead` with shapes only (`jax.ShapeDtypeStruct`): the worker exports and
     compiles; the later call with arrays of those shapes compiles nothing more, gives the
     traced results and counts the program (and the seconds waited) in the caller's log,
-    none in a log of the worker's thread's events."""
+    none in a log of the worker's thread's events. Stored by an earlier process: no job."""
     monkeypatch.setattr(_programs, "_ahead", {})
     box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
     shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), (box, y))
@@ -352,6 +352,9 @@ def test_a_program_compiled_ahead_is_compiled_once_and_counted_where_called(fold
     assert len(compiled) == 1 and compiled[0] != threading.get_ident()  # the worker's
     assert before.count == 0 and log.count == 1 and log.seconds >= 0.0
     assert not _programs._ahead and len(list(folder.iterdir())) == 1
+    _programs._loaded.clear()  # a later process: stored already, nothing to compile ahead
+    _programs.compile_ahead("test_box", _program, shapes, (2,))
+    assert not _programs._ahead
 
 
 def test_nothing_compiled_ahead_without_a_key(folder, monkeypatch):
