@@ -38,8 +38,16 @@ is exported and the program is traced as usual; a file that fails its digest, ca
 or deserialized, or does not fit the arguments is ignored and replaced; a program jax cannot
 export (a host callback), or a failing call of a loaded export, falls back to the traced
 program. Global configuration is only read, never set.
+
+Compiled ahead: `compile_ahead` (a stored program's `ahead`) makes a program ready on a
+worker thread for arguments of given shapes while the caller does other work (XLA's
+compilation releases the GIL; the machines have two cores or more); the later call with
+arrays of those shapes waits for it instead of compiling (`jaxba._timing.compiled_ahead`
+counts it there, with the seconds waited).
 """
 
+import atexit
+import concurrent.futures
 import contextlib
 import enum
 import functools
@@ -49,14 +57,18 @@ import importlib.util
 import os
 import pathlib
 import pickle
+import queue
 import sys
 import tempfile
+import threading
 import types
 from collections.abc import Callable, Iterable
 
 import equinox as eqx
 import jax
 import numpy as np
+
+from ._timing import CompileLog, compiled_ahead
 
 FOLDER = "jaxba-programs"  # inside jax's cache folder; jax's own entries end in "-cache"
 _DIGEST = 32  # bytes of BLAKE2b at the head of a stored file
@@ -69,8 +81,9 @@ _KNOWN = frozenset(("jaxba", *_LIBRARIES, "builtins", "abc", "collections", "typ
 # jax's options that change a trace (the others change compilation, which jax keys itself).
 _OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
             "jax_numpy_dtype_promotion")
-_loaded: dict[str, tuple] = {}  # key: (the export's call jitted, output tree, rest), this process
+_loaded: dict[str, tuple] = {}  # key: `_prepare`'s (call, output tree, rest, avals), this process
 _traced: set[str] = set()  # keys of programs that could not be exported, in this process
+_ahead: dict[str, concurrent.futures.Future] = {}  # key: `compile_ahead`'s job, not yet called
 _lookups: list[Callable[[], Iterable]] = []  # `register_lookup`'s registries
 
 
@@ -87,13 +100,19 @@ def register_lookup(entries: Callable[[], Iterable]) -> None:
 
 
 def stored(name: str) -> Callable[[Callable], Callable]:
-    """Decorator: the jitted `program` called through `call_stored` under `name`."""
+    """Decorator: the jitted `program` called through `call_stored` under `name`; the call's
+    `ahead(*args)` is `compile_ahead(name, program, args)`, its `output_shapes(*args)`
+    `output_shapes(name, program, args)`, its `nothing_to_compile(*args)` that of
+    `nothing_to_compile`."""
 
     def decorate(program: Callable) -> Callable:
         @functools.wraps(program)
         def call(*args):
             return call_stored(name, program, args)
 
+        call.ahead = lambda *args: compile_ahead(name, program, args)
+        call.output_shapes = lambda *args: output_shapes(name, program, args)
+        call.nothing_to_compile = lambda *args: nothing_to_compile(name, program, args)
         return call
 
     return decorate
@@ -111,7 +130,9 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
 
     The output's structure (its pytree nodes and non-array leaves) is stored beside the
     export, pickled with empty arrays in place of its arrays: a later process rebuilds the
-    output without tracing. Returns what `program(*args, *static)` returns.
+    output without tracing. A program `compile_ahead` is compiling for these arguments'
+    shapes is waited for, not compiled again. Returns what `program(*args, *static)`
+    returns.
     """
     arrays, rest = eqx.partition(args, eqx.is_array)
     leaves, tree = jax.tree.flatten(arrays)
@@ -124,29 +145,13 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
     if key is None or key in _traced:
         return program(*args, *static)
     path = folder / f"{name}-{key}.export"
-    loaded = _loaded.get(key)
-    if loaded is None:
-        stored = _load(path, leaves)
-        if stored is None:
-            made = _export(getattr(program, "nested", program), tree, rest, static, leaves)
-            if made is None or _key(name, program, tree, leaves, rest, static) != key:
-                # not exportable, its output not picklable, or the trace looked up a class
-                # by a name never resolved before (a registry changed): no file
-                _traced.add(key)  # and no second try in this process
-                return program(*args, *static)
-            *stored, body = made
-            _store(path, body)
-        exported, skeleton = stored
-        options = getattr(program, "compiler_options", None)
-        out_arrays, out_rest = eqx.partition(skeleton, eqx.is_array)
-        # One sharding for every input: an export's outputs are committed to their device,
-        # NumPy inputs are not, and jit compiled the call again for each mix of the two.
-        device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
-        loaded = _loaded[key] = (
-            jax.jit(_named(exported.call, name), in_shardings=device,
-                    compiler_options=None if options is None else options()),
-            jax.tree.structure(out_arrays), out_rest)
-    call, out_tree, out_rest = loaded
+    ahead = _ahead.pop(key, None)  # first called: counted here, however far it got
+    loaded = _loaded.get(key) if ahead is None else compiled_ahead(ahead)
+    if loaded is None and key not in _traced:  # (its compilation ahead failed: again here)
+        loaded = _prepare(name, program, key, path, tree, leaves, rest, static)
+    if loaded is None:  # not exportable
+        return program(*args, *static)
+    call, out_tree, out_rest, _ = loaded
     try:
         flat = call(*leaves)
     except Exception:  # a stale or broken export: trace as usual, drop the file
@@ -155,6 +160,137 @@ def call_stored(name: str, program: Callable, args: tuple, static: tuple = ()):
             path.unlink(missing_ok=True)
         return program(*args, *static)
     return eqx.combine(jax.tree.unflatten(out_tree, flat), out_rest)
+
+
+def compile_ahead(name: str, program: Callable, args: tuple, static: tuple = ()) -> None:
+    """Start making `call_stored(name, program, args, static)`'s program ready (its export
+    read or traced and stored, then compiled, or read from jax's persistent cache) on a
+    worker thread, while the caller goes on: XLA's compilation releases the GIL, so a second
+    core compiles while the first traces, compiles or runs other programs. `args` as
+    `call_stored`'s, any array leaf a `jax.ShapeDtypeStruct` (weak type included) of the
+    array the later call passes. One worker, jobs in order. Nothing where `call_stored`
+    would not store the program, where it is ready or on its way already, or where an
+    earlier process stored it (a warm cache: nothing to compile). The worker traces
+    under jax's global configuration: where the caller's key holds a thread-local option
+    (`jax.enable_x64` as a context), the worker's differs, nothing is stored and the call
+    traces as usual."""
+    if nothing_to_compile(name, program, args, static):
+        return
+    arrays, rest = eqx.partition(args, _is_array_or_shape)
+    leaves, tree = jax.tree.flatten(arrays)
+    key = _key(name, program, tree, leaves, rest, static)
+    path = _folder() / f"{name}-{key}.export"
+
+    def job():
+        with CompileLog() as log:
+            return _prepare(name, program, key, path, tree, leaves, rest, static,
+                            compile=True), log
+
+    future = _ahead[key] = concurrent.futures.Future()
+    _jobs().put((future, job))
+
+
+def nothing_to_compile(name: str, program: Callable, args: tuple, static: tuple = ()) -> bool:
+    """Whether `compile_ahead(name, program, args, static)` has nothing to do: the program
+    is not stored (no key, not exportable), is ready or on its way in this process, or an
+    earlier process stored it. Stored, its executable is in jax's cache: loading it is
+    mostly Python (the GIL), and on a worker it slowed the caller's own work (the
+    close-range block, warm: datum check 1.4-1.6 -> 3.2-3.4 s) for no gain."""
+    arrays, rest = eqx.partition(args, _is_array_or_shape)
+    leaves, tree = jax.tree.flatten(arrays)
+    folder = _folder()
+    key = None if folder is None else _key(name, program, tree, leaves, rest, static)
+    return (key is None or key in _traced or key in _loaded or key in _ahead
+            or (folder / f"{name}-{key}.export").exists())
+
+
+def output_shapes(name: str, program: Callable, args: tuple, static: tuple = ()):
+    """What `call_stored(name, program, args, static)` returns, a `jax.ShapeDtypeStruct`
+    for each array (`returned_shapes`), where that program is ready in this process (called
+    before, or compiled ahead): read from its export, nothing traced. Else None."""
+    arrays, rest = eqx.partition(args, _is_array_or_shape)
+    leaves, tree = jax.tree.flatten(arrays)
+    key = None if _folder() is None else _key(name, program, tree, leaves, rest, static)
+    loaded = None if key is None else _loaded.get(key)
+    if loaded is None:
+        return None
+    _, out_tree, out_rest, out_avals = loaded
+    shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in out_avals]
+    return eqx.combine(jax.tree.unflatten(out_tree, shapes), out_rest)
+
+
+def returned_shapes(tree):
+    """`tree` (arrays, `jax.ShapeDtypeStruct`s: `jax.eval_shape`'s) with a
+    `jax.ShapeDtypeStruct` for each array as a stored program returns it: not weakly typed
+    (an export's results never are; `eval_shape` of the traced program says a Python
+    scalar's are)."""
+    return jax.tree.map(
+        lambda leaf: jax.ShapeDtypeStruct(np.shape(leaf), leaf.dtype)
+        if _is_array_or_shape(leaf) else leaf, tree)
+
+
+def _is_array_or_shape(leaf) -> bool:
+    return eqx.is_array(leaf) or isinstance(leaf, jax.ShapeDtypeStruct)
+
+
+@functools.cache
+def _jobs() -> queue.SimpleQueue:
+    """`compile_ahead`'s queue of (future, job), served by one daemon thread. At exit the
+    jobs not started are cancelled and the one running is waited for (`_drain`): a thread
+    still tracing or compiling while the interpreter finalizes crashed the process."""
+    jobs, busy = queue.SimpleQueue(), threading.Lock()
+
+    def serve():
+        while True:
+            future, job = jobs.get()
+            with busy:
+                if future.set_running_or_notify_cancel():
+                    try:
+                        future.set_result(job())
+                    except Exception:  # e.g. XLA out of memory: the caller compiles as usual
+                        future.set_result((None, CompileLog()))
+
+    threading.Thread(target=serve, name="jaxba-compile-ahead", daemon=True).start()
+    atexit.register(_drain, jobs, busy)
+    return jobs
+
+
+def _drain(jobs: queue.SimpleQueue, busy: threading.Lock) -> None:
+    """Cancel the jobs not started, wait for the one running; no job runs after."""
+    with contextlib.suppress(queue.Empty):
+        while True:
+            jobs.get_nowait()[0].cancel()
+    busy.acquire()
+
+
+def _prepare(name, program, key, path, tree, leaves, rest, static, compile=False):
+    """(the stored program's call, its output's tree, the output's non-array leaves, the
+    export's output avals), kept for `key` in this process: the export read from `path`,
+    else traced and stored there; with `compile`, compiled for `leaves`' shapes. None where
+    it cannot be exported (noted: no second try in this process)."""
+    stored = _load(path, leaves)
+    if stored is None:
+        made = _export(getattr(program, "nested", program), tree, rest, static, leaves)
+        if made is None or _key(name, program, tree, leaves, rest, static) != key:
+            # not exportable, its output not picklable, or the trace looked up a class
+            # by a name never resolved before (a registry changed): no file
+            _traced.add(key)
+            return None
+        *stored, body = made
+        _store(path, body)
+    exported, skeleton = stored
+    options = getattr(program, "compiler_options", None)
+    out_arrays, out_rest = eqx.partition(skeleton, eqx.is_array)
+    # One sharding for every input: an export's outputs are committed to their device,
+    # NumPy inputs are not, and jit compiled the call again for each mix of the two.
+    device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    call = jax.jit(_named(exported.call, name), in_shardings=device,
+                   compiler_options=None if options is None else options())
+    if compile:
+        call = call.lower(*(_shape(leaf) for leaf in leaves)).compile()
+    loaded = _loaded[key] = (call, jax.tree.structure(out_arrays), out_rest,
+                             exported.out_avals)
+    return loaded
 
 
 def _named(call: Callable, name: str) -> Callable:
@@ -316,9 +452,7 @@ def _export(program, tree, rest, static, leaves):
         out_leaves, traced["tree"] = jax.tree.flatten(out_arrays)
         return out_leaves
 
-    specs = [jax.ShapeDtypeStruct(np.shape(leaf), leaf.dtype,
-                                  weak_type=bool(getattr(leaf, "weak_type", False)))
-             for leaf in leaves]
+    specs = [_shape(leaf) for leaf in leaves]
     try:
         serialized = bytes(jax.export.export(jax.jit(flat))(*specs).serialize())
         exported = jax.export.deserialize(bytearray(serialized))
@@ -332,6 +466,11 @@ def _export(program, tree, rest, static, leaves):
     if jax.tree.structure(arrays) != traced["tree"] or not eqx.tree_equal(rest, traced["rest"]):
         return None
     return exported, skeleton, len(pickled).to_bytes(_LENGTH, "little") + pickled + serialized
+
+
+def _shape(leaf) -> jax.ShapeDtypeStruct:
+    return jax.ShapeDtypeStruct(np.shape(leaf), leaf.dtype,
+                                weak_type=bool(getattr(leaf, "weak_type", False)))
 
 
 def _store(path: pathlib.Path, body: bytes) -> None:

@@ -8,10 +8,17 @@ a program the C heap's free pages are returned to the system (`jaxba._memory`): 
 compilations must not raise the next phase's memory. Phases that compile nothing (the
 re-adjustments of variance components and data snooping) skip it: `malloc_trim` walks the
 whole heap, 20-40 ms a call in a process that has compiled many programs.
+
+A log holds its own thread's events. A program compiled ahead on a worker thread
+(`jaxba._programs.compile_ahead`) counts where it is first called (`compiled_ahead`), with
+the seconds the caller waited for it: the wall time its compilation cost the run, not its
+work.
 """
 
+import concurrent.futures
 import contextlib
 import dataclasses
+import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -32,23 +39,46 @@ _open_logs: list["CompileLog"] = []
 _registered = False
 
 
+def _thread_logs() -> list["CompileLog"]:
+    """The logs open on the calling thread."""
+    thread = threading.get_ident()
+    return [log for log in _open_logs if log.thread == thread]
+
+
 def _on_duration(event: str, duration: float, **kwargs) -> None:
     if event not in (_TRACE, _LOWER, _COMPILE):
         return
-    for log in _open_logs:
+    for log in _thread_logs():
         log.seconds += duration
-        if event == _LOWER and duration >= _LONG_LOWERING and not log.announced:
-            log.announced = True
-            if log.on_compile is not None:
-                log.on_compile()
+        if event == _LOWER and duration >= _LONG_LOWERING:
+            log.announce()
         if event == _COMPILE:
             log.count += 1
 
 
 def _on_event(event: str, **kwargs) -> None:
     if event == _CACHE_HIT:
-        for log in _open_logs:
+        for log in _thread_logs():
             log.cache_hits += 1
+
+
+def compiled_ahead(future: concurrent.futures.Future):
+    """The result of `future`, (a program, the `CompileLog` it was compiled under on another
+    thread), counted in this thread's open logs: its programs and cache hits, and the
+    seconds this thread waited for it (their `on_compile` called first where it waits).
+    Returns the program."""
+    logs = _thread_logs()
+    start = time.perf_counter()
+    if not future.done():
+        for log in logs:
+            log.announce()
+    program, compiled = future.result()
+    seconds = time.perf_counter() - start
+    for log in logs:
+        log.seconds += seconds
+        log.count += compiled.count
+        log.cache_hits += compiled.cache_hits
+    return program
 
 
 def _register() -> None:
@@ -62,7 +92,8 @@ def _register() -> None:
 @dataclasses.dataclass(eq=False)  # identity: nested logs must not be confused
 class CompileLog:
     """Tracing + lowering + compiling seconds and the number of programs compiled (or loaded
-    from the persistent cache: `cache_hits` of them) while the `with` block runs.
+    from the persistent cache: `cache_hits` of them) on the thread that opened it while the
+    `with` block runs (`compiled_ahead`: programs compiled for it on another).
     `on_compile()` is called once, when the first big program (lowered in `_LONG_LOWERING`
     seconds or more) has been lowered, just before its backend compilation (or its look-up
     in the persistent cache) starts."""
@@ -72,11 +103,20 @@ class CompileLog:
     count: int = 0
     cache_hits: int = 0
     announced: bool = False
+    thread: int = 0  # the thread that opened it
 
     def __enter__(self) -> "CompileLog":
         _register()
+        self.thread = threading.get_ident()
         _open_logs.append(self)
         return self
+
+    def announce(self) -> None:
+        """Call `on_compile`, once."""
+        if not self.announced:
+            self.announced = True
+            if self.on_compile is not None:
+                self.on_compile()
 
     def __exit__(self, *exc) -> None:
         _open_logs.remove(self)

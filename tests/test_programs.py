@@ -3,7 +3,12 @@ traced program's results (bit for bit; the batch's to `EXPORT_RTOL`); a corrupt,
 unusable file, an unexportable program, arguments without a key or no cache folder fall back
 to tracing; a changed structure gets a new key."""
 
+import os
 import pathlib
+import subprocess
+import sys
+import textwrap
+import threading
 
 import equinox as eqx
 import jax
@@ -15,6 +20,9 @@ from jaxtyping import Array, Float
 import jaxba
 from jaxba import _programs
 from jaxba._adjust import _batch
+from jaxba._timing import CompileLog
+
+ROOT = pathlib.Path(jaxba.__file__).resolve().parents[1]
 
 # The exported and the traced batch program compile to the same arithmetic: bit-identical
 # with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
@@ -313,3 +321,82 @@ def test_under_a_transformation_the_program_is_nested(folder):
     numeric = (total(1.0 + step) - total(1.0 - step)) / (2 * step)
     assert np.isclose(jax.grad(total)(1.0), numeric, rtol=1e-6)
     assert np.isclose(jax.jit(total)(1.0), total(1.0))
+
+
+def test_a_program_compiled_ahead_is_compiled_once_and_counted_where_called(folder,
+                                                                            monkeypatch):
+    """`compile_ahead` with shapes only (`jax.ShapeDtypeStruct`): the worker exports and
+    compiles; the later call with arrays of those shapes compiles nothing more, gives the
+    traced results and counts the program (and the seconds waited) in the caller's log,
+    none in a log of the worker's thread's events. Stored by an earlier process: no job."""
+    monkeypatch.setattr(_programs, "_ahead", {})
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), (box, y))
+    compiled = []
+
+    def on_duration(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(threading.get_ident())
+
+    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    try:
+        with CompileLog() as before:
+            _programs.compile_ahead("test_box", _program, shapes, (2,))
+            _programs.compile_ahead("test_box", _program, shapes, (2,))  # on its way: no job
+        with CompileLog() as log:
+            first = _call(box, y)
+        second = _call(box, y)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_duration)
+    assert _equal(first, _program(box, y, 2)) and _equal(second, first)
+    assert len(compiled) == 1 and compiled[0] != threading.get_ident()  # the worker's
+    assert before.count == 0 and log.count == 1 and log.seconds >= 0.0
+    assert not _programs._ahead and len(list(folder.iterdir())) == 1
+    _programs._loaded.clear()  # a later process: stored already, nothing to compile ahead
+    _programs.compile_ahead("test_box", _program, shapes, (2,))
+    assert not _programs._ahead
+
+
+def test_nothing_compiled_ahead_without_a_key(folder, monkeypatch):
+    """Arguments without a key (a lambda) or no cache folder: no job, the call traces."""
+    monkeypatch.setattr(_programs, "_ahead", {})
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    _programs.compile_ahead("test_box", _program, (box, y), (lambda: 2,))
+    monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
+    _programs.compile_ahead("test_box", _program, (box, y), (2,))
+    assert not _programs._ahead and not _programs._loaded
+
+
+def test_a_process_ending_while_a_program_compiles_ahead_ends_cleanly(tmp_path):
+    """A process that exits (an error, a refused datum) while the worker traces or compiles
+    exits with its own status: the running job is waited for (a thread compiling while the
+    interpreter finalized crashed the process: SIGSEGV, SIGABRT)."""
+    script = tmp_path / "exit.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys
+        import time
+        import equinox as eqx
+        import jax
+        import jax.numpy as jnp
+        jax.config.update("jax_enable_x64", True)
+        jax.config.update("jax_compilation_cache_dir", {str(tmp_path / "cache")!r})
+        from jaxba import _programs
+        _programs._KNOWN = _programs._KNOWN | {{"__main__"}}
+
+        @eqx.filter_jit
+        def program(x):
+            for k in range(60):  # some kernels: a compilation of a second or so
+                x = jnp.sin(x) * k + jnp.cos(x * 0.5 + k)
+                x = x.at[k % 50].set(jnp.sum(x))
+            return x
+
+        _programs.compile_ahead("exiting", program, (jax.ShapeDtypeStruct((50,), float),))
+        (ahead,) = _programs._ahead.values()
+        while not ahead.running():
+            time.sleep(0.01)
+        time.sleep(0.3)  # traced by now: compiling
+        sys.exit(3)
+    """))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
+    assert done.returncode == 3, done.stderr

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import jaxba
+from jaxba import _programs
 from jaxba._solvers._schur._choice import SCHUR_MIN_UNKNOWNS, use_schur
 from jaxba._statistics._covariance import SchurCovariance
 from jaxba.advanced import flatten
@@ -212,15 +213,17 @@ def _numbers(tree) -> np.ndarray:
     return np.array([np.nan if tree is None else float(tree)])
 
 
-def test_the_datum_check_and_the_statistics_are_one_program_each(tmp_path):
+def test_the_datum_check_and_the_statistics_are_one_program_each(tmp_path, monkeypatch):
     """What a run traces, lowers and loads from the cache in every process (jax's compile
     events, counted per phase by `Timings`): the datum check one program (the normal
     equations with S), the statistics one more (covariance blocks, redundancy numbers and
     residuals; the normal equations at the solution reuse the datum check's program), the
     stepwise solve its init, step and result (and, once per process, the probe of the
-    compiler options)."""
+    compiler options). The step and the statistics, compiled ahead on a worker thread,
+    count where they are called."""
     project = _project(tmp_path)
     jax.clear_caches()  # every program of the run is traced again (loaded from the cache)
+    monkeypatch.setattr(_programs, "_loaded", {})  # as in a process of its own
     result = jaxba.adjust_project(project, solver="schur")
     compiled = {phase.name: phase.compilations for phase in result.timings.phases}
     assert compiled["datum check"] == 1

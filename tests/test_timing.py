@@ -1,6 +1,8 @@
 """Phase timings: compilations are counted inside the phase that triggers them, announced
 before a big one, and not counted again for a program already compiled."""
 
+import threading
+
 import jax
 import jax.numpy as jnp
 import pytest
@@ -57,3 +59,17 @@ def test_only_phases_that_compile_release_free_memory(monkeypatch):
     with timings.phase("runs"):
         double(jnp.ones(5)).block_until_ready()
     assert len(released) == 1
+
+
+def test_a_log_counts_its_own_threads_compilations_only():
+    """A program compiled on another thread while a log is open is not this thread's
+    compile time (`compiled_ahead` counts it where it is called)."""
+    with CompileLog() as log:
+        worker = threading.Thread(
+            target=lambda: jax.jit(lambda x: x * 5.0 - 2.0)(jnp.ones(7)).block_until_ready())
+        worker.start()
+        worker.join()
+    assert log.count == 0 and log.seconds == 0.0
+    with CompileLog() as log:
+        jax.jit(lambda x: x * 5.0 - 3.0)(jnp.ones(7)).block_until_ready()
+    assert log.count == 1 and log.seconds > 0.0

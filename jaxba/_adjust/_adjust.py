@@ -96,9 +96,13 @@ def adjust(
     check_problem(problem, labels)
     timings = Timings() if timings is None else timings
     bundle = adjustable(problem, solver)
-    if check:
-        with timings.phase("datum check"):
+    with timings.phase("datum check" if check else "solve"):
+        # The solve's and the statistics' programs compile on another core meanwhile (where
+        # the backend's take seconds): wall time saved, not work.
+        bundle.compile_ahead(rtol=rtol, atol=atol, stop=stop)
+        if check:
             bundle.check_datum(labels)
+            bundle.compile_statistics_ahead()
     redundancy = problem.n_observations() - problem.n_unknowns()
     recorder = StepRecorder(redundancy, sigma0, on_iteration)
     with timings.phase("solve"):

@@ -160,6 +160,10 @@ class Backend(eqx.Module):
     def cofactors(self, problem: BundleProblem, params: Parameters) -> Cofactors:
         """N⁻¹ at `params` (where N is singular: `LinAlgError`, or NaN cofactors)."""
 
+    def cofactors_ahead(self, problem: BundleProblem) -> None:
+        """Start compiling `cofactors`' program on a worker thread where the backend can
+        (`jaxba._programs.compile_ahead`); else nothing."""
+
     @abc.abstractmethod
     def leverages(self, problem: BundleProblem, params: Parameters) -> Leverages:
         """The real observations' leverages at `params`."""

@@ -19,6 +19,10 @@ one process, the same run): Dubrovnik-16's BAL solve compiles in 7.6-7.9 s inste
 11.2-12.9 s to the same cost (0.90-1.08 s of CPU either way under that load; on a quiet
 machine the solves of Dubrovnik-16 and Ladybug-49 run 10-15 % slower with them); `jaxba
 adjust` of the imported project compiles its seven programs in 12.4 s instead of 20.5 s.
+So the programs run once or a few times per adjustment (the stepwise loop's steps, normal
+equations, cofactors) take them, and the solve compiled as one loop (`jaxba bal`, the BAL
+benchmarks: run time is what is measured there, from a warm cache) keeps XLA's default
+emitters (`solver_jit(fn, fusion_emitters=True)`).
 """
 
 import functools
@@ -33,19 +37,22 @@ SOLVER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_I
 
 
 @functools.cache
-def solver_compiler_options() -> dict[str, str | bool]:
+def solver_compiler_options(fusion_emitters: bool = False) -> dict[str, str | bool]:
     """`SOLVER_OPTIONS` where this jaxlib accepts them (a trivial program compiled once to
-    find out), else none: the names are XLA's experimental ones."""
+    find out), else none: the names are XLA's experimental ones. `fusion_emitters`: XLA's
+    default (MLIR) emitters, YNNPACK's option alone."""
     try:
         jax.jit(lambda x: x + 1, compiler_options=SOLVER_OPTIONS).lower(1.0).compile()
     except jax.errors.JaxRuntimeError:
         return {}
+    if fusion_emitters:
+        return {k: v for k, v in SOLVER_OPTIONS.items() if k != "xla_cpu_use_fusion_emitters"}
     return dict(SOLVER_OPTIONS)
 
 
 class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
-    """`eqx.filter_jit(fn)` compiled with `solver_compiler_options()`, settled at the first
-    call or `lower` (never at import). Calls and `lower` as `eqx.filter_jit`'s.
+    """`eqx.filter_jit(fn)` compiled with `solver_compiler_options(fusion_emitters)`, settled
+    at the first call or `lower` (never at import). Calls and `lower` as `eqx.filter_jit`'s.
 
     Only for programs called at the top level, never inside `jax.jit` or `jax.vmap` (jax
     refuses compiler options on a nested jit): the Schur backend's solve, normal equations
@@ -55,14 +62,15 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
     solve, which batches vmap, keeps the default options.
     """
 
-    def __init__(self, fn: Callable):
+    def __init__(self, fn: Callable, *, fusion_emitters: bool = False):
         self._fn = fn
+        self._fusion_emitters = fusion_emitters
         self._program = None
         functools.update_wrapper(self, fn)
 
     def _compiled(self):
         if self._program is None:
-            self._program = eqx.filter_jit(self._fn, compiler_options=solver_compiler_options())
+            self._program = eqx.filter_jit(self._fn, compiler_options=self.compiler_options())
         return self._program
 
     def __call__(self, *args, **kwargs):
@@ -77,6 +85,5 @@ class solver_jit:  # noqa: N801 (used as a decorator, like eqx.filter_jit)
         `jaxba._programs.call_stored` compiles that with `compiler_options()`)."""
         return eqx.filter_jit(self._fn)
 
-    @staticmethod
-    def compiler_options() -> dict[str, str | bool]:
-        return solver_compiler_options()
+    def compiler_options(self) -> dict[str, str | bool]:
+        return solver_compiler_options(self._fusion_emitters)

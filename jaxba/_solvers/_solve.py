@@ -26,7 +26,7 @@ from ._dense import Dense
 from ._schur._choice import SOLVERS, use_schur
 from ._schur._descent import Schur
 from ._solution import Solution
-from ._steps import StepInfo, least_squares_stepwise
+from ._steps import StepInfo, compile_step_ahead, least_squares_stepwise
 from ._trust_region import CERES_FUNCTION_TOLERANCE, COST_RULE_STEP_TOLERANCE, STEP_TOLERANCE
 
 # Where a solve stops (`stopping_rule`): solve's step_tolerance, function_tolerance and
@@ -100,6 +100,27 @@ def lower_solve(
     program, arguments = _program(problem, backend.ready(problem), tolerances, max_steps,
                                   optx.ImplicitAdjoint())
     return program.lower(*arguments), arguments
+
+
+def compile_stepwise_ahead(
+    problem: BundleProblem,
+    backend: Backend,
+    *,
+    rtol: float | None = None,
+    atol: float | None = None,
+    step_tolerance: float = STEP_TOLERANCE,
+    function_tolerance: float = 0.0,
+    gauss_newton: bool = True,
+) -> None:
+    """Start compiling the step program that `solve(problem, backend, ..., on_step=...)`
+    with the same settings runs, on a worker thread (`compile_step_ahead`): for a caller
+    with other work before the solve (a datum check). Nothing for a backend whose setup is a
+    program of its own (`compiled_setup`: Dense)."""
+    tolerances = _tolerances(backend, rtol, atol, step_tolerance, function_tolerance,
+                             gauss_newton)
+    backend = backend.ready(problem).for_steps()
+    if not backend.compiled_setup:
+        compile_step_ahead(*backend.least_squares(problem, tolerances), has_aux=True)
 
 
 def stopping_rule(name: str) -> dict:
@@ -177,7 +198,9 @@ def _least_squares(problem, backend, tolerances, max_steps, adjoint) -> Solution
 
 
 _compiled = eqx.filter_jit(_least_squares)
-_top_level = solver_jit(_least_squares)
+# The whole loop in one program runs every iteration inside it: XLA's default emitters, the
+# faster code (`jaxba._solvers._compiled`).
+_top_level = solver_jit(_least_squares, fusion_emitters=True)
 
 
 def _stepwise(problem, backend, tolerances, max_steps, on_step) -> Solution:

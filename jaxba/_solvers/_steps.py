@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._memory import release_free_memory
-from .._programs import stored
+from .._programs import returned_shapes, stored
 from .._timing import CompileLog
 from ._compiled import solver_jit
 
@@ -74,6 +74,22 @@ def _step(fn, solver, y, args, state):
     new_y, state, aux = solver.step(fn, y, args, {}, state, frozenset())
     # As optimistix: the finiteness test is on the iterate the step started from.
     return new_y, state, aux, *_terminate(fn, solver, y, args, state)
+
+
+def compile_step_ahead(fn: Callable, solver: optx.AbstractLeastSquaresSolver, y0: Any,
+                       args: Any = None, *, has_aux: bool = False) -> None:
+    """Start compiling `least_squares_stepwise`'s step program for these arguments (as
+    given to it) on a worker thread (`jaxba._programs.compile_ahead`): its first call then
+    waits for that instead of compiling. The state's shapes from tracing `init` (no
+    compilation), as the stored `init` returns them (`returned_shapes`). Nothing where
+    `init` has nothing to compile (`nothing_to_compile`: run in this process, a
+    re-adjustment, or stored by an earlier one: the step with it)."""
+    if not has_aux:
+        fn = _NoAux(fn)
+    if _init.nothing_to_compile(fn, solver, y0, args):
+        return
+    state, *_ = eqx.filter_eval_shape(_init.__wrapped__.nested, fn, solver, y0, args)
+    _step.ahead(fn, solver, y0, args, returned_shapes(state))
 
 
 def _stops(terminate, failed) -> bool:

@@ -34,7 +34,7 @@ from .._problem._bundle import BundleProblem
 from .._problem._parameters import Parameters
 from .._solvers._backend import Backend
 from .._solvers._solution import Solution
-from .._solvers._solve import choose_backend, solve, stopping_rule
+from .._solvers._solve import choose_backend, compile_stepwise_ahead, solve, stopping_rule
 from ._adjustment import Adjustment
 from ._covariance import Precision, precision, precision_from_cofactors, redundancy_numbers
 from ._datum import check_rank, whitened_residuals
@@ -61,6 +61,7 @@ class Adjustable:
         # A free network's cofactors from the minimal datum, S-transformed.
         self.in_minimal_datum = self.free_network and not backend.holds_inner_constraints
         self._chosen = backend
+        self._released: dict[bool, tuple[BundleProblem, Backend]] = {}  # `_solved_on`'s
 
     @functools.cached_property
     def solved(self) -> BundleProblem:
@@ -89,15 +90,43 @@ class Adjustable:
         Levenberg-Marquardt crawling on weak blocks)."""
         settings = dict(max_steps=max_steps, rtol=rtol, atol=atol, on_step=on_step,
                         **stopping_rule(stop))
-        if self.problem.gauge and not self.free_network and self._chosen.releases_gauge:
-            problem, gauge = released(self.problem)
-            held = gauge if settings["step_tolerance"] > 0 else None
-            solution = solve(problem, self._chosen.released_gauge(held), **settings)
+        problem, backend = self._solved_on(settings["step_tolerance"])
+        solution = solve(problem, backend, **settings)
+        if self._releases_gauge:
             return _moved(solution, to_gauge_datum(self.problem, solution.parameters))
-        solution = solve(self.solved, self.backend, **settings)
         if not self.free_network:
             return solution
         return _moved(solution, to_inner_datum(self.problem, solution.parameters))
+
+    def compile_ahead(self, *, rtol: float, atol: float, stop: str = "statistical") -> None:
+        """Start compiling the step program of `solve(..., on_step=...)` with these settings
+        on a worker thread (`compile_stepwise_ahead`), where the backend compiles its
+        programs at the top level (Schur: programs of seconds; Dense: nothing)."""
+        if self._chosen.top_level:
+            settings = stopping_rule(stop)
+            compile_stepwise_ahead(*self._solved_on(settings["step_tolerance"]), rtol=rtol,
+                                   atol=atol, **settings)
+
+    def compile_statistics_ahead(self) -> None:
+        """Start compiling `precision_and_whitened`'s cofactors program on a worker thread
+        where the backend can (`Backend.cofactors_ahead`: after the datum check)."""
+        if not self.in_minimal_datum:
+            self.backend.cofactors_ahead(self.problem)
+
+    @property
+    def _releases_gauge(self) -> bool:
+        return bool(self.problem.gauge) and not self.free_network and self._chosen.releases_gauge
+
+    def _solved_on(self, step_tolerance: float) -> tuple[BundleProblem, Backend]:
+        """The problem `solve` solves and its backend, ready (its split built once)."""
+        if not self._releases_gauge:
+            return self.solved, self.backend
+        held = step_tolerance > 0  # the statistical test needs the Gauss-Newton steps
+        if held not in self._released:
+            problem, gauge = released(self.problem)
+            backend = self._chosen.released_gauge(gauge if held else None).ready(problem)
+            self._released[held] = problem, backend
+        return self._released[held]
 
     def precision(self, params: Parameters, *, sigma0: float = 1.0) -> Precision:
         """σ̂0², σ of every unknown and the covariance at `params` (`LinAlgError` where the

@@ -20,7 +20,7 @@ from .._trust_region import (
 )
 from ._assembly import BundleNormalEquations, bundle_normal_equations, zero_normal_equations
 from ._columns import at_columns, reduced_vector, to_parameters
-from ._leverages import schur_cofactors, schur_leverages
+from ._leverages import schur_cofactors, schur_cofactors_ahead, schur_leverages
 from ._null_space import schur_rank
 from ._reduced_solve import schur_solve, solve_bundle_damped
 from ._structure import BundleStructure, bundle_structure
@@ -155,6 +155,9 @@ class Schur(Backend):
     def cofactors(self, problem, params):
         """With the leverages and the whitened residuals: one program for all."""
         return schur_cofactors(problem, self.structure, params)
+
+    def cofactors_ahead(self, problem):
+        schur_cofactors_ahead(problem, self.structure)
 
     def leverages(self, problem, params):
         return schur_leverages(problem, self.structure, params)

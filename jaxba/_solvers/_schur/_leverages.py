@@ -66,6 +66,16 @@ def schur_cofactors(problem: BundleProblem, structure: BundleStructure, params: 
                      leverages=_real(problem, leverages, residuals), whitened=whitened)
 
 
+def schur_cofactors_ahead(problem: BundleProblem, structure: BundleStructure) -> None:
+    """Start compiling `schur_cofactors`' program for `problem` at parameters shaped as its
+    approximations on a worker thread (`jaxba._programs.compile_ahead`), where the normal
+    equations' program is ready in this process (the datum check's: its output shapes are
+    read from it); else nothing."""
+    normal = compiled_normal_equations.output_shapes(problem, structure, problem.initial)
+    if normal is not None:
+        _cofactors_program.ahead(problem, structure, problem.initial, *normal)
+
+
 def _real(problem, leverages, residuals) -> Leverages:
     """`Leverages` of the real observations from the leverages and residuals per group."""
     leverage = np.concatenate([np.ravel(np.asarray(h)) for h in leverages])
