@@ -35,8 +35,8 @@ from ._bundle import (
     params_from_free,
     tie_source,
 )
-from ._observations import ImagePoints
-from ._parameters import Parameters, flatten, unflatten
+from ._observations import ImagePoints, local_positions
+from ._parameters import Parameters, flatten, positions_of
 from ._unique_rows import unique_rows
 
 
@@ -61,18 +61,11 @@ class LinearisationPlan(eqx.Module):
         return self.free_index.shape[-1]
 
 
-@stored("local_positions")
-@eqx.filter_jit
-def _local_positions_jit(problem: BundleProblem, positions: Parameters) -> tuple:
-    return tuple(group.local_values(positions) for group in problem.groups)
-
-
 def _local_positions(problem: BundleProblem) -> list[np.ndarray | None]:
     """Per group: the `flatten` positions of the unknowns each row depends on (n_rows,
-    width), or None for a group that is not row-local. One compiled program."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
-    return [None if depends is None else np.asarray(depends)
-            for depends in _local_positions_jit(problem, positions)]
+    width), or None for a group that is not row-local. In NumPy (`local_positions`)."""
+    positions = positions_of(problem.initial)
+    return [local_positions(group, positions) for group in problem.groups]
 
 
 def _free_columns(problem: BundleProblem, free_index: np.ndarray) -> np.ndarray:

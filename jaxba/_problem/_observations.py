@@ -71,12 +71,8 @@ class AbstractObservationGroup(eqx.Module):
     def local_values(self, params: Parameters) -> Array | None:
         """(n, width): the values of the unknowns row i depends on (`row_blocks`' rows, side
         by side), taken from `params` by indexing only (so a Parameters of flat positions
-        gives their positions). None: rows may depend on any unknown."""
-        blocks = self.row_blocks()
-        if not blocks:
-            return None
-        return jnp.concatenate([jnp.asarray(params.block(block))[index]
-                                for block, index in blocks], axis=1)
+        gives their positions: `local_positions`). None: rows may depend on any unknown."""
+        return _row_values(self.row_blocks(), params, jnp)
 
     def row_residual(self, values: Array, row: Array, refraction: AbstractRefraction) -> Array:
         """Whitened residual (k,) of row `row` from its unknowns `values` (width,)."""
@@ -139,6 +135,23 @@ class AbstractObservationGroup(eqx.Module):
     def sigma(self) -> Float[Array, "n k"]:
         """A priori σ of every residual entry."""
         return self.stddev
+
+
+def local_positions(group: AbstractObservationGroup, positions: Parameters
+                    ) -> np.ndarray | None:
+    """`group.local_values(positions)` in NumPy, on the host (no program): the `flatten`
+    positions (n, width) of the unknowns each row depends on, `positions` a Parameters of
+    positions (`positions_of`); None for a group that is not row-local."""
+    return _row_values(host_query(group, "row_blocks"), positions, np)
+
+
+def _row_values(blocks, params: Parameters, xp):
+    """`local_values` of `row_blocks`' `blocks` from `params`, with the array module `xp`
+    (jax.numpy in a trace, NumPy on the host)."""
+    if not blocks:
+        return None
+    return xp.concatenate([xp.asarray(params.block(block))[xp.asarray(index)]
+                           for block, index in blocks], axis=1)
 
 
 def host_query(group: AbstractObservationGroup, method: str, *args):
