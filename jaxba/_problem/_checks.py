@@ -7,11 +7,10 @@ with, a point nobody measured. Without these checks such a problem fails inside 
 approximations were to blame.
 """
 
-import jax
 import numpy as np
 
 from ._bundle import BundleProblem
-from ._parameters import flatten, parameter_labels, unflatten
+from ._parameters import flatten, parameter_labels, positions_of
 
 
 class ProblemError(ValueError):
@@ -49,8 +48,7 @@ def _reached(problem: BundleProblem) -> np.ndarray:
     """(n_all,) bool in `flatten` order: the unknowns some real observation depends on,
     from the blocks each group's rows refer to, the camera (mount and board warp) rows of
     image-point groups and the unknowns the priors observe directly."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.free).size))
-    positions = jax.tree.map(np.asarray, positions)
+    positions = positions_of(problem.initial)
     reached = np.zeros(flatten(problem.free).size, dtype=bool)
     for group in problem.groups:
         if group.constraint:

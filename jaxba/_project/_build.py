@@ -14,7 +14,7 @@ from .._models._cameras import CAMERA_MODELS, AtmosphericRefraction, NoRefractio
 from .._models._robust import RobustLoss
 from .._problem._bundle import BundleProblem
 from .._problem._observations import Distances, ImagePoints, ParameterObservations
-from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from .._problem._parameters import Parameters, parameter_labels, positions_of
 from .._statistics._free_network import inner_constraints
 from ._errors import ProjectError
 from ._frames import RigLayout, rig_layout
@@ -326,7 +326,7 @@ def _gauge_positions(initial: Parameters, images: np.ndarray) -> tuple[int, ...]
     datum's unknowns (`BundleProblem.gauge`)."""
     if not images.any():
         return ()
-    positions = unflatten(initial, np.arange(flatten(initial).size)).images
+    positions = positions_of(initial).images
     return tuple(np.asarray(positions)[images].tolist())
 
 

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from .._models._cameras import CAMERA_MODELS
-from .._problem._parameters import WARP_PARAMETER_NAMES, flatten, unflatten
+from .._problem._parameters import WARP_PARAMETER_NAMES, positions_of
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
@@ -33,7 +33,7 @@ def board_warp(project: Project, result: Adjustment) -> BoardWarp | None:
     params = result.parameters
     if params.warp is None:
         return None
-    positions = unflatten(params, np.arange(flatten(params).size))
+    positions = positions_of(params)
     warp = np.asarray(positions.warp)
     rho, cameras = [], {}
     for board in range(warp.shape[0]):

@@ -4,7 +4,11 @@ camera's (σ propagated from their covariance, `jaxba._statistics._rigs`)."""
 
 import numpy as np
 
-from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, flatten, unflatten
+from .._problem._parameters import (
+    ANGLE_NAMES,
+    IMAGE_PARAMETER_NAMES,
+    positions_of,
+)
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from .._statistics._derived import correlation
@@ -54,7 +58,7 @@ def mount_correlations(project: Project, result: Adjustment) -> dict[str, tuple[
     """"<rig>/<camera>" -> the names of its estimated relative-pose parameters and their
     correlation matrix ρ."""
     params = result.parameters
-    positions = np.asarray(unflatten(params, np.arange(flatten(params).size)).mounts)
+    positions = np.asarray(positions_of(params).mounts)
     free = np.asarray(project.problem.free.mounts)
     out = {}
     for row, mid in enumerate(project.rigs.mount_ids):

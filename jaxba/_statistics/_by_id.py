@@ -12,7 +12,7 @@ from .._problem._parameters import (
     POINT_PARAMETER_NAMES,
     WARP_PARAMETER_NAMES,
     flatten,
-    unflatten,
+    positions_of,
 )
 from ._ids import Ids
 from ._observation_statistics import group_statistics, image_point_rows, row_parts
@@ -115,7 +115,7 @@ class UnknownTables:
     def __init__(self, result, ids: Ids):
         params, problem = result.parameters, result.problem
         self.result, self.ids = result, ids
-        self.positions = unflatten(params, np.arange(flatten(params).size))
+        self.positions = positions_of(params)
         self.value = flatten(params).astype(float)
         std = flatten(result.precision.std).astype(float)
         free = flatten(problem.free).astype(bool)

@@ -11,7 +11,7 @@ import numpy as np
 
 from .._models._poses import POSE_MODELS
 from .._problem._bundle import BundleProblem
-from .._problem._parameters import flatten, unflatten
+from .._problem._parameters import flatten, positions_of, unflatten
 
 # Rays to a point that all lie within this angle of each other (degrees, an upper bound of
 # the largest pairwise angle) do not intersect it for the datum check: a Jacobian
@@ -41,7 +41,7 @@ def _listing(names: list[str], limit: int = _NAMED) -> str:
 
 def entity_ids(problem: BundleProblem, labels: list[str]) -> tuple[list[str], list[str]]:
     """The image and point ids, read from `labels` ("image img01 X0" -> "img01")."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
 
     def ids(rows):
         return [labels[int(k)].split(" ", 1)[1].rsplit(" ", 1)[0] for k in rows]
@@ -63,7 +63,7 @@ def _image_rows(problem: BundleProblem) -> tuple[np.ndarray, np.ndarray]:
 def _unconstrained_points(problem: BundleProblem) -> np.ndarray:
     """(n_points,) True for points with three free coordinates and no control observation:
     those that only rays can determine."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
     observed = np.concatenate([np.zeros(0, int)] + [
         group.prior_positions(positions) for group in problem.groups])
     controlled = np.isin(np.asarray(positions.points), observed).any(axis=1)

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from .._problem._bundle import BundleProblem, free_indices, tie_source
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, flatten, positions_of, unflatten
 from .._solvers._backend import Backend, Cofactors, Leverages
 from .._solvers._dense import Dense
 from .._solvers._schur._descent import Schur
@@ -106,7 +106,7 @@ def _schur_block(schur: SchurCovariance, std: Parameters, positions: np.ndarray)
     rows = _rows_of(flatten(std).size, schur.reduced_positions)[positions]
     if np.all(rows >= 0):
         return schur.reduced[np.ix_(rows, rows)]
-    point_positions = np.asarray(unflatten(std, np.arange(flatten(std).size)).points)
+    point_positions = np.asarray(positions_of(std).points)
     where = np.isin(point_positions, positions)
     point_rows = np.flatnonzero(where.any(axis=1))
     if point_rows.size == 1 and np.all(np.isin(positions, point_positions[point_rows[0]])):

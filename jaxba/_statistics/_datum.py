@@ -12,7 +12,7 @@ from .._models._cameras._names import INSEPARABLE_PARAMETERS, lens_model
 from .._models._poses import POSE_MODELS
 from .._models._rotation import rodrigues_to_matrix
 from .._problem._bundle import BundleProblem, free_indices, tie_source
-from .._problem._parameters import Parameters, flatten, parameter_labels, unflatten
+from .._problem._parameters import Parameters, flatten, parameter_labels, positions_of, unflatten
 from .._programs import stored
 from .._solvers._backend import Rank
 from .._solvers._dense import Dense
@@ -254,7 +254,7 @@ def check_separable(problem: BundleProblem, labels: list[str]) -> None:
         return
     # A tied parameter is as free as its source (`BundleProblem.ties`).
     estimated = unflatten(problem.free, flatten(problem.free)[tie_source(problem)])
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
     priors = np.concatenate([np.zeros(0, int)] + [  # the unknowns with a prior
         group.prior_positions(positions) for group in problem.groups])
     for model, free in estimated.cameras.items():

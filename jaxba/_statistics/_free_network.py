@@ -41,7 +41,7 @@ from jaxtyping import Array, Float
 from .._problem._bundle import BundleProblem, free_indices
 from .._problem._inner_constraints import InnerConstraints
 from .._problem._linearisation import column_norms
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, flatten, positions_of, unflatten
 from .._solvers._backend import Backend
 from .._solvers._compiled import solver_jit
 from .._solvers._schur._descent import Schur
@@ -126,7 +126,7 @@ def inner_constraints(
         raise DatumError("the network has no datum defect: it needs no inner constraints")
     index = free_indices(problem)
     null = similarity.T @ motions[:, index]
-    positions = np.asarray(unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = np.asarray(positions_of(problem.initial)
                            .points)
     rows = np.arange(positions.shape[0]) if datum_points is None else np.asarray(datum_points)
     selected = np.zeros(flatten(problem.initial).size, dtype=bool)

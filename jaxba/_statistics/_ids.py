@@ -17,7 +17,7 @@ from .._problem._parameters import (
     WARP_PARAMETER_NAMES,
     Parameters,
     flatten,
-    unflatten,
+    positions_of,
 )
 
 
@@ -56,7 +56,7 @@ def ids_from_labels(params: Parameters, labels: list[str]) -> Ids:
     """The IDs in `labels` (one per scalar unknown in `flatten` order, as `parameter_labels`
     writes them: "<kind> <id> <name>"). `ValueError` naming the first label of another form
     or a repeated ID."""
-    positions = unflatten(params, np.arange(flatten(params).size))
+    positions = positions_of(params)
     if len(labels) != flatten(params).size:
         raise ValueError(f"labels: {len(labels)} names for {flatten(params).size} unknowns")
 

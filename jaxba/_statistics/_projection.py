@@ -33,7 +33,7 @@ from jaxtyping import Array, Float
 from .._models._cameras import CAMERA_MODELS, PixelGrid
 from .._models._poses import POSE_MODELS, ComposedPose
 from .._problem._observations import ImagePoints
-from .._problem._parameters import flatten, unflatten
+from .._problem._parameters import positions_of
 
 FRAMES = ("object", "camera")
 _NEWTON_STEPS = 30  # unprojection from the principal ray; a few suffice for usual lenses
@@ -266,7 +266,7 @@ def projection_uncertainty(
     iop = np.asarray(result.parameters.cameras[ref.model][ref.row])
     jacobians = np.asarray(_pixel_jacobians(ref.model, ref.constants, jax.device_put(iop),
                                             jax.device_put(image), jax.device_put(distance)))
-    positions = unflatten(result.parameters, np.arange(flatten(result.parameters).size))
+    positions = positions_of(result.parameters)
     if frame == "camera":
         jacobians = jacobians[:, :, :iop.size]
         covariance = result.precision.covariance_of(

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._models._poses import POSE_MODELS, ComposedPose
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, positions_of
 
 
 def baseline(params: Parameters, precision, row: int) -> tuple[float, float]:
@@ -16,7 +16,7 @@ def baseline(params: Parameters, precision, row: int) -> tuple[float, float]:
     reference camera's, object units) and its σ from the 3 x 3 covariance of X0_c
     (`Precision.covariance_of`): σ² = uᵀ C u, u = X0_c / |X0_c|. Needs an "opk"-like pose
     whose first three parameters are the centre (the projects' "opk")."""
-    positions = unflatten(params, np.arange(flatten(params).size)).mounts[row, :3]
+    positions = positions_of(params).mounts[row, :3]
     centre = np.asarray(params.mounts, dtype=float)[row, :3]
     length = float(np.linalg.norm(centre))
     direction = centre / length if length > 0 else np.zeros(3)
@@ -38,7 +38,7 @@ def composed_pose_sigma(params: Parameters, precision, pose: str, frame: int, mo
                         ) -> np.ndarray:
     """(6,) σ of the composed pose of one image (`composed_poses`), propagated from the
     12 x 12 covariance of its frame's and its camera's relative pose."""
-    positions = unflatten(params, np.arange(flatten(params).size))
+    positions = positions_of(params)
     index = np.concatenate([np.asarray(positions.images)[frame],
                             np.asarray(positions.mounts)[mount]])
     covariance = np.asarray(precision.covariance_of(index), dtype=float)

@@ -9,7 +9,7 @@ from jaxtyping import Array, Float, Int
 
 from ..._problem._bundle import BundleProblem
 from ..._problem._observations import AbstractObservationGroup
-from ..._problem._parameters import Parameters, flatten, unflatten
+from ..._problem._parameters import Parameters, positions_of
 from ._structure import BundleStructure
 
 
@@ -88,7 +88,7 @@ def row_points(structure: BundleStructure, group: AbstractObservationGroup) -> A
 
 def reduced_positions(problem: BundleProblem, structure: BundleStructure) -> np.ndarray:
     """(n_r,) `flatten` positions of the reduced columns."""
-    positions = unflatten(problem.initial, np.arange(flatten(problem.initial).size))
+    positions = positions_of(problem.initial)
     return reduced_vector(structure, positions, np).astype(int)
 
 
