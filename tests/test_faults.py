@@ -25,7 +25,7 @@ import pytest
 
 import jaxba
 from jaxba._cli._main import EXIT_INTERNAL, EXIT_INTERRUPTED, main
-from jaxba._files import OutputError, output_lock, replace_files
+from jaxba._files import OutputError, output_lock, replace_files, resolved
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAB = ROOT / "configs" / "lab"
@@ -161,6 +161,36 @@ def test_batch_never_writes_over_an_input(tmp_path, taken):
     done = _jaxba("batch", project, "--out", tmp_path / "in")
     assert done.stdout.split() == ["2", "False"], done.stderr
     assert taken.split("/")[-1] in done.stderr and "overwrite an input" in done.stderr
+    assert _hashes(tmp_path / "in") == before
+
+
+def test_resolved_paths_follow_links_like_realpath(tmp_path, monkeypatch):
+    """The output checks resolve folders once and each name by one lstat: through linked
+    folders and files, "..", relative and missing paths the same as os.path.realpath."""
+    real = tmp_path / "real"
+    (real / "sub").mkdir(parents=True)
+    (real / "sub" / "file.txt").write_text("x")
+    (tmp_path / "linked").symlink_to(real)
+    (real / "alias.txt").symlink_to(real / "sub" / "file.txt")
+    monkeypatch.chdir(tmp_path)
+    paths = ["linked/sub/file.txt", "linked/alias.txt", "real/sub/../alias.txt",
+             "linked/missing/new.txt", str(tmp_path / "linked" / "sub"), ".", "/",
+             "linked/sub/./file.txt"]
+    assert resolved(paths) == {os.path.realpath(path) for path in paths}
+
+
+def test_batch_refuses_a_report_reached_through_a_link(tmp_path):
+    """A project's report folder in --out is a link to the project's own folder: its
+    results.json would be the project's input there."""
+    project = _copy_lab(tmp_path / "in")
+    (tmp_path / "in" / "distances.txt").rename(tmp_path / "in" / "results.json")
+    _edit(project, '"distances.txt"', '"results.json"')
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "lab").symlink_to(tmp_path / "in")
+    before = _hashes(tmp_path / "in")
+    done = _jaxba("batch", project, "--out", tmp_path / "out")
+    assert done.stdout.split() == ["2", "False"], done.stderr
+    assert "results.json" in done.stderr and "overwrite an input" in done.stderr
     assert _hashes(tmp_path / "in") == before
 
 

@@ -13,7 +13,7 @@ from .._files._paths import check_folder, check_targets, resolved
 from .._io._project import read_project, read_project_inputs
 from .._project import ProjectError
 from .._project._spec import ProjectSpec
-from .._report._outputs import check_named_outputs, report_paths
+from .._report._outputs import report_paths
 
 
 @dataclasses.dataclass
@@ -80,10 +80,15 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
     # Each input resolved once: every report of every project is checked against them all
     # (a project's own among them: not given again, they would be resolved again).
     inputs = resolved(file for entry in entries for file in entry.input_files or (entry.path,))
-    check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch")
+    folders: dict = {}  # resolved once: out_dir, and each project's folder where it exists
+    check_targets(summary_paths(out_dir).values(), inputs, "a project of the batch", folders)
     for entry in entries:
-        if entry.out_dir is not None:  # read
-            check_named_outputs(entry.name, (), entry.out_dir, inputs=inputs)
+        if entry.out_dir is None:  # not read
+            continue
+        if entry.out_dir.exists():  # else made in out_dir, checked above
+            check_folder(entry.out_dir)
+        check_targets(report_paths(entry.name, entry.out_dir).values(), inputs,
+                      f"project {entry.name!r}", folders)
     return entries
 
 
