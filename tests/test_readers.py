@@ -4,7 +4,7 @@ import pathlib
 
 import pytest
 
-from jaxba._io._project._readers import read_project, read_project_inputs
+from jaxba._io._project._readers import read_project, read_project_file, read_project_tables
 from jaxba._project._errors import ProjectError
 from jaxba._project._spec import AdjustmentSettings
 
@@ -312,20 +312,27 @@ def test_project_file_errors(tmp_path, old, new, parts):
     path = write_project(tmp_path, lab1_toml=(old, new))
     assert_error(path, *parts)
     with pytest.raises(ProjectError) as info:  # the project file alone: the same error
-        read_project_inputs(path)
+        read_project_file(path)
     assert str(info.value) == error_of(path)
 
 
-def test_project_inputs_without_the_tables(tmp_path):
-    """`read_project_inputs` gives `read_project`'s name and input files from the project
-    file alone: a table that cannot be read does not stop it."""
+def test_project_file_without_the_tables(tmp_path):
+    """`read_project_file` gives `read_project`'s name and input files from the project file
+    alone (a table that cannot be read does not stop it), and `read_project_tables` of it
+    is `read_project`'s project, or its error."""
     path = write_project(tmp_path)
     spec = read_project(path)
-    assert read_project_inputs(path) == (spec.name, spec.input_files)
+    head = read_project_file(path)
+    assert (head.name, head.input_files) == (spec.name, spec.input_files)
     assert len(spec.input_files) == 1 + len(spec.files)
+    assert read_project_tables(head) == spec
     (tmp_path / "ground_points.txt").write_text("P1 1 2\n")  # one column short
-    assert read_project_inputs(path) == (spec.name, spec.input_files)
+    head = read_project_file(path)
+    assert (head.name, head.input_files) == (spec.name, spec.input_files)
     assert_error(path, "ground_points.txt:1")
+    with pytest.raises(ProjectError) as info:
+        read_project_tables(head)
+    assert str(info.value) == error_of(path)
 
 
 def test_missing_files_key(tmp_path):

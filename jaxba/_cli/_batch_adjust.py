@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from .._adjust._padding import batch_kind, batch_shape
 from .._dask import executor
-from .._io._project import read_project
+from .._io._project import read_project, read_project_tables
 from .._project import ProjectError, build_project
 from ._batch_read import BatchEntry
 from ._batch_rows import summary_row
@@ -52,8 +52,9 @@ def adjust_entries(
     that cannot be built fails alone."""
     for entry in entries:
         try:
-            if entry.spec is None:  # read its project file only (`read_batch(tables=False)`)
-                entry.spec = read_project(entry.path)
+            if entry.spec is None:  # its project file only was read (`read_batch(tables=False)`)
+                entry.spec = (read_project(entry.path) if entry.head is None
+                              else read_project_tables(entry.head))
             entry.project = build_project(entry.spec)
         except (ProjectError, ValueError, OSError) as error:
             entry.status, entry.reason = "failed", str(error)

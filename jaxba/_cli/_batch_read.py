@@ -10,7 +10,7 @@ import json
 import pathlib
 
 from .._files._paths import check_folder, check_targets, resolved
-from .._io._project import read_project, read_project_inputs
+from .._io._project import ProjectFile, read_project, read_project_file
 from .._project import ProjectError
 from .._project._spec import ProjectSpec
 from .._report._outputs import report_paths
@@ -26,6 +26,7 @@ class BatchEntry:
     reason: str = ""
     mode: str = ""  # batch | single | resumed
     spec: ProjectSpec | None = None
+    head: ProjectFile | None = None  # its project file, where only that was read
     input_files: tuple[pathlib.Path, ...] = ()  # its TOML and tables, once its file is read
     project: object = None
     result: object = None
@@ -57,9 +58,9 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
     or when summary.csv, summary.json or any project's report would be an input file of any
     project of the batch (its TOML or a table it names) or a folder.
 
-    `tables`: read every project whole (`spec`); False: only its project file (its name and
-    files: `read_project_inputs`), `spec` left None for whoever adjusts it to read (worker
-    processes, each its share), a table it cannot read failing that project then.
+    `tables`: read every project whole (`spec`); False: only its project file (`head`:
+    `read_project_file`), `spec` left None for whoever adjusts it to read the tables
+    (worker processes, each its share), a table it cannot read failing that project then.
     """
     out_dir = pathlib.Path(out_dir)
     check_folder(out_dir)
@@ -72,7 +73,8 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
                 entry.spec = read_project(path)
                 entry.name, entry.input_files = entry.spec.name, entry.spec.input_files
             else:
-                entry.name, entry.input_files = read_project_inputs(path)
+                entry.head = read_project_file(path)
+                entry.name, entry.input_files = entry.head.name, entry.head.input_files
         except ProjectError as error:
             entry.status, entry.reason = "failed", str(error)
             continue

@@ -45,7 +45,7 @@ def check_named_outputs(
     inputs: Iterable[os.PathLike] = (),
 ) -> dict[str, pathlib.Path]:
     """`check_outputs` of the project `name` whose files are `input_files` (its spec's
-    `input_files`, or `read_project_inputs`' before its tables are read)."""
+    `input_files`, or its `read_project_file`'s before its tables are read)."""
     check_folder(out_dir)
     paths = report_paths(name, out_dir)
     inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)

@@ -5,6 +5,6 @@
 from ..._lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "._readers": ("read_project", "read_project_inputs"),
+    "._readers": ("ProjectFile", "read_project", "read_project_file", "read_project_tables"),
     "._write": ("write_project",),
 })

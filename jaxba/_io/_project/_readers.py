@@ -48,6 +48,25 @@ _SETTING_CHOICES = {
 _NONNEGATIVE_SETTINGS = frozenset({"rtol", "atol"})
 
 
+@dataclasses.dataclass(frozen=True)
+class ProjectFile:
+    """A project file read and checked, its tables not yet: `path` (resolved), its
+    `file_name` as given (messages name it), the project's `name`, `image_units`,
+    `settings` and `[files]` (`files`: key -> InputFile)."""
+
+    path: pathlib.Path
+    file_name: str
+    name: str
+    image_units: str
+    settings: AdjustmentSettings
+    files: dict[str, InputFile]
+
+    @property
+    def input_files(self) -> tuple[pathlib.Path, ...]:
+        """The project file and the files of its `[files]` table (resolved), each once."""
+        return tuple(dict.fromkeys([self.path, *(file.path for file in self.files.values())]))
+
+
 def read_project(path: str | os.PathLike) -> ProjectSpec:
     """Read and validate a project file and every table it names.
 
@@ -59,25 +78,17 @@ def read_project(path: str | os.PathLike) -> ProjectSpec:
 
     **Raises:** `ProjectError` for any missing file, malformed entry or inconsistency.
     """
-    with paused_gc():  # the tables' rows are many small lists, none in a cycle
-        return _read_project(pathlib.Path(path))
+    return read_project_tables(read_project_file(path))
 
 
-def read_project_inputs(path: str | os.PathLike) -> tuple[str, tuple[pathlib.Path, ...]]:
-    """The project's name and every file it reads (resolved), from the project file alone:
-    `read_project(path)`'s `name` and `input_files` without reading the tables (a batch
-    checks its outputs against them before its projects are read in worker processes).
+def read_project_file(path: str | os.PathLike) -> ProjectFile:
+    """The project file alone: `read_project(path)` is `read_project_tables` of it. A batch
+    checks its outputs against its `input_files` before the tables are read (in worker
+    processes, which are handed it and do not parse the file again).
 
     **Raises:** `ProjectError` for a problem with the project file itself.
     """
-    resolved, project_name, _, _, files = _project_file(pathlib.Path(path))
-    return project_name, _input_files(resolved, files)
-
-
-def _project_file(path: pathlib.Path
-                  ) -> tuple[pathlib.Path, str, str, AdjustmentSettings, dict[str, InputFile]]:
-    """The project file: its resolved path, the project's name, image units, settings and
-    `[files]`."""
+    path = pathlib.Path(path)
     if not path.is_file():
         raise ProjectError(f"{path}: no such project file")
     name = path.name
@@ -91,7 +102,8 @@ def _project_file(path: pathlib.Path
     files = _read_files_table(subtable(document, "files", name), base, name)
     project_name, image_units = _read_project_table(project, name, path.stem)
     settings = _read_settings(adjustment, f"{name}: [adjustment]")
-    return _resolve_in(base, name), project_name, image_units, settings, files
+    return ProjectFile(_resolve_in(base, name), name, project_name, image_units, settings,
+                       files)
 
 
 def _resolve_in(directory: pathlib.Path, name: str) -> pathlib.Path:
@@ -107,15 +119,15 @@ def _resolve_in(directory: pathlib.Path, name: str) -> pathlib.Path:
     return path.resolve() if link else path
 
 
-def _input_files(path: pathlib.Path, files: dict[str, InputFile]) -> tuple[pathlib.Path, ...]:
-    """The resolved project file `path` and the files of its `[files]` table, each once."""
-    return tuple(dict.fromkeys([path, *(file.path for file in files.values())]))
+def read_project_tables(head: ProjectFile) -> ProjectSpec:
+    """The project of the project file `head` (`read_project_file`) with every table it
+    names read and validated (`read_project`)."""
+    with paused_gc():  # the tables' rows are many small lists, none in a cycle
+        return _read_tables(head)
 
 
-def _read_project(path: pathlib.Path) -> ProjectSpec:
-    """`read_project`."""
-    resolved, project_name, image_units, settings, files = _project_file(path)
-    name = path.name
+def _read_tables(head: ProjectFile) -> ProjectSpec:
+    files, image_units, name = head.files, head.image_units, head.file_name
     cameras = read_cameras(files["cameras"], image_units, name)
     images = read_images(files["images"], cameras, files["cameras"].name)
     cameras, images = expand_per_image(cameras, images, files["cameras"].name)
@@ -129,16 +141,16 @@ def _read_project(path: pathlib.Path) -> ProjectSpec:
     rigs, frames = _read_rigs(files, cameras, images)
 
     return ProjectSpec(
-        path=resolved,
-        name=project_name,
+        path=head.path,
+        name=head.name,
         image_units=image_units,
-        settings=settings,
+        settings=head.settings,
         cameras=cameras,
         images=images,
         points=points,
         image_points=image_points,
         distances=distances,
-        input_files=_input_files(resolved, files),
+        input_files=head.input_files,
         files={key: file.path for key, file in files.items()},
         file_names={key: file.name for key, file in files.items()},
         rigs=rigs,
