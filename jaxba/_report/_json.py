@@ -117,13 +117,14 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     status = np.asarray(points.status, dtype=object)
     encoded = {name: _string(name) for name in set(status.ravel().tolist())}
     size = 1 + 3 * values.shape[1]  # the fields of a point without an ellipsoid
-    table = np.empty((len(kind), size + ellipsoid.shape[1]), dtype=object)
+    width = size + ellipsoid.shape[1] * bool(has.any())  # no ellipsoid: no columns for one
+    table = np.empty((len(kind), width), dtype=object)
     table[:, 0] = list(map(_string, points.ids))
     for j in range(values.shape[1]):
         table[:, 1 + 3 * j] = values[:, j].tolist()
         table[:, 2 + 3 * j] = stds[:, j].tolist()
         table[:, 3 + 3 * j] = [encoded[name] for name in status[:, j].tolist()]
-    for j, column in enumerate(ellipsoid.T):
+    for j, column in enumerate(ellipsoid.T[:width - size]):
         table[:, size + j] = column.tolist()
     for k in np.flatnonzero(~finite).tolist():
         entry = _point_entry(points, axes, directions, has, k)
