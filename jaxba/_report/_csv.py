@@ -89,9 +89,10 @@ def _image_point_lines(project: Project, result: Adjustment) -> str:
     parts = np.array([_piece("image_points") + _piece(part) for part in residuals.parts],
                      dtype=object)
     image_ids = np.array([_piece(i) for i in project.image_ids], dtype=object)
+    # Each point followed by the empty point_b, each camera by the empty coordinate.
     point_ids = np.array([_piece(p) + "," for p in project.point_ids], dtype=object)
     cameras = np.array([_piece(project.spec.images[i].camera) + "," for i in project.image_ids],
-                       dtype=object)  # point_b, camera and coordinate: one empty each
+                       dtype=object)
     texts = [parts[residuals.part_index], image_ids[residuals.image],
              point_ids[residuals.point], cameras[residuals.image]]
     numbers = np.column_stack([
