@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from jaxba._report._cells import texts
-from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines
+from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines, _piece
 from jaxba._report._text import number_table
 
 IDS = ["P1", "p" * 70, "Pünkt-7", "点12", "ñ", "📷cam", 'a,b', 'say "x"', "x" * 3]
@@ -82,16 +82,19 @@ def test_residual_table_of_ascii_ids_and_of_no_rows():
     assert empty == "# id  x\n"
 
 
-@pytest.mark.parametrize("finite", [False, True])  # rows in one `%`, or the numbers first
+@pytest.mark.parametrize("finite", [False, True])  # rows of many kinds, or of a few
 def test_observation_lines_are_the_row_by_row_csv(finite):
+    """Each row's text (IDs with commas, quotes and `%`), then its numbers and flags."""
     n = 300
     rng = np.random.default_rng(9)
     filled = NUMBER_COLUMNS[:8] + FLAG_COLUMNS
     numbers = _awkward(n, len(filled), seed=4)
     numbers[:, -2:] = rng.integers(0, 2, (n, 2))
+    numbers[::7, -1] = np.nan  # a flag not available: empty
     if finite:
         numbers = np.where(np.isfinite(numbers), numbers, -0.0)
-    texts = [[_field(IDS[k]) for k in rng.integers(0, len(IDS), n).tolist()] for _ in range(7)]
+    ids = [*IDS, "5%d", "100%", "%%s"]
+    codes = [rng.integers(0, len(ids), n) for _ in range(7)]
 
     def field(name, x):
         if name not in filled or not math.isfinite(x):
@@ -99,11 +102,19 @@ def test_observation_lines_are_the_row_by_row_csv(finite):
         return ("%d" if name in FLAG_COLUMNS else "%.10g") % x
 
     expected = "".join(
-        ",".join([*(column[i] for column in texts),
+        ",".join([*(_field(ids[column[i]]) for column in codes),
                   *(field(name, row[filled.index(name)] if name in filled else math.nan)
                     for name in NUMBER_COLUMNS + FLAG_COLUMNS)]) + "\n"
         for i, row in enumerate(numbers.tolist()))
+    texts = [[_piece(ids[k]) for k in column.tolist()] for column in codes]
     assert _lines(texts, numbers, filled) == expected
+
+
+def test_observation_lines_of_no_rows_and_of_flags_not_0_or_1():
+    filled = ("v", "r", "w", *FLAG_COLUMNS)
+    assert _lines([], np.zeros((0, 5)), filled) == ""
+    with pytest.raises(ValueError, match="neither 0 nor 1"):
+        _lines([["a,"]], np.array([[1.0, 0.5, 0.2, 0.0, 2.0]]), filled)
 
 
 @pytest.mark.parametrize("strings", [["a", "bb", "a-much-longer-id", ""], IDS])

@@ -22,7 +22,12 @@ from .._problem._observations import named_parts, part_name
 from .._problem._parameters import ANGLE_NAMES, IMAGE_PARAMETER_NAMES, POINT_PARAMETER_NAMES
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
-from .._statistics._derived import camera_correlation, error_ellipsoids, point_covariances
+from .._statistics._derived import (
+    camera_covariance,
+    correlation_of_free,
+    error_ellipsoids,
+    point_covariances,
+)
 from .._statistics._ids import Ids
 from .._statistics._observation_statistics import (
     GroupStatistics,
@@ -511,10 +516,21 @@ def reliability_summary(project: Project, result: Adjustment) -> ReliabilitySumm
 
 
 @shared
+def camera_covariances(project: Project, result: Adjustment) -> dict[str, np.ndarray]:
+    """Per camera: Cxx (p, p) of all its parameters (`camera_covariance`), shared by the
+    correlations of NAME.out and results.json and the covariances of results.json."""
+    return {
+        cid: camera_covariance(result, model, row)
+        for cid, (model, row) in project.camera_rows.items()
+    }
+
+
+@shared
 def camera_correlations(project: Project, result: Adjustment) -> dict[str, tuple[list, np.ndarray]]:
     """Per camera: the names of its estimated IOPs and their correlation matrix ρ."""
+    covariances = camera_covariances(project, result)
     return {
-        cid: camera_correlation(result, model, row)
+        cid: correlation_of_free(result, model, row, covariances[cid])
         for cid, (model, row) in project.camera_rows.items()
     }
 

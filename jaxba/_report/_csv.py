@@ -9,7 +9,6 @@ an observation removed by data snooping).
 
 import csv
 import io
-import itertools
 import pathlib
 
 import numpy as np
@@ -31,51 +30,71 @@ def _field(text: str) -> str:
     return text
 
 
-def _lines(texts: list[list[str]], numbers: np.ndarray, filled: tuple[str, ...]) -> str:
-    """CSV lines of rows, each ending in a newline: the text fields `texts` (one list per
-    column, already CSV fields), then the number and flag columns, `filled` ones from
-    `numbers` (n, len(filled)) as `%.10g` (flags 0/1), empty where not finite, the others
-    empty. One `%` over all rows when every number is finite; otherwise the numbers first
-    (their "nan" and "inf" then cut), the rows around them in a second `%`."""
+def _piece(text: str) -> str:
+    """`text` as one CSV field followed by its comma, ready to stand in a `%` format."""
+    return _field(text).replace("%", "%%") + ","
+
+
+def _lines(texts: list, numbers: np.ndarray, filled: tuple[str, ...]) -> str:
+    """CSV lines of rows, each ending in a newline: the text fields, then the number and flag
+    columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g` (flags 0/1: as `%d`
+    prints them), empty where not finite, the others empty.
+
+    `texts`: the pieces of the rows' text fields, column k the k-th piece of every row ((n,)
+    str: `_piece`s, or several fields in one), put side by side. Each row's format is its text
+    followed by the format of its numbers (`%.10g` where finite) and flags (their text) from
+    a few made once; the numbers are printed by one `%` over all rows."""
     numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
-    fmt = ",".join(
-        "" if name not in filled else "%d" if name in FLAG_COLUMNS else "%.10g"
-        for name in NUMBER_COLUMNS + FLAG_COLUMNS
-    )
-    if np.isfinite(numbers).all():  # the fields of every row side by side, taken row by row
-        fields = np.empty((len(numbers), len(texts) + len(filled)), dtype=object)
-        for k, column in enumerate(texts):
-            fields[:, k] = column
-        fields[:, len(texts):] = numbers
-        row = "%s," * len(texts) + fmt + "\n"
-        return row * len(numbers) % tuple(fields.ravel().tolist())
-    formatted = (fmt + "\n") * len(numbers) % tuple(numbers.ravel().tolist())
-    # Only numbers are in `formatted`: "nan" and "inf" can only be non-finite values.
-    formatted = formatted.replace("-inf", "").replace("inf", "").replace("nan", "")
-    row = "%s," * len(texts) + "%s\n"
-    fields = zip(*texts, formatted.split("\n")[:-1])
-    return row * len(numbers) % tuple(itertools.chain.from_iterable(fields))
+    n = len(numbers)
+    flags = [j for j, name in enumerate(filled) if name in FLAG_COLUMNS]
+    shown = [j for j, name in enumerate(filled) if name not in FLAG_COLUMNS]
+    values = numbers[:, shown]
+    finite = np.isfinite(values)
+    given = np.isfinite(numbers[:, flags])
+    states = np.where(given, numbers[:, flags], 2.0)  # 2: empty
+    if not np.all(~given | (states == 0) | (states == 1)):
+        raise ValueError("a flag of observations.csv is neither 0 nor 1")
+    # A row's kind: which of its numbers are finite (bits), its flags' states (base 3).
+    kind = finite @ (1 << np.arange(len(shown))) + states.astype(int) @ (
+        3 ** np.arange(len(flags)) << len(shown))
+    kinds, row_kind = np.unique(kind, return_inverse=True)
+    formats = np.array([_row_format(int(k), filled, len(shown)) for k in kinds.tolist()],
+                       dtype=object)
+    pieces = np.empty((n, len(texts) + 1), dtype=object)
+    for k, column in enumerate(texts):
+        pieces[:, k] = column
+    pieces[:, -1] = formats[row_kind.reshape(-1)]
+    return "".join(pieces.ravel().tolist()) % tuple(values[finite].tolist())
+
+
+def _row_format(kind: int, filled: tuple[str, ...], n_numbers: int) -> str:
+    """The `%` format of the number and flag columns of a row of `kind` (see `_lines`)."""
+    fields, number, flag = [], 0, 0
+    for name in NUMBER_COLUMNS + FLAG_COLUMNS:
+        if name not in filled:
+            fields.append("")
+        elif name in FLAG_COLUMNS:
+            state = (kind >> n_numbers) // 3**flag % 3
+            fields.append("" if state == 2 else str(state))
+            flag += 1
+        else:
+            fields.append("%.10g" if kind >> number & 1 else "")
+            number += 1
+    return ",".join(fields) + "\n"
 
 
 def _image_point_lines(project: Project, result: Adjustment) -> str:
     """Rows of the image points, each named by its group's part ("image_points:<camera>")."""
     residuals = image_residuals(project, result)
-    n = len(residuals.image)
-    image_ids = np.array([_field(i) for i in project.image_ids], dtype=object)
-    point_ids = np.array([_field(p) for p in project.point_ids], dtype=object)
-    cameras = np.array([_field(project.spec.images[i].camera) for i in project.image_ids],
+    parts = np.array([_piece("image_points") + _piece(part) for part in residuals.parts],
+                     dtype=object)
+    image_ids = np.array([_piece(i) for i in project.image_ids], dtype=object)
+    # Each point followed by the empty point_b, each camera by the empty coordinate.
+    point_ids = np.array([_piece(p) + "," for p in project.point_ids], dtype=object)
+    cameras = np.array([_piece(project.spec.images[i].camera) + "," for i in project.image_ids],
                        dtype=object)
-    empty = [""] * n
-    parts = np.array([_field(part) for part in residuals.parts], dtype=object)
-    texts = [
-        ["image_points"] * n,
-        parts[residuals.part_index].tolist(),
-        image_ids[residuals.image].tolist(),
-        point_ids[residuals.point].tolist(),
-        empty,
-        cameras[residuals.image].tolist(),
-        empty,
-    ]
+    texts = [parts[residuals.part_index], image_ids[residuals.image],
+             point_ids[residuals.point], cameras[residuals.image]]
     numbers = np.column_stack([
         residuals.xy, residuals.v, residuals.redundancy, residuals.w, residuals.removed,
         residuals.outlier,
@@ -86,7 +105,7 @@ def _image_point_lines(project: Project, result: Adjustment) -> str:
 def _scalar_lines(rows: list[ScalarObservation]) -> str:
     """Rows of the observations other than image points: their IDs, v, r, w and flags."""
     texts = [
-        [_field(value) for value in column]
+        [_piece(value) for value in column]
         for column in zip(*(
             (row.kind, row.group, row.ids.get("image", ""),
              row.ids.get("point", row.ids.get("point_a", "")), row.ids.get("point_b", ""),
@@ -98,7 +117,7 @@ def _scalar_lines(rows: list[ScalarObservation]) -> str:
     numbers = np.array(
         [[row.v, row.r, row.w, row.removed, row.outlier] for row in rows], dtype=float,
     ).reshape(len(rows), len(filled))
-    return _lines(texts or [[]] * len(TEXT_COLUMNS), numbers, filled)
+    return _lines(texts, numbers, filled)
 
 
 def observations_csv(project: Project, result: Adjustment) -> str:

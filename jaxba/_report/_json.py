@@ -9,11 +9,11 @@ import numpy as np
 from .._models._cameras import CAMERA_MODELS
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
-from .._statistics._derived import camera_covariance
 from ._board_warp import board_warp_tree
 from ._collect import (
     ParameterTable,
     camera_correlations,
+    camera_covariances,
     camera_tables,
     camera_units,
     datum_text,
@@ -117,13 +117,14 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     status = np.asarray(points.status, dtype=object)
     encoded = {name: _string(name) for name in set(status.ravel().tolist())}
     size = 1 + 3 * values.shape[1]  # the fields of a point without an ellipsoid
-    table = np.empty((len(kind), size + ellipsoid.shape[1]), dtype=object)
+    width = size + ellipsoid.shape[1] * bool(has.any())  # no ellipsoid: no columns for one
+    table = np.empty((len(kind), width), dtype=object)
     table[:, 0] = list(map(_string, points.ids))
     for j in range(values.shape[1]):
         table[:, 1 + 3 * j] = values[:, j].tolist()
         table[:, 2 + 3 * j] = stds[:, j].tolist()
         table[:, 3 + 3 * j] = [encoded[name] for name in status[:, j].tolist()]
-    for j, column in enumerate(ellipsoid.T):
+    for j, column in enumerate(ellipsoid.T[:width - size]):
         table[:, size + j] = column.tolist()
     for k in np.flatnonzero(~finite).tolist():
         entry = _point_entry(points, axes, directions, has, k)
@@ -146,7 +147,7 @@ def _camera_models(project: Project, result: Adjustment) -> dict[str, dict]:
     columns, rows; null if not given), `pixel_size` (mm, x and y; null where cameras.toml
     gives none), the model's constants, and its parameters in the model's order and units
     with their covariance (fixed ones 0; σ̂0² N⁻¹ as the σ of "cameras")."""
-    models = {}
+    models, covariances = {}, camera_covariances(project, result)
     for cid, (model, row) in project.camera_rows.items():
         camera = project.spec.cameras[cid]
         models[cid] = _nulls({
@@ -157,7 +158,7 @@ def _camera_models(project: Project, result: Adjustment) -> dict[str, dict]:
             "constants": {n: camera.constants[n] for n in CAMERA_MODELS[model].constant_names},
             "parameters": list(CAMERA_MODELS[model].parameter_names),
             "values": np.asarray(result.parameters.cameras[model])[row].tolist(),
-            "covariance": camera_covariance(result, model, row).tolist(),
+            "covariance": covariances[cid].tolist(),
         })
     return models
 

@@ -40,9 +40,15 @@ def camera_covariance(result: Adjustment, model: str, row: int) -> np.ndarray:
 
 def camera_correlation(result: Adjustment, model: str, row: int) -> tuple[list[str], np.ndarray]:
     """(names, ρ) of the estimated IOPs of camera `row` of `model`."""
+    return correlation_of_free(result, model, row, camera_covariance(result, model, row))
+
+
+def correlation_of_free(result: Adjustment, model: str, row: int,
+                        covariance: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """`camera_correlation` from the camera's `camera_covariance` (p, p), already at hand."""
     names = CAMERA_MODELS[model].parameter_names
     free = np.asarray(result.problem.free.cameras[model])[row]  # no program to index it
-    chosen = camera_covariance(result, model, row)[np.ix_(free, free)]
+    chosen = covariance[np.ix_(free, free)]
     return [n for n, f in zip(names, free) if f], correlation(chosen)
 
 
