@@ -176,20 +176,6 @@ def _each(function, problem, plan, n_free, chunk_size):
     return jax.lax.map(one, (arrays, n_free), batch_size=chunk_size)
 
 
-@eqx.filter_jit
-def batch_statistics(
-    problem: BundleProblem, plan: LinearisationPlan, parameters: Parameters, n_free, *,
-    datum_rtol: float = 1e-9,
-) -> BatchStatistics:
-    """Dense statistics of every problem of a padded batch at `parameters`, vmapped."""
-
-    def one(problem, plan, params, n):
-        suspect = _datum_suspect(_initial_normal(problem, plan), n, datum_rtol)
-        return _statistics_one(problem, plan, params, n, suspect)
-
-    return jax.vmap(one)(problem, plan, parameters, n_free)
-
-
 @solver_jit
 def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, chunk_size):
     """Datum screen, solve and statistics of every problem of a padded batch: one compiled
@@ -357,6 +343,6 @@ def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familyw
 
 
 __all__ = [
-    "BatchShape", "PaddedBatch", "adjust_batch", "adjust_padded", "batch_shape", "batch_statistics",
+    "BatchShape", "PaddedBatch", "adjust_batch", "adjust_padded", "batch_shape",
     "check_datum_batch", "pad_problems", "solve_batch",
 ]
