@@ -24,7 +24,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from .._problem._bundle import BundleProblem, free_indices
+from .._problem._bundle import (
+    BundleProblem,
+    free_indices,
+    free_mask,
+    free_positions,
+    observation_counts,
+)
 from .._problem._linearisation import (
     LinearisationPlan,
     _local_positions,
@@ -167,15 +173,10 @@ def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, l
         else jax.tree.map(lambda *leaves: np.stack(leaves), *(p.robust for p in problems)),
         ties=next(iter(ties)),
     )
-    flat_free = np.concatenate([leaf.reshape(len(problems), -1)
-                                for leaf in jax.tree.leaves(stacked.free)], axis=1)
-    size = flat_free.shape[1]
-    spare = int(unflatten(shapes, np.arange(size)).points[-1, 0])
+    flat_free = free_mask(stacked.free, (len(problems),))
     # X of the spare (last) point; points are not the last block where there are mounts
-    free_index = np.full((len(problems), shape.free), spare)
-    for k, row in enumerate(flat_free):
-        index = np.flatnonzero(row)
-        free_index[k, : len(index)] = index
+    spare = int(unflatten(shapes, np.arange(flat_free.shape[1])).points[-1, 0])
+    free_index = free_positions(flat_free, shape.free, spare)
     if shape.live is not None:
         return stacked, free_index, list(shape.live), [None] * len(problems)
     # One set of live slots for all: problems may free different IOPs.
@@ -303,15 +304,12 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
         plan = jax.tree.map(lambda leaf: np.repeat(np.asarray(leaf), len(plans), 0), one)
     else:
         plan = pad_plans(plans, shape.keys)
-    observed = sum(np.isfinite(np.asarray(g.stddev)).reshape(len(problems), -1).sum(1)
-                   for g in stacked.groups)
     return PaddedBatch(
         problem=jax.device_put(stacked),  # padded and stacked in NumPy: one transfer
         plan=jax.device_put(plan),
         problems=problems,
-        n_free=sum(leaf.reshape(len(problems), -1).sum(1)
-                   for leaf in jax.tree.leaves(stacked.free)),
-        n_observations=np.asarray(observed),
+        n_free=free_mask(stacked.free, (len(problems),)).sum(-1),
+        n_observations=observation_counts(stacked.groups, (len(problems),)),
     )
 
 
