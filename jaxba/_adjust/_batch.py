@@ -16,11 +16,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
-from .._problem._bundle import (
-    BundleProblem,
-    observation_mask,
-    observed_minus_computed,
-)
+from .._problem._bundle import BundleProblem, observed_minus_computed
 from .._problem._linearisation import (
     LinearisationPlan,
     _whole_group_jacobian,
@@ -37,13 +33,12 @@ from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
 from .._statistics._datum import DatumError, check_datum, check_structure
-from .._statistics._reliability import reliability_from_redundancy
+from .._statistics._reliability import group_reliability
 from ._padding import (
     BatchShape,
     PaddedBatch,
     _take,
     _unpad_parameters,
-    _unpad_residuals,
     batch_shape,
     pad_problems,
 )
@@ -287,56 +282,75 @@ def adjust_padded(
         "batch_adjust", _adjust_program,
         (batch.problem, batch.plan, jax.device_put(batch.n_free)),
         (max_steps, rtol, atol, datum_rtol, chunk_size)))
-    layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
+    whitened = _group_rows(batch.host, stats.whitened)
+    residuals = observed_minus_computed(batch.host, whitened)
+    redundancy = None
+    if any(a is not None for a in alphas):  # r_i = 1 - leverage, NaN where masked
+        redundancy = [np.where(np.isfinite(group.stddev), 1.0 - leverage, np.nan) for group,
+                      leverage in zip(batch.host.groups, _group_rows(batch.host, stats.leverage))]
     results = []
     for k, problem in enumerate(batch.problems):
+        n_observations, n_free = int(batch.n_observations[k]), int(batch.n_free[k])
         if check:
             error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol,
-                                 int(batch.n_observations[k]), int(batch.n_free[k]))
+                                 n_observations, n_free)
             if error is not None:
                 results.append(error)
                 continue
+        rows = [slice(np.shape(group.stddev)[0]) for group in problem.groups]
         results.append(_adjustment(
-            problem, layout, _take(solution, k), _take(stats, k), int(batch.n_free[k]),
-            sigma0s[k], alphas[k], familywises[k],
+            problem, solution, k, float(stats.initial_cost[k]), stats.cofactor[k],
+            [e[k, n] for e, n in zip(whitened, rows)], [v[k, n] for v, n in zip(residuals, rows)],
+            None if alphas[k] is None else [r[k, n] for r, n in zip(redundancy, rows)],
+            n_observations, n_free, sigma0s[k], alphas[k], familywises[k],
         ))
     return results
 
 
-def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familywise):
-    params = _unpad_parameters(solution.parameters, problem.initial)
-    mask = observation_mask(problem)
-    n_obs = int(mask.sum())
-    redundancy = n_obs - n_free
-    whitened = _unpad_residuals(layout, problem, stats.whitened)
+def _group_rows(host: BundleProblem, flat: np.ndarray) -> list[np.ndarray]:
+    """A padded batch's flat per-residual values (n_batch, n_residuals), `problem.whitened`'s
+    order, as per group (n_batch, rows, k) views shaped like the stacked `host`'s σ."""
+    parts, start = [], 0
+    for group in host.groups:
+        shape = np.shape(group.stddev)
+        size = int(np.prod(shape[1:]))
+        parts.append(flat[:, start:start + size].reshape(shape))
+        start += size
+    return parts
+
+
+def _adjustment(problem, solution, k, initial_cost, cofactor, whitened, residuals, redundancy,
+                n_observations, n_free, sigma0, alpha, familywise) -> Adjustment:
+    """The `Adjustment` of problem `k` of a padded batch: from the batch's `solution`, its
+    ½eᵀe at the start, its cofactors (padded), and per group its rows of the batch's
+    whitened residuals e, residuals v and (with `alpha`) redundancy numbers r (NaN where
+    masked)."""
+    params = _unpad_parameters(solution.parameters, problem.initial, k)
+    redundancy_total = n_observations - n_free
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
-    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy
-    covariance = (sigma0_squared / sigma0**2) * stats.cofactor[:n_free, :n_free]
-    prec = precision_from_covariance(problem, params, covariance, sigma0_squared, redundancy,
-                                     n_obs)
-    residuals = observed_minus_computed(problem, whitened)
+    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy_total
+    covariance = (sigma0_squared / sigma0**2) * cofactor[:n_free, :n_free]
+    prec = precision_from_covariance(problem, params, covariance, sigma0_squared,
+                                     redundancy_total, n_observations)
     iterations = [
-        Iteration(0, float(stats.initial_cost),
-                  sigma0**2 * 2 * float(stats.initial_cost) / max(redundancy, 1)),
+        Iteration(0, initial_cost, sigma0**2 * 2 * initial_cost / max(redundancy_total, 1)),
         Iteration(1, final_cost, sigma0_squared),
     ]
     reliability = None
     if alpha is not None:
-        leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
-                                                                          stats.leverage)])
-        flat_e = np.concatenate([np.ravel(e) for e in whitened])
-        reliability = reliability_from_redundancy(problem, 1.0 - leverage[mask], flat_e[mask],
-                                                  alpha=alpha, familywise=familywise)
-    converged = bool(solution.converged)
+        reliability = group_reliability(
+            tuple(np.asarray(group.stddev) for group in problem.groups), tuple(redundancy),
+            tuple(whitened), n_observations, alpha=alpha, familywise=familywise)
+    converged = bool(solution.converged[k])
     return Adjustment(
         problem=problem,
         parameters=params,
         precision=prec,
-        residuals=residuals,
+        residuals=tuple(residuals),
         iterations=iterations,
         converged=converged,
-        message="converged" if converged else str(optx.RESULTS[solution.result]),
-        steps=int(solution.steps),
+        message="converged" if converged else str(optx.RESULTS[_take(solution.result, k)]),
+        steps=int(solution.steps[k]),
         sigma0_prior=float(sigma0),
         reliability=reliability,
     )

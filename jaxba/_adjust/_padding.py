@@ -50,7 +50,8 @@ class PaddedBatch:
     - `plan`: the stacked `LinearisationPlan`s of the padded problems; `plan.free_index`
       (n_batch, n_free_max) the free positions in `flatten` order, padded;
     - `problems`: the original (unpadded) problems;
-    - `n_free`, `n_observations`: per problem, real unknowns and observations.
+    - `n_free`, `n_observations`: per problem, real unknowns and observations;
+    - `host`: `problem` with NumPy leaves (the host's bookkeeping reads its σ).
     """
 
     problem: BundleProblem
@@ -58,6 +59,7 @@ class PaddedBatch:
     problems: tuple[BundleProblem, ...]
     n_free: np.ndarray
     n_observations: np.ndarray
+    host: BundleProblem
 
     @property
     def n_batch(self) -> int:
@@ -310,6 +312,7 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
         problems=problems,
         n_free=free_mask(stacked.free, (len(problems),)).sum(-1),
         n_observations=observation_counts(stacked.groups, (len(problems),)),
+        host=stacked,
     )
 
 
@@ -322,18 +325,6 @@ def _take(tree, k: int):
     return jax.tree.map(lambda leaf: leaf[k], tree)
 
 
-def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
-    return jax.tree.map(lambda leaf, ref: leaf[: np.shape(ref)[0]], padded, like)
-
-
-def _unpad_residuals(layout: list[tuple], problem: BundleProblem, flat) -> list:
-    """Split a flat padded residual vector (groups of (rows, k) as `layout`) into the real
-    rows of each group of `problem`."""
-    parts, start = [], 0
-    for shape, group in zip(layout, problem.groups):
-        size = int(np.prod(shape))
-        parts.append(flat[start:start + size].reshape(shape)[: np.shape(group.stddev)[0]])
-        start += size
-    return parts
-
-
+def _unpad_parameters(padded: Parameters, like: Parameters, k: int) -> Parameters:
+    """Problem `k`'s rows of the padded batch's `padded`, as many as `like` has."""
+    return jax.tree.map(lambda leaf, ref: leaf[k, : np.shape(ref)[0]], padded, like)
