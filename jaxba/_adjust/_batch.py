@@ -16,6 +16,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
+from .._gc import paused_gc
 from .._problem._bundle import BundleProblem, observed_minus_computed
 from .._problem._linearisation import (
     LinearisationPlan,
@@ -282,6 +283,13 @@ def adjust_padded(
         "batch_adjust", _adjust_program,
         (batch.problem, batch.plan, jax.device_put(batch.n_free)),
         (max_steps, rtol, atol, datum_rtol, chunk_size)))
+    with paused_gc():  # many small objects, none in a cycle
+        return _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels,
+                        datum_rtol)
+
+
+def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels, datum_rtol):
+    """`adjust_padded`'s Adjustments (or DatumErrors) from the program's outputs (NumPy)."""
     whitened = _group_rows(batch.host, stats.whitened)
     residuals = observed_minus_computed(batch.host, whitened)
     redundancy = None

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
+from .._gc import paused_gc
 from .._problem._bundle import (
     BundleProblem,
     free_indices,
@@ -294,6 +295,11 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     problems = tuple(problems)
     if not problems:
         raise ValueError("pad_problems: no problems")
+    with paused_gc():  # many small arrays and tuples, none in a cycle
+        return _pad_problems(problems, shape)
+
+
+def _pad_problems(problems: tuple[BundleProblem, ...], shape: BatchShape | None) -> PaddedBatch:
     _check_kind(problems)
     own = _block_shape(problems)
     shape = own if shape is None else shape
@@ -306,9 +312,10 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
         plan = jax.tree.map(lambda leaf: np.repeat(np.asarray(leaf), len(plans), 0), one)
     else:
         plan = pad_plans(plans, shape.keys)
+    device = jax.device_put((stacked, plan))  # padded and stacked in NumPy: one transfer
     return PaddedBatch(
-        problem=jax.device_put(stacked),  # padded and stacked in NumPy: one transfer
-        plan=jax.device_put(plan),
+        problem=device[0],
+        plan=device[1],
         problems=problems,
         n_free=free_mask(stacked.free, (len(problems),)).sum(-1),
         n_observations=observation_counts(stacked.groups, (len(problems),)),

@@ -163,10 +163,12 @@ def free_positions(mask: Bool[np.ndarray, "n n_all"], length: int | None = None,
                    fill: int = 0) -> Int[np.ndarray, "n length"]:
     """Per row of `mask` (`free_mask` of stacked problems) the positions of its free
     scalars in order, padded with `fill` to `length` (default the longest row's count)."""
-    rows, positions = np.nonzero(mask)
-    counts = np.sum(mask, axis=1)
-    out = np.full((len(mask), int(counts.max(initial=0)) if length is None else length), fill)
-    out[rows, np.arange(rows.size) - np.repeat(np.cumsum(counts) - counts, counts)] = positions
+    positions = [np.flatnonzero(row) for row in mask]
+    if length is None:
+        length = max((index.size for index in positions), default=0)
+    out = np.full((len(mask), length), fill)
+    for row, index in zip(out, positions):
+        row[: index.size] = index
     return out
 
 
