@@ -1,6 +1,7 @@
 """Batch adjustment: padded, vmapped solves equal single adjustments; `jaxba batch` with
 failing projects; Monte Carlo and bootstrap replicates against the formal precision."""
 
+import dataclasses
 import json
 import math
 import shutil
@@ -70,6 +71,9 @@ def test_padding_keeps_structure(projects):
     assert batch.problem.initial.points.shape[:2] == (3, max(t for _, t in SIZES) + 1)
     assert list(batch.n_free) == [p.problem.n_unknowns() for p in built]
     assert list(batch.n_observations) == [p.problem.n_observations() for p in built]
+    short = dataclasses.replace(_padding.batch_shape(batch.problems), free=max(batch.n_free) - 1)
+    with pytest.raises(ValueError, match="cannot hold"):  # one more free unknown than room
+        pad_problems(batch.problems, short)
 
 
 def test_free_positions_of_stacked_masks_are_each_row_s_flatnonzero():

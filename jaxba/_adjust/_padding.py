@@ -132,8 +132,9 @@ class BatchShape:
     mounts: int | None = None
 
 
-def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
-    """The largest of every block and group, one spare point row; no plan yet."""
+def _block_shape(problems: tuple[BundleProblem, ...], free: int | None = None) -> BatchShape:
+    """The largest of every block and group, one spare point row; no plan yet. `free`: the
+    length of the free-index vector, default the most free unknowns of any problem."""
     return BatchShape(
         cameras={m: max(p.initial.cameras[m].shape[0] for p in problems)
                  for m in problems[0].initial.cameras},
@@ -141,7 +142,7 @@ def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
         points=max(p.initial.points.shape[0] for p in problems) + 1,
         rows=tuple(max(np.shape(p.groups[g].stddev)[0] for p in problems)
                    for g in range(len(problems[0].groups))),
-        free=max(p.n_unknowns() for p in problems),
+        free=max(p.n_unknowns() for p in problems) if free is None else free,
         mounts=None if problems[0].initial.mounts is None
         else max(p.initial.mounts.shape[0] for p in problems),
     )
@@ -177,6 +178,9 @@ def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, l
         ties=next(iter(ties)),
     )
     flat_free = free_mask(stacked.free, (len(problems),))
+    if flat_free.sum(-1).max() > shape.free:
+        raise ValueError(f"pad_problems: {shape} cannot hold these problems (one has"
+                         f" {flat_free.sum(-1).max()} free unknowns)")
     # X of the spare (last) point; points are not the last block where there are mounts
     spare = int(unflatten(shapes, np.arange(flat_free.shape[1])).points[-1, 0])
     free_index = free_positions(flat_free, shape.free, spare)
@@ -301,7 +305,8 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
 
 def _pad_problems(problems: tuple[BundleProblem, ...], shape: BatchShape | None) -> PaddedBatch:
     _check_kind(problems)
-    own = _block_shape(problems)
+    # Free unknowns counted once stacked (`_pad_each`), not read from each problem here.
+    own = _block_shape(problems, None if shape is None else shape.free)
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
