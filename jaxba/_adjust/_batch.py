@@ -17,7 +17,12 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 from .._gc import paused_gc
-from .._problem._bundle import BundleProblem, observed_minus_computed
+from .._problem._bundle import (
+    BundleProblem,
+    free_mask,
+    free_positions,
+    observed_minus_computed,
+)
 from .._problem._linearisation import (
     LinearisationPlan,
     _whole_group_jacobian,
@@ -290,12 +295,13 @@ def adjust_padded(
 
 def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels, datum_rtol):
     """`adjust_padded`'s Adjustments (or DatumErrors) from the program's outputs (NumPy)."""
+    stddev = [group.stddev for group in batch.host.groups]
     whitened = _group_rows(batch.host, stats.whitened)
     residuals = observed_minus_computed(batch.host, whitened)
     redundancy = None
     if any(a is not None for a in alphas):  # r_i = 1 - leverage, NaN where masked
-        redundancy = [np.where(np.isfinite(group.stddev), 1.0 - leverage, np.nan) for group,
-                      leverage in zip(batch.host.groups, _group_rows(batch.host, stats.leverage))]
+        redundancy = [np.where(np.isfinite(sigma), 1.0 - leverage, np.nan) for sigma, leverage
+                      in zip(stddev, _group_rows(batch.host, stats.leverage))]
     results = []
     for k, problem in enumerate(batch.problems):
         n_observations, n_free = int(batch.n_observations[k]), int(batch.n_free[k])
@@ -307,8 +313,9 @@ def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels
                 continue
         rows = [slice(np.shape(group.stddev)[0]) for group in problem.groups]
         results.append(_adjustment(
-            problem, solution, k, float(stats.initial_cost[k]), stats.cofactor[k],
-            [e[k, n] for e, n in zip(whitened, rows)], [v[k, n] for v, n in zip(residuals, rows)],
+            problem, solution, batch.host.free, k, float(stats.initial_cost[k]), stats.cofactor[k],
+            [s[k, n] for s, n in zip(stddev, rows)], [e[k, n] for e, n in zip(whitened, rows)],
+            [v[k, n] for v, n in zip(residuals, rows)],
             None if alphas[k] is None else [r[k, n] for r, n in zip(redundancy, rows)],
             n_observations, n_free, sigma0s[k], alphas[k], familywises[k],
         ))
@@ -327,28 +334,29 @@ def _group_rows(host: BundleProblem, flat: np.ndarray) -> list[np.ndarray]:
     return parts
 
 
-def _adjustment(problem, solution, k, initial_cost, cofactor, whitened, residuals, redundancy,
-                n_observations, n_free, sigma0, alpha, familywise) -> Adjustment:
-    """The `Adjustment` of problem `k` of a padded batch: from the batch's `solution`, its
-    ½eᵀe at the start, its cofactors (padded), and per group its rows of the batch's
-    whitened residuals e, residuals v and (with `alpha`) redundancy numbers r (NaN where
-    masked)."""
+def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whitened, residuals,
+                redundancy, n_observations, n_free, sigma0, alpha, familywise) -> Adjustment:
+    """The `Adjustment` of problem `k` of a padded batch: from the batch's `solution` and
+    `free` (the stacked problem's, NumPy), its ½eᵀe at the start, its cofactors (padded),
+    and per group its rows of the stacked σ, the batch's whitened residuals e, residuals v
+    and (with `alpha`) redundancy numbers r (NaN where masked)."""
     params = _unpad_parameters(solution.parameters, problem.initial, k)
     redundancy_total = n_observations - n_free
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
     sigma0_squared = sigma0**2 * 2 * final_cost / redundancy_total
     covariance = (sigma0_squared / sigma0**2) * cofactor[:n_free, :n_free]
+    # Its free positions from the batch's NumPy mask, not its own (device) arrays.
+    index = free_positions(free_mask(_unpad_parameters(free, problem.initial, k))[None])[0]
     prec = precision_from_covariance(problem, params, covariance, sigma0_squared,
-                                     redundancy_total, n_observations)
+                                     redundancy_total, n_observations, index)
     iterations = [
         Iteration(0, initial_cost, sigma0**2 * 2 * initial_cost / max(redundancy_total, 1)),
         Iteration(1, final_cost, sigma0_squared),
     ]
     reliability = None
     if alpha is not None:
-        reliability = group_reliability(
-            tuple(np.asarray(group.stddev) for group in problem.groups), tuple(redundancy),
-            tuple(whitened), n_observations, alpha=alpha, familywise=familywise)
+        reliability = group_reliability(tuple(stddev), tuple(redundancy), tuple(whitened),
+                                        n_observations, alpha=alpha, familywise=familywise)
     converged = bool(solution.converged[k])
     return Adjustment(
         problem=problem,
