@@ -148,7 +148,8 @@ def tie_source(problem: BundleProblem) -> np.ndarray:
 
 
 def free_indices(problem: BundleProblem) -> np.ndarray:
-    """Positions of the free scalars in `flatten(Parameters)` order."""
+    """Positions of the free scalars in `flatten(Parameters)` order (`free_positions` of the
+    one problem)."""
     return free_positions(free_mask(problem.free)[None])[0]
 
 
