@@ -1,6 +1,7 @@
 """Batch adjustment: padded, vmapped solves equal single adjustments; `jaxba batch` with
 failing projects; Monte Carlo and bootstrap replicates against the formal precision."""
 
+import dataclasses
 import json
 import math
 import shutil
@@ -23,6 +24,7 @@ from jaxba._cli._batch_run import run_batch
 from jaxba._cli._batch_solve import Chunk, solve_chunk
 from jaxba._cli._main import main
 from jaxba._models._cameras import CAMERA_MODELS
+from jaxba._problem._bundle import free_positions
 from jaxba._report import write_reports
 from jaxba._statistics._summary import variance_test
 
@@ -69,6 +71,22 @@ def test_padding_keeps_structure(projects):
     assert batch.problem.initial.points.shape[:2] == (3, max(t for _, t in SIZES) + 1)
     assert list(batch.n_free) == [p.problem.n_unknowns() for p in built]
     assert list(batch.n_observations) == [p.problem.n_observations() for p in built]
+    short = dataclasses.replace(_padding.batch_shape(batch.problems), free=max(batch.n_free) - 1)
+    with pytest.raises(ValueError, match="cannot hold"):  # one more free unknown than room
+        pad_problems(batch.problems, short)
+
+
+def test_free_positions_of_stacked_masks_are_each_row_s_flatnonzero():
+    """The padded free index (`free_positions`) of rows with different counts, against
+    `np.flatnonzero` of each row; one row is `free_indices`' case."""
+    mask = np.random.default_rng(3).random((4, 17)) < 0.4
+    mask[2] = False  # a problem with nothing free
+    index = free_positions(mask, 12, fill=99)
+    for row, positions in zip(mask, index):
+        own = np.flatnonzero(row)
+        np.testing.assert_array_equal(positions[: own.size], own)
+        assert np.all(positions[own.size:] == 99)
+    np.testing.assert_array_equal(free_positions(mask[:1])[0], np.flatnonzero(mask[0]))
 
 
 def test_problems_freeing_different_iops_batch_like_single_solves(projects):

@@ -16,9 +16,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
+from .._gc import paused_gc
 from .._problem._bundle import (
     BundleProblem,
-    observation_mask,
+    free_mask,
+    free_positions,
     observed_minus_computed,
 )
 from .._problem._linearisation import (
@@ -37,13 +39,12 @@ from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
 from .._statistics._datum import DatumError, check_datum, check_structure
-from .._statistics._reliability import reliability_from_redundancy
+from .._statistics._reliability import group_reliability
 from ._padding import (
     BatchShape,
     PaddedBatch,
     _take,
     _unpad_parameters,
-    _unpad_residuals,
     batch_shape,
     pad_problems,
 )
@@ -176,20 +177,6 @@ def _each(function, problem, plan, n_free, chunk_size):
     return jax.lax.map(one, (arrays, n_free), batch_size=chunk_size)
 
 
-@eqx.filter_jit
-def batch_statistics(
-    problem: BundleProblem, plan: LinearisationPlan, parameters: Parameters, n_free, *,
-    datum_rtol: float = 1e-9,
-) -> BatchStatistics:
-    """Dense statistics of every problem of a padded batch at `parameters`, vmapped."""
-
-    def one(problem, plan, params, n):
-        suspect = _datum_suspect(_initial_normal(problem, plan), n, datum_rtol)
-        return _statistics_one(problem, plan, params, n, suspect)
-
-    return jax.vmap(one)(problem, plan, parameters, n_free)
-
-
 @solver_jit
 def _adjust_program(problem, plan, n_free, max_steps, rtol, atol, datum_rtol, chunk_size):
     """Datum screen, solve and statistics of every problem of a padded batch: one compiled
@@ -301,62 +288,91 @@ def adjust_padded(
         "batch_adjust", _adjust_program,
         (batch.problem, batch.plan, jax.device_put(batch.n_free)),
         (max_steps, rtol, atol, datum_rtol, chunk_size)))
-    layout = [np.shape(group.stddev)[1:] for group in batch.problem.groups]
+    with paused_gc():  # many small objects, none in a cycle
+        return _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels,
+                        datum_rtol)
+
+
+def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels, datum_rtol):
+    """`adjust_padded`'s Adjustments (or DatumErrors) from the program's outputs (NumPy)."""
+    stddev = [group.stddev for group in batch.host.groups]
+    whitened = _group_rows(batch.host, stats.whitened)
+    residuals = observed_minus_computed(batch.host, whitened)
+    redundancy = None
+    if any(a is not None for a in alphas):  # r_i = 1 - leverage, NaN where masked
+        redundancy = [np.where(np.isfinite(sigma), 1.0 - leverage, np.nan) for sigma, leverage
+                      in zip(stddev, _group_rows(batch.host, stats.leverage))]
     results = []
     for k, problem in enumerate(batch.problems):
+        n_observations, n_free = int(batch.n_observations[k]), int(batch.n_free[k])
         if check:
             error = _datum_error(problem, bool(stats.suspect[k]), labels[k], datum_rtol,
-                                 int(batch.n_observations[k]), int(batch.n_free[k]))
+                                 n_observations, n_free)
             if error is not None:
                 results.append(error)
                 continue
+        rows = [slice(np.shape(group.stddev)[0]) for group in problem.groups]
         results.append(_adjustment(
-            problem, layout, _take(solution, k), _take(stats, k), int(batch.n_free[k]),
-            sigma0s[k], alphas[k], familywises[k],
+            problem, solution, batch.host.free, k, float(stats.initial_cost[k]), stats.cofactor[k],
+            [s[k, n] for s, n in zip(stddev, rows)], [e[k, n] for e, n in zip(whitened, rows)],
+            [v[k, n] for v, n in zip(residuals, rows)],
+            None if alphas[k] is None else [r[k, n] for r, n in zip(redundancy, rows)],
+            n_observations, n_free, sigma0s[k], alphas[k], familywises[k],
         ))
     return results
 
 
-def _adjustment(problem, layout, solution, stats, n_free, sigma0, alpha, familywise):
-    params = _unpad_parameters(solution.parameters, problem.initial)
-    mask = observation_mask(problem)
-    n_obs = int(mask.sum())
-    redundancy = n_obs - n_free
-    whitened = _unpad_residuals(layout, problem, stats.whitened)
+def _group_rows(host: BundleProblem, flat: np.ndarray) -> list[np.ndarray]:
+    """A padded batch's flat per-residual values (n_batch, n_residuals), `problem.whitened`'s
+    order, as per group (n_batch, rows, k) views shaped like the stacked `host`'s σ."""
+    parts, start = [], 0
+    for group in host.groups:
+        shape = np.shape(group.stddev)
+        size = int(np.prod(shape[1:]))
+        parts.append(flat[:, start:start + size].reshape(shape))
+        start += size
+    return parts
+
+
+def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whitened, residuals,
+                redundancy, n_observations, n_free, sigma0, alpha, familywise) -> Adjustment:
+    """The `Adjustment` of problem `k` of a padded batch: from the batch's `solution` and
+    `free` (the stacked problem's, NumPy), its ½eᵀe at the start, its cofactors (padded),
+    and per group its rows of the stacked σ, the batch's whitened residuals e, residuals v
+    and (with `alpha`) redundancy numbers r (NaN where masked)."""
+    params = _unpad_parameters(solution.parameters, problem.initial, k)
+    redundancy_total = n_observations - n_free
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
-    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy
-    covariance = (sigma0_squared / sigma0**2) * stats.cofactor[:n_free, :n_free]
-    prec = precision_from_covariance(problem, params, covariance, sigma0_squared, redundancy,
-                                     n_obs)
-    residuals = observed_minus_computed(problem, whitened)
+    sigma0_squared = sigma0**2 * 2 * final_cost / redundancy_total
+    covariance = (sigma0_squared / sigma0**2) * cofactor[:n_free, :n_free]
+    # Its free positions from the batch's NumPy mask, not its own (device) arrays.
+    index = free_positions(free_mask(_unpad_parameters(free, problem.initial, k))[None])[0]
+    prec = precision_from_covariance(problem, params, covariance, sigma0_squared,
+                                     redundancy_total, n_observations, index)
     iterations = [
-        Iteration(0, float(stats.initial_cost),
-                  sigma0**2 * 2 * float(stats.initial_cost) / max(redundancy, 1)),
+        Iteration(0, initial_cost, sigma0**2 * 2 * initial_cost / max(redundancy_total, 1)),
         Iteration(1, final_cost, sigma0_squared),
     ]
     reliability = None
     if alpha is not None:
-        leverage = np.concatenate([np.ravel(x) for x in _unpad_residuals(layout, problem,
-                                                                          stats.leverage)])
-        flat_e = np.concatenate([np.ravel(e) for e in whitened])
-        reliability = reliability_from_redundancy(problem, 1.0 - leverage[mask], flat_e[mask],
-                                                  alpha=alpha, familywise=familywise)
-    converged = bool(solution.converged)
+        reliability = group_reliability(tuple(stddev), tuple(redundancy), tuple(whitened),
+                                        n_observations, alpha=alpha, familywise=familywise)
+    converged = bool(solution.converged[k])
     return Adjustment(
         problem=problem,
         parameters=params,
         precision=prec,
-        residuals=residuals,
+        residuals=tuple(residuals),
         iterations=iterations,
         converged=converged,
-        message="converged" if converged else str(optx.RESULTS[solution.result]),
-        steps=int(solution.steps),
+        message="converged" if converged else str(optx.RESULTS[_take(solution.result, k)]),
+        steps=int(solution.steps[k]),
         sigma0_prior=float(sigma0),
         reliability=reliability,
     )
 
 
 __all__ = [
-    "BatchShape", "PaddedBatch", "adjust_batch", "adjust_padded", "batch_shape", "batch_statistics",
+    "BatchShape", "PaddedBatch", "adjust_batch", "adjust_padded", "batch_shape",
     "check_datum_batch", "pad_problems", "solve_batch",
 ]

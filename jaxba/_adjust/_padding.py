@@ -24,7 +24,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from .._problem._bundle import BundleProblem, free_indices
+from .._gc import paused_gc
+from .._problem._bundle import (
+    BundleProblem,
+    free_indices,
+    free_mask,
+    free_positions,
+    observation_counts,
+)
 from .._problem._linearisation import (
     LinearisationPlan,
     _local_positions,
@@ -44,7 +51,8 @@ class PaddedBatch:
     - `plan`: the stacked `LinearisationPlan`s of the padded problems; `plan.free_index`
       (n_batch, n_free_max) the free positions in `flatten` order, padded;
     - `problems`: the original (unpadded) problems;
-    - `n_free`, `n_observations`: per problem, real unknowns and observations.
+    - `n_free`, `n_observations`: per problem, real unknowns and observations;
+    - `host`: `problem` with NumPy leaves (the host's bookkeeping reads its σ).
     """
 
     problem: BundleProblem
@@ -52,6 +60,7 @@ class PaddedBatch:
     problems: tuple[BundleProblem, ...]
     n_free: np.ndarray
     n_observations: np.ndarray
+    host: BundleProblem
 
     @property
     def n_batch(self) -> int:
@@ -123,8 +132,9 @@ class BatchShape:
     mounts: int | None = None
 
 
-def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
-    """The largest of every block and group, one spare point row; no plan yet."""
+def _block_shape(problems: tuple[BundleProblem, ...], free: int | None = None) -> BatchShape:
+    """The largest of every block and group, one spare point row; no plan yet. `free`: the
+    length of the free-index vector, default the most free unknowns of any problem."""
     return BatchShape(
         cameras={m: max(p.initial.cameras[m].shape[0] for p in problems)
                  for m in problems[0].initial.cameras},
@@ -132,7 +142,7 @@ def _block_shape(problems: tuple[BundleProblem, ...]) -> BatchShape:
         points=max(p.initial.points.shape[0] for p in problems) + 1,
         rows=tuple(max(np.shape(p.groups[g].stddev)[0] for p in problems)
                    for g in range(len(problems[0].groups))),
-        free=max(p.n_unknowns() for p in problems),
+        free=max(p.n_unknowns() for p in problems) if free is None else free,
         mounts=None if problems[0].initial.mounts is None
         else max(p.initial.mounts.shape[0] for p in problems),
     )
@@ -167,15 +177,13 @@ def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, l
         else jax.tree.map(lambda *leaves: np.stack(leaves), *(p.robust for p in problems)),
         ties=next(iter(ties)),
     )
-    flat_free = np.concatenate([leaf.reshape(len(problems), -1)
-                                for leaf in jax.tree.leaves(stacked.free)], axis=1)
-    size = flat_free.shape[1]
-    spare = int(unflatten(shapes, np.arange(size)).points[-1, 0])
+    flat_free = free_mask(stacked.free, (len(problems),))
+    if flat_free.sum(-1).max() > shape.free:
+        raise ValueError(f"pad_problems: {shape} cannot hold these problems (one has"
+                         f" {flat_free.sum(-1).max()} free unknowns)")
     # X of the spare (last) point; points are not the last block where there are mounts
-    free_index = np.full((len(problems), shape.free), spare)
-    for k, row in enumerate(flat_free):
-        index = np.flatnonzero(row)
-        free_index[k, : len(index)] = index
+    spare = int(unflatten(shapes, np.arange(flat_free.shape[1])).points[-1, 0])
+    free_index = free_positions(flat_free, shape.free, spare)
     if shape.live is not None:
         return stacked, free_index, list(shape.live), [None] * len(problems)
     # One set of live slots for all: problems may free different IOPs.
@@ -291,8 +299,14 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
     problems = tuple(problems)
     if not problems:
         raise ValueError("pad_problems: no problems")
+    with paused_gc():  # many small arrays and tuples, none in a cycle
+        return _pad_problems(problems, shape)
+
+
+def _pad_problems(problems: tuple[BundleProblem, ...], shape: BatchShape | None) -> PaddedBatch:
     _check_kind(problems)
-    own = _block_shape(problems)
+    # Free unknowns counted once stacked (`_pad_each`), not read from each problem here.
+    own = _block_shape(problems, None if shape is None else shape.free)
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
@@ -303,15 +317,14 @@ def pad_problems(problems, shape: BatchShape | None = None) -> PaddedBatch:
         plan = jax.tree.map(lambda leaf: np.repeat(np.asarray(leaf), len(plans), 0), one)
     else:
         plan = pad_plans(plans, shape.keys)
-    observed = sum(np.isfinite(np.asarray(g.stddev)).reshape(len(problems), -1).sum(1)
-                   for g in stacked.groups)
+    device = jax.device_put((stacked, plan))  # padded and stacked in NumPy: one transfer
     return PaddedBatch(
-        problem=jax.device_put(stacked),  # padded and stacked in NumPy: one transfer
-        plan=jax.device_put(plan),
+        problem=device[0],
+        plan=device[1],
         problems=problems,
-        n_free=sum(leaf.reshape(len(problems), -1).sum(1)
-                   for leaf in jax.tree.leaves(stacked.free)),
-        n_observations=np.asarray(observed),
+        n_free=free_mask(stacked.free, (len(problems),)).sum(-1),
+        n_observations=observation_counts(stacked.groups, (len(problems),)),
+        host=stacked,
     )
 
 
@@ -324,18 +337,6 @@ def _take(tree, k: int):
     return jax.tree.map(lambda leaf: leaf[k], tree)
 
 
-def _unpad_parameters(padded: Parameters, like: Parameters) -> Parameters:
-    return jax.tree.map(lambda leaf, ref: leaf[: np.shape(ref)[0]], padded, like)
-
-
-def _unpad_residuals(layout: list[tuple], problem: BundleProblem, flat) -> list:
-    """Split a flat padded residual vector (groups of (rows, k) as `layout`) into the real
-    rows of each group of `problem`."""
-    parts, start = [], 0
-    for shape, group in zip(layout, problem.groups):
-        size = int(np.prod(shape))
-        parts.append(flat[start:start + size].reshape(shape)[: np.shape(group.stddev)[0]])
-        start += size
-    return parts
-
-
+def _unpad_parameters(padded: Parameters, like: Parameters, k: int) -> Parameters:
+    """Problem `k`'s rows of the padded batch's `padded`, as many as `like` has."""
+    return jax.tree.map(lambda leaf, ref: leaf[k, : np.shape(ref)[0]], padded, like)

@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from .._models._cameras import AbstractRefraction, NoRefraction
 from .._models._robust import RobustLoss
@@ -83,11 +83,11 @@ class BundleProblem(eqx.Module):
 
     def n_observations(self) -> int:
         """Number of real scalar observations over all groups."""
-        return int(sum(np.sum(_host_mask(group)) for group in self.groups))
+        return int(observation_counts(self.groups))
 
     def n_unknowns(self) -> int:
         """Number of free (estimated) scalars."""
-        return int(np.sum(flatten(self.free)))
+        return int(free_mask(self.free).sum())
 
 
 def observed_minus_computed(problem: BundleProblem, whitened) -> tuple[np.ndarray, ...]:
@@ -148,8 +148,37 @@ def tie_source(problem: BundleProblem) -> np.ndarray:
 
 
 def free_indices(problem: BundleProblem) -> np.ndarray:
-    """Positions of the free scalars in `flatten(Parameters)` order."""
-    return np.flatnonzero(flatten(problem.free))
+    """Positions of the free scalars in `flatten(Parameters)` order (`free_positions` of the
+    one problem)."""
+    return free_positions(free_mask(problem.free)[None])[0]
+
+
+def free_mask(free: Parameters, batch: tuple[int, ...] = ()) -> Bool[np.ndarray, "*batch n_all"]:
+    """`free` in `flatten` order: (n_all,) of one problem's, (*batch, n_all) of problems
+    stacked along `batch` leading axes of every leaf (a padded batch's)."""
+    return np.concatenate([np.reshape(np.asarray(leaf), (*batch, -1))
+                           for leaf in jax.tree.leaves(free)], axis=-1)
+
+
+def free_positions(mask: Bool[np.ndarray, "n n_all"], length: int | None = None,
+                   fill: int = 0) -> Int[np.ndarray, "n length"]:
+    """Per row of `mask` (`free_mask` of stacked problems) the positions of its free
+    scalars in order, padded with `fill` to `length` (default the longest row's count)."""
+    positions = [np.flatnonzero(row) for row in mask]
+    if length is None:
+        length = max((index.size for index in positions), default=0)
+    out = np.full((len(mask), length), fill)
+    for row, index in zip(out, positions):
+        row[: index.size] = index
+    return out
+
+
+def observation_counts(groups: tuple[AbstractObservationGroup, ...],
+                       batch: tuple[int, ...] = ()) -> Int[np.ndarray, "*batch"]:
+    """Real scalar observations (σ finite) over `groups`: () of one problem's, (*batch,) of
+    problems stacked along `batch` leading axes (a padded batch's)."""
+    return sum((np.reshape(_host_mask(group), (*batch, -1)).sum(-1) for group in groups),
+               np.zeros(batch, int))
 
 
 def _host_mask(group: AbstractObservationGroup) -> Bool[np.ndarray, "n k"]:

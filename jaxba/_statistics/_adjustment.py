@@ -65,7 +65,8 @@ class Adjustment:
 
     def __post_init__(self):
         # The solvers return jax arrays, a batch NumPy: NumPy on every path.
-        object.__setattr__(self, "parameters", jax.device_get(self.parameters))
+        if not all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(self.parameters)):
+            object.__setattr__(self, "parameters", jax.device_get(self.parameters))
 
     @property
     def sigma0(self) -> float:

@@ -197,9 +197,11 @@ def precision_from_covariance(
     sigma0_squared: float,
     redundancy: int,
     n_observations: int,
+    index: np.ndarray | None = None,
 ) -> Precision:
-    """The `Precision` of Cxx (n_free, n_free) of `problem`'s free unknowns at `params`."""
-    index = free_indices(problem)
+    """The `Precision` of Cxx (n_free, n_free) of `problem`'s free unknowns at `params`;
+    `index`: their positions, `free_indices(problem)` (computed where not given)."""
+    index = free_indices(problem) if index is None else index
     std = np.zeros(flatten(params).shape)
     std[index] = np.sqrt(np.diag(covariance))
     return with_ties(Precision(

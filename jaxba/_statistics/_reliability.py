@@ -93,18 +93,35 @@ def reliability_from_redundancy(
     """`reliability` from the redundancy numbers r_i and whitened residuals e_i of the real
     observations (flat, `observation_mask` order), e.g. from a batched computation."""
     mask = observation_mask(problem)
-    alpha = per_test_alpha(alpha, int(mask.sum()), familywise=familywise)
-    safe_r = np.where(r > 1e-12, r, np.nan)
+    return group_reliability(
+        tuple(np.asarray(group.stddev) for group in problem.groups), _split(problem, mask, r),
+        _split(problem, mask, whitened), int(mask.sum()), alpha=alpha, power=power,
+        familywise=familywise)
+
+
+def group_reliability(
+    stddev: tuple[np.ndarray, ...],
+    r: tuple[np.ndarray, ...],
+    whitened: tuple[np.ndarray, ...],
+    n_observations: int,
+    *,
+    alpha: float = 0.001,
+    power: float = 0.8,
+    familywise: bool = False,
+) -> Reliability:
+    """`reliability_from_redundancy` from arrays shaped like each group's residuals: σ of
+    its observations, r_i (NaN where masked) and e_i; `n_observations` the real ones (the
+    tests of a family-wise `alpha`)."""
+    alpha = per_test_alpha(alpha, n_observations, familywise=familywise)
     import scipy.special  # here: scipy.stats, for norm.ppf alone, took 0.8 s to import
 
     critical = float(scipy.special.ndtri(1 - alpha / 2))  # the standard normal's ppf
     delta0 = critical + float(scipy.special.ndtri(power))
-    sigma = np.concatenate([np.ravel(np.asarray(g.stddev)) for g in problem.groups])
-    sigma = sigma[mask]
+    root = [np.sqrt(np.where(x > 1e-12, x, np.nan)) for x in r]  # NaN where masked
     return Reliability(
-        redundancy_numbers=_split(problem, mask, r),
-        normalised_residuals=_split(problem, mask, whitened / np.sqrt(safe_r)),
-        mdb=_split(problem, mask, delta0 * sigma / np.sqrt(safe_r)),
+        redundancy_numbers=tuple(r),
+        normalised_residuals=tuple(e / q for e, q in zip(whitened, root)),
+        mdb=tuple(delta0 * sigma / q for sigma, q in zip(stddev, root)),
         alpha=alpha,
         critical_value=critical,
     )
