@@ -40,7 +40,7 @@ from .._problem._linearisation import (
     pad_plans,
 )
 from .._problem._observations import AbstractObservationGroup
-from .._problem._parameters import Parameters, flatten, unflatten
+from .._problem._parameters import Parameters, flatten, positions_of, unflatten
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,9 +106,9 @@ def _stack_groups(groups: list[AbstractObservationGroup], n: int) -> AbstractObs
 
 def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
     """`problem.ties` as positions of the padded Parameters shaped like `shapes`."""
-    own = unflatten(problem.initial, np.arange(flatten(problem.initial).size)).cameras
-    padded = unflatten(shapes, np.arange(flatten(shapes).size)).cameras
-    position = np.zeros(flatten(problem.initial).size, dtype=int)
+    own_positions = positions_of(problem.initial)
+    own, padded = own_positions.cameras, positions_of(shapes).cameras
+    position = np.zeros(flatten(own_positions).size, dtype=int)
     for model, block in own.items():
         position[np.ravel(block)] = np.ravel(padded[model][: block.shape[0]])
     return tuple((int(position[d]), int(position[s])) for d, s in problem.ties)
