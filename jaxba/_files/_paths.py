@@ -37,10 +37,10 @@ def resolved(paths: Iterable[os.PathLike]) -> frozenset[str]:
     `check_targets` and `check_outputs` when many outputs are checked against the same
     inputs (each resolved once, not per check)."""
     folders: dict[str, str] = {}
-    return frozenset(_resolve(os.fspath(path), folders) for path in paths)
+    return frozenset(resolve(os.fspath(path), folders) for path in paths)
 
 
-def _resolve(path: str, folders: dict[str, str]) -> str:
+def resolve(path: str, folders: dict[str, str]) -> str:
     """`os.path.realpath(path)`, each folder on the way resolved once for all the paths that
     share `folders` (folder -> resolved): a name that is not a symbolic link resolves to its
     resolved folder joined with it, one `lstat` instead of one per component (a batch's
@@ -50,7 +50,7 @@ def _resolve(path: str, folders: dict[str, str]) -> str:
         return os.path.realpath(path)
     folder = folders.get(head)
     if folder is None:
-        folder = folders[head] = _resolve(head, folders) if head else os.path.realpath(".")
+        folder = folders[head] = resolve(head, folders) if head else os.path.realpath(".")
     joined = os.path.join(folder, name)
     return os.path.realpath(joined) if os.path.islink(joined) else joined
 
@@ -60,11 +60,11 @@ def check_targets(paths: Iterable[pathlib.Path], inputs: Iterable[os.PathLike], 
     """Raise `OutputError` naming the first of `paths` that is one of `inputs` (compared
     resolved; a frozenset is taken as already `resolved`) or a folder; `owner` (e.g.
     "project 'lab'") says whose inputs they are. `folders`: resolved folders kept across
-    calls (`_resolve`), for many checks of paths in the same folders."""
+    calls (`resolve`), for many checks of paths in the same folders."""
     inputs = inputs if isinstance(inputs, frozenset) else resolved(inputs)
     folders = {} if folders is None else folders
     for path in paths:
-        if _resolve(os.fspath(path), folders) in inputs:
+        if resolve(os.fspath(path), folders) in inputs:
             raise OutputError(
                 f"{path}: report file would overwrite an input file of {owner}; choose"
                 " another output folder (--out) or rename the input"

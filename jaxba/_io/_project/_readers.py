@@ -10,8 +10,8 @@ where there is one, the line and the column or key. The project file itself (`[p
 import dataclasses
 import os
 import pathlib
-import stat
 
+from ..._files._paths import resolve
 from ..._gc import paused_gc
 from ..._project._errors import ProjectError
 from ..._project._spec import AdjustmentSettings, InputFile, ProjectSpec
@@ -108,15 +108,9 @@ def read_project_file(path: str | os.PathLike) -> ProjectFile:
 
 def _resolve_in(directory: pathlib.Path, name: str) -> pathlib.Path:
     """`(directory / name).resolve()` for a resolved `directory`: where `name` is a plain
-    file name, one `lstat` (is it a link?) instead of one per part of the path."""
-    path = directory / name
-    if os.path.basename(name) != name or name in ("", ".", ".."):
-        return path.resolve()
-    try:
-        link = stat.S_ISLNK(os.lstat(path).st_mode)
-    except OSError:
-        link = False  # no such file: resolve() leaves the name as it is
-    return path.resolve() if link else path
+    file name, one `lstat` (is it a link?) instead of one per part of the path (`resolve`)."""
+    folder = os.fspath(directory)
+    return pathlib.Path(resolve(os.path.join(folder, name), {folder: folder}))
 
 
 def read_project_tables(head: ProjectFile) -> ProjectSpec:
