@@ -78,7 +78,7 @@ def test_padding_keeps_structure(projects):
 
 def test_free_positions_of_stacked_masks_are_each_row_s_flatnonzero():
     """The padded free index (`free_positions`) of rows with different counts, against
-    `np.flatnonzero` of each row; one row is `free_indices`' case."""
+    `np.flatnonzero` of each row; a row filling `length` exactly has no fill."""
     mask = np.random.default_rng(3).random((4, 17)) < 0.4
     mask[2] = False  # a problem with nothing free
     index = free_positions(mask, 12, fill=99)
@@ -86,7 +86,9 @@ def test_free_positions_of_stacked_masks_are_each_row_s_flatnonzero():
         own = np.flatnonzero(row)
         np.testing.assert_array_equal(positions[: own.size], own)
         assert np.all(positions[own.size:] == 99)
-    np.testing.assert_array_equal(free_positions(mask[:1])[0], np.flatnonzero(mask[0]))
+    full = int(mask[0].sum())
+    np.testing.assert_array_equal(free_positions(mask[:1], full, fill=99)[0],
+                                  np.flatnonzero(mask[0]))
 
 
 def test_problems_freeing_different_iops_batch_like_single_solves(projects):

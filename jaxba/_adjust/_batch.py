@@ -20,7 +20,6 @@ from .._gc import paused_gc
 from .._problem._bundle import (
     BundleProblem,
     free_mask,
-    free_positions,
     observed_minus_computed,
 )
 from .._problem._linearisation import (
@@ -346,7 +345,7 @@ def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whit
     sigma0_squared = sigma0**2 * 2 * final_cost / redundancy_total
     covariance = (sigma0_squared / sigma0**2) * cofactor[:n_free, :n_free]
     # Its free positions from the batch's NumPy mask, not its own (device) arrays.
-    index = free_positions(free_mask(_unpad_parameters(free, problem.initial, k))[None])[0]
+    index = np.flatnonzero(free_mask(_unpad_parameters(free, problem.initial, k)))
     prec = precision_from_covariance(problem, params, covariance, sigma0_squared,
                                      redundancy_total, n_observations, index)
     iterations = [

@@ -148,9 +148,11 @@ def _block_shape(problems: tuple[BundleProblem, ...], free: int | None = None) -
     )
 
 
-def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, list, list]:
+def _pad_each(problems, shape: BatchShape
+              ) -> tuple[BundleProblem, np.ndarray, np.ndarray, list, list]:
     """Every problem padded to `shape`'s blocks and stacked (a BundleProblem of NumPy leaves
-    with a leading batch axis), the (n, shape.free) padded free indices, the live slots of
+    with a leading batch axis), the (n,) counts of free unknowns, the (n, shape.free) padded
+    free indices, the live slots of
     the plans (`shape.live`, or the union over these problems) and the padded problems'
     `_local_positions` where the live slots needed them (else Nones)."""
     shapes = Parameters(
@@ -178,21 +180,22 @@ def _pad_each(problems, shape: BatchShape) -> tuple[BundleProblem, np.ndarray, l
         ties=next(iter(ties)),
     )
     flat_free = free_mask(stacked.free, (len(problems),))
-    if flat_free.sum(-1).max() > shape.free:
+    n_free = flat_free.sum(-1)
+    if n_free.max() > shape.free:
         raise ValueError(f"pad_problems: {shape} cannot hold these problems (one has"
-                         f" {flat_free.sum(-1).max()} free unknowns)")
+                         f" {n_free.max()} free unknowns)")
     # X of the spare (last) point; points are not the last block where there are mounts
     spare = int(unflatten(shapes, np.arange(flat_free.shape[1])).points[-1, 0])
     free_index = free_positions(flat_free, shape.free, spare)
     if shape.live is not None:
-        return stacked, free_index, list(shape.live), [None] * len(problems)
+        return stacked, n_free, free_index, list(shape.live), [None] * len(problems)
     # One set of live slots for all: problems may free different IOPs.
     padded = [_take(stacked, k) for k in range(len(problems))]
     locals_ = [_local_positions(one) for one in padded]
     lives = zip(*(live_slots(one, index, local)
                   for one, index, local in zip(padded, free_index, locals_)))
     live = [None if slots[0] is None else tuple(sorted(set().union(*slots))) for slots in lives]
-    return stacked, free_index, live, locals_
+    return stacked, n_free, free_index, live, locals_
 
 
 def _digests(stacked: BundleProblem, free_index: np.ndarray, live) -> list[bytes]:
@@ -269,7 +272,7 @@ def batch_shape(problems) -> BatchShape:
     _check_kind(problems)
     blocks = _block_shape(problems)
     distinct = {_structure(p): p for p in problems}
-    stacked, free_index, live, locals_ = _pad_each(tuple(distinct.values()), blocks)
+    stacked, _, free_index, live, locals_ = _pad_each(tuple(distinct.values()), blocks)
     plans = _plans(stacked, free_index, live, locals_)
     keys = tuple(None if slots is None else
                  tuple(max(plan.key_rows[g].shape[k] for plan in plans) for k in (0, 1))
@@ -310,7 +313,7 @@ def _pad_problems(problems: tuple[BundleProblem, ...], shape: BatchShape | None)
     shape = own if shape is None else shape
     if not _holds(shape, own):
         raise ValueError(f"pad_problems: {shape} cannot hold these problems ({own})")
-    stacked, free_index, live, locals_ = _pad_each(problems, shape)
+    stacked, n_free, free_index, live, locals_ = _pad_each(problems, shape)
     plans = _plans(stacked, free_index, live, locals_)
     if all(plan is plans[0] for plan in plans):  # one structure: one plan, repeated
         one = pad_plans(plans[:1], shape.keys)
@@ -322,7 +325,7 @@ def _pad_problems(problems: tuple[BundleProblem, ...], shape: BatchShape | None)
         problem=device[0],
         plan=device[1],
         problems=problems,
-        n_free=free_mask(stacked.free, (len(problems),)).sum(-1),
+        n_free=n_free,
         n_observations=observation_counts(stacked.groups, (len(problems),)),
         host=stacked,
     )

@@ -148,9 +148,8 @@ def tie_source(problem: BundleProblem) -> np.ndarray:
 
 
 def free_indices(problem: BundleProblem) -> np.ndarray:
-    """Positions of the free scalars in `flatten(Parameters)` order (`free_positions` of the
-    one problem)."""
-    return free_positions(free_mask(problem.free)[None])[0]
+    """Positions of the free scalars in `flatten(Parameters)` order."""
+    return np.flatnonzero(free_mask(problem.free))
 
 
 def free_mask(free: Parameters, batch: tuple[int, ...] = ()) -> Bool[np.ndarray, "*batch n_all"]:
@@ -160,15 +159,13 @@ def free_mask(free: Parameters, batch: tuple[int, ...] = ()) -> Bool[np.ndarray,
                            for leaf in jax.tree.leaves(free)], axis=-1)
 
 
-def free_positions(mask: Bool[np.ndarray, "n n_all"], length: int | None = None,
-                   fill: int = 0) -> Int[np.ndarray, "n length"]:
+def free_positions(mask: Bool[np.ndarray, "n n_all"], length: int,
+                   fill: int) -> Int[np.ndarray, "n length"]:
     """Per row of `mask` (`free_mask` of stacked problems) the positions of its free
-    scalars in order, padded with `fill` to `length` (default the longest row's count)."""
-    positions = [np.flatnonzero(row) for row in mask]
-    if length is None:
-        length = max((index.size for index in positions), default=0)
+    scalars in order, padded with `fill` to `length`."""
     out = np.full((len(mask), length), fill)
-    for row, index in zip(out, positions):
+    for row, free in zip(out, mask):
+        index = np.flatnonzero(free)
         row[: index.size] = index
     return out
 
