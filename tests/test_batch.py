@@ -4,7 +4,10 @@ failing projects; Monte Carlo and bootstrap replicates against the formal precis
 import dataclasses
 import json
 import math
+import os
+import pathlib
 import shutil
+import sys
 
 import equinox as eqx
 import jax
@@ -18,7 +21,7 @@ from jaxba._adjust import _batch, _padding
 from jaxba._adjust._batch import adjust_batch
 from jaxba._adjust._montecarlo import bootstrap, monte_carlo
 from jaxba._adjust._padding import pad_problems
-from jaxba._cli import _batch_run
+from jaxba._cli import _batch_processes, _batch_run
 from jaxba._cli._batch_read import finished_results, read_batch
 from jaxba._cli._batch_run import run_batch
 from jaxba._cli._batch_solve import Chunk, solve_chunk
@@ -308,6 +311,19 @@ def test_worker_processes_give_the_rows_and_reports_of_one_process(projects, tmp
         folder = tmp_path / "shared" / a["name"]
         assert (folder / "results.json").is_file() and (folder / f"{a['name']}.out").is_file()
     assert json.loads((tmp_path / "shared" / "summary.json").read_text())[0]["name"] == "p0"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a forkserver on Linux only")
+def test_workers_are_forked_from_a_server_that_imports_the_pipeline_once():
+    """On Linux the workers are not started afresh: they are forked from a forkserver that
+    was told to import the pipeline (`PRELOAD`) before forking them."""
+    with _batch_processes.worker_processes(2) as workers:
+        parents = {workers.pool.submit(os.getppid).result() for _ in range(4)}
+    (server,) = parents  # both workers, one parent
+    assert server != os.getpid()
+    command = pathlib.Path(f"/proc/{server}/cmdline").read_bytes().decode()
+    assert "forkserver" in command
+    assert all(module in command for module in _batch_processes.PRELOAD)
 
 
 def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):
