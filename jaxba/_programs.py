@@ -99,6 +99,15 @@ def register_lookup(entries: Callable[[], Iterable]) -> None:
     _lookups.append(entries)
 
 
+def forget_loaded() -> None:
+    """Drop the programs this process has loaded or prepared (their executables freed once
+    nothing else holds them), as `jax.clear_caches` drops jax's: the next call of each
+    loads it again, from its stored export, as a fresh process would (and counts it)."""
+    _loaded.clear()
+    _traced.clear()
+    _ahead.clear()
+
+
 def stored(name: str) -> Callable[[Callable], Callable]:
     """Decorator: the jitted `program` called through `call_stored` under `name`; the call's
     `ahead(*args)` is `compile_ahead(name, program, args)`, its `output_shapes(*args)`

@@ -63,6 +63,7 @@ from helpers import SYNTHETIC_BLOCK  # noqa: E402
 
 import jaxba  # noqa: E402
 from jaxba._memory import release_free_memory  # noqa: E402
+from jaxba._programs import forget_loaded  # noqa: E402
 
 # Above this resident size a test's compiled programs are dropped when it ends, not only at
 # the end of its module: a module of large vmapped programs (test_batch) otherwise climbed
@@ -72,6 +73,7 @@ CLEAR_ABOVE_BYTES = 1 << 30
 
 def _release_memory():
     jax.clear_caches()
+    forget_loaded()  # the executables jaxba's stored programs hold
     gc.collect()
     release_free_memory()  # glibc keeps freed pages resident otherwise
 

@@ -69,9 +69,11 @@ def _fresh() -> None:
     or loads from the persistent cache) the programs it needs as in a process of its own."""
     import jax
 
+    from jaxba._programs import forget_loaded
     from jaxba._solvers._compiled import solver_compiler_options
 
     jax.clear_caches()
+    forget_loaded()
     solver_compiler_options.cache_clear()  # its probe is a program a fresh process loads
 
 

@@ -108,6 +108,22 @@ def test_a_stored_program_gives_the_traced_results(folder):
     assert second[0].scale == box.scale
 
 
+def test_forgotten_programs_are_loaded_again(folder):
+    """`forget_loaded` drops the programs this process loaded, as `jax.clear_caches` drops
+    jax's: the next call loads the stored export again and counts it, as a fresh process."""
+    box, y = _box(), jax.device_put(np.linspace(-1.0, 2.0, 5))
+    first = _call(box, y)
+    with CompileLog() as kept:
+        _call(box, y)
+    _programs.forget_loaded()
+    jax.clear_caches()
+    assert not _programs._loaded
+    with CompileLog() as again:
+        second = _call(box, y)
+    assert kept.count == 0 and again.count == 1
+    assert _equal(first, second) and _programs._loaded
+
+
 def test_a_changed_structure_gets_a_new_key(folder):
     y = jax.device_put(np.linspace(-1.0, 2.0, 5))
     _call(_box(), y)
