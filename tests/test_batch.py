@@ -29,6 +29,7 @@ from jaxba._cli._main import main
 from jaxba._models._cameras import CAMERA_MODELS
 from jaxba._problem._bundle import free_positions
 from jaxba._report import write_reports
+from jaxba._report._outputs import OBSERVATIONS_FILE, REPORT_SETS
 from jaxba._statistics._summary import variance_test
 
 BATCH_RTOL = 1e-8  # each batch result equals the single adjustment to 1e-8 relative
@@ -276,6 +277,36 @@ def test_batch_reports_are_those_of_one_project_s_writer(projects, tmp_path):
     assert all(finished_results(entry) is not None for entry in entries)
     (tmp_path / "batch" / "p1" / "p1.out").write_bytes(b"")
     assert [finished_results(entry) is None for entry in entries] == [False, True, False]
+
+
+def test_compact_reports_leave_out_the_files_of_a_row_per_observation(projects, tmp_path):
+    """`--reports compact`: each project gets NAME.out, NAME.sigma and results.json, byte for
+    byte those of all reports (the same chunks), and neither NAME.res nor observations.csv;
+    `resume` trusts a compact set where compact reports are asked for, and adjusts those
+    projects again where all are."""
+    _, paths, _ = projects
+    rows = run_batch(paths, tmp_path / "all")
+    assert main(["batch", *map(str, paths), "--out", str(tmp_path / "compact"),
+                 "--reports", "compact"]) == 0
+    for row in rows:
+        name, folder = row["name"], tmp_path / "compact" / row["name"]
+        written = sorted(path.name for path in folder.iterdir())
+        assert written == sorted([f"{name}.out", f"{name}.sigma", "results.json"])
+        for file in written:
+            assert (folder / file).read_bytes() == (tmp_path / "all" / name / file).read_bytes()
+    again = run_batch(paths, tmp_path / "compact", reports="compact", resume=True)
+    assert [row["mode"] for row in again] == ["resumed"] * len(paths)
+    whole = run_batch(paths, tmp_path / "compact", resume=True)
+    assert [row["mode"] for row in whole] == ["batch"] * len(paths)
+    assert (tmp_path / "compact" / "p0" / OBSERVATIONS_FILE).is_file()
+    with pytest.raises(ValueError, match="'some': one of all, compact"):
+        run_batch(paths, tmp_path / "some", reports="some")
+
+
+def test_the_command_line_offers_every_set_of_reports(tmp_path, capsys):
+    assert main(["batch", "p.toml", "--out", str(tmp_path), "--reports", "some"]) == 2
+    error = capsys.readouterr().err
+    assert "--reports" in error and all(f"'{name}'" in error for name in REPORT_SETS)
 
 
 @pytest.mark.slow  # two worker processes, each starting jax

@@ -42,6 +42,11 @@ def add_batch(subparsers) -> None:
         help="projects per vmapped solve, one Dask task (default 10); the results do not"
              " depend on where the solves run, only (to rounding) on N")
     parser.add_argument(
+        "--reports", choices=("all", "compact"), default="all",
+        help="each project's reports: all (NAME.out, NAME.res, NAME.sigma, results.json,"
+             " observations.csv; default) or compact (without the two files of a row per"
+             " observation, NAME.res and observations.csv)")
+    parser.add_argument(
         "--resume", action="store_true",
         help="skip projects whose reports are all in DIR already (an earlier, interrupted"
              " run); their summary rows are read from their results.json")
@@ -52,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxba._cli._batch_read import read_batch
     from jaxba._dask import SchedulerError, check_scheduler
     from jaxba._files import output_lock
+    from jaxba._report._outputs import report_kinds
 
     if args.chunk is not None and args.chunk < 1:
         raise UsageError(f"--chunk {args.chunk}: must be at least 1")
@@ -74,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     # project is adjusted (with workers, in the workers, each its share).
     expected = 1 if args.scheduler is not None else worker_count(len(args.projects), jobs)
     with worker_processes(expected) as workers:
-        entries = read_batch(args.projects, args.out, tables=False)
+        entries = read_batch(args.projects, args.out, tables=False,
+                             reports=report_kinds(args.reports))
         with output_lock(args.out):
             from jaxba._cli._batch_run import run_batch
             from jaxba._cli._progress_bar import project_progress

@@ -165,6 +165,6 @@ def _record(entry: BatchEntry, outcome: Outcome, write_reports) -> None:
     entry.status = "ok" if result.converged else "not converged"
     entry.reason = "" if result.converged else result.message
     try:
-        write_reports(entry.project, result, entry.out_dir)
+        write_reports(entry.project, result, entry.out_dir, entry.reports)
     except (ValueError, OSError) as error:
         entry.status, entry.reason = "failed", f"reports not written: {error}"

@@ -13,7 +13,7 @@ from .._files._paths import check_folder, check_targets, resolved
 from .._io._project import ProjectFile, read_project, read_project_file
 from .._project import ProjectError
 from .._project._spec import ProjectSpec
-from .._report._outputs import report_paths
+from .._report._outputs import REPORTS, report_paths
 
 
 @dataclasses.dataclass
@@ -31,6 +31,7 @@ class BatchEntry:
     project: object = None
     result: object = None
     out_dir: pathlib.Path | None = None
+    reports: tuple[str, ...] = REPORTS  # the kinds of report it writes (`report_paths`)
     previous: dict | None = None  # resumed: its results.json
     row: dict | None = None  # its summary row, once adjusted
 
@@ -49,9 +50,11 @@ def _unique_folder(name: str, taken: set[str]) -> str:
     return folder
 
 
-def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
+def read_batch(paths, out_dir, *, tables: bool = True,
+               reports: tuple[str, ...] = REPORTS) -> list[BatchEntry]:
     """Read the project files `paths` and give each its report folder `out_dir/<name>/`
-    (`<name>_2`, ... for repeated names).
+    (`<name>_2`, ... for repeated names) and the kinds of report it writes (`reports`, see
+    `report_paths`).
 
     Returns one `BatchEntry` per path, in order; one that cannot be read has status
     "failed" and the reason. Raises `OutputError` when `out_dir` is not a writable folder,
@@ -66,7 +69,7 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
     check_folder(out_dir)
     entries, taken = [], set()
     for path in map(pathlib.Path, paths):
-        entry = BatchEntry(path=path, name=path.stem)
+        entry = BatchEntry(path=path, name=path.stem, reports=reports)
         entries.append(entry)
         try:
             if tables:
@@ -89,7 +92,7 @@ def read_batch(paths, out_dir, *, tables: bool = True) -> list[BatchEntry]:
             continue
         if entry.out_dir.exists():  # else made in out_dir, checked above
             check_folder(entry.out_dir)
-        check_targets(report_paths(entry.name, entry.out_dir).values(), inputs,
+        check_targets(report_paths(entry.name, entry.out_dir, entry.reports).values(), inputs,
                       f"project {entry.name!r}", folders)
     return entries
 
@@ -98,12 +101,13 @@ RESUMED_KEYS = {"converged", "message", "sigma0", "redundancy", "cameras"}
 
 
 def finished_results(entry: BatchEntry) -> dict | None:
-    """The results.json of `entry`'s earlier run when all its reports exist (they are
-    written together, so all or none), none is empty (what a system crash can leave of
-    reports not flushed to disk) and results.json can be read; None otherwise."""
+    """The results.json of `entry`'s earlier run when all its reports (`entry.reports`, with
+    results.json) exist (they are written together, so all or none), none is empty (what a
+    system crash can leave of reports not flushed to disk) and results.json can be read; None
+    otherwise."""
     if entry.out_dir is None:  # not read
         return None
-    paths = report_paths(entry.name, entry.out_dir)
+    paths = report_paths(entry.name, entry.out_dir, tuple(dict.fromkeys((*entry.reports, "json"))))
     if not all(path.is_file() and path.stat().st_size > 0 for path in paths.values()):
         return None
     try:

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from .._dask import check_scheduler
 from .._io._project import read_project
 from .._project._errors import ProjectError
+from .._report._outputs import report_kinds
 from ._batch_processes import Workers, run_on_processes, worker_processes
 from ._batch_read import BatchEntry, finished_results, read_batch
 from ._batch_rows import summary_row, write_summary
@@ -43,6 +44,7 @@ def run_batch(
     resume: bool = False,
     jobs: int = 1,
     workers: Workers | None = None,
+    reports: str = "all",
 ) -> list[dict]:
     """Adjust the projects `paths` and write DIR/<project name>/ reports, DIR/summary.csv and
     DIR/summary.json. Returns the summary rows (one dict per project, in input order).
@@ -73,6 +75,9 @@ def run_batch(
     `workers`: worker processes already started (`worker_processes(worker_count(len(paths),
     jobs))`, so that their start-up overlaps the reading): the projects are adjusted on them
     (on fewer where fewer than `SHARE` each are pending), whatever `jobs`.
+    `reports`: the reports of each project (`REPORT_SETS`): "all" (NAME.out, NAME.res,
+    NAME.sigma, results.json, observations.csv) or "compact" (no file with a row per
+    observation: NAME.out, NAME.sigma, results.json); `entries` read already carry theirs.
 
     `progress` receives one line per stage and per project; `advance()` is called once per
     project when it is finished (failed, skipped, or adjusted and its reports written).
@@ -81,7 +86,8 @@ def run_batch(
     finished = advance or (lambda: None)
     out_dir = pathlib.Path(out_dir)
     started = time.perf_counter()
-    entries = read_batch(paths, out_dir) if entries is None else entries
+    kinds = report_kinds(reports)
+    entries = read_batch(paths, out_dir, reports=kinds) if entries is None else entries
     if chunk_size is not None and chunk_size < 1:
         raise ValueError(f"chunk_size {chunk_size}: must be at least 1")
     if jobs < 1:

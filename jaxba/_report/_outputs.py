@@ -9,18 +9,33 @@ from .._project._spec import ProjectSpec
 
 OBSERVATIONS_FILE = "observations.csv"
 
+# The reports of a project by kind: NAME.out, NAME.res, NAME.sigma, results.json,
+# observations.csv (`report_paths`).
+REPORTS = ("out", "res", "sigma", "json", "observations")
+# The sets `jaxba batch --reports` writes: "compact" leaves out the two files with a row per
+# observation (NAME.res and observations.csv: most of the bytes and of the formatting).
+REPORT_SETS = {"all": REPORTS, "compact": ("out", "sigma", "json")}
 
-def report_paths(name: str, out_dir) -> dict[str, pathlib.Path]:
-    """The report files of the project `name` in `out_dir`: NAME.out, NAME.res, NAME.sigma,
-    results.json and observations.csv."""
+
+def report_paths(name: str, out_dir, kinds: tuple[str, ...] = REPORTS) -> dict[str, pathlib.Path]:
+    """The report files of the project `name` in `out_dir` by kind (`REPORTS`: NAME.out,
+    NAME.res, NAME.sigma, results.json and observations.csv), those of `kinds` only."""
     out_dir = pathlib.Path(out_dir)
-    return {
+    paths = {
         "out": out_dir / f"{name}.out",
         "res": out_dir / f"{name}.res",
         "sigma": out_dir / f"{name}.sigma",
         "json": out_dir / "results.json",
         "observations": out_dir / OBSERVATIONS_FILE,
     }
+    return {kind: paths[kind] for kind in kinds}
+
+
+def report_kinds(name: str) -> tuple[str, ...]:
+    """The report kinds of the set `name` (`REPORT_SETS`); ValueError naming the sets."""
+    if name not in REPORT_SETS:
+        raise ValueError(f"reports {name!r}: one of {', '.join(REPORT_SETS)}")
+    return REPORT_SETS[name]
 
 
 def html_path(spec: ProjectSpec, out_dir) -> pathlib.Path:

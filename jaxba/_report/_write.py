@@ -9,7 +9,7 @@ from .._statistics._adjustment import Adjustment
 from ._collect import shared_tables
 from ._csv import observations_csv
 from ._json import results_json
-from ._outputs import check_outputs, report_paths
+from ._outputs import REPORTS, check_outputs, report_paths
 from ._text import out_text, res_text, sigma_text
 
 
@@ -27,27 +27,27 @@ def write_reports(project: Project, result: Adjustment, out_dir) -> list[pathlib
     return list(paths.values())
 
 
-def write_batch_reports(project: Project, result: Adjustment, out_dir) -> None:
+def write_batch_reports(project: Project, result: Adjustment, out_dir,
+                        kinds: tuple[str, ...] = REPORTS) -> None:
     """`write_reports` for a project of `jaxba batch`, whose outputs were all checked before
-    anything was computed (`read_batch`): the same files, not checked again, replaced
-    together but not flushed to disk one by one (`replace_files` without `durable`)."""
-    _replace(report_texts(project, result, report_paths(project.spec.name, out_dir)), out_dir,
-             durable=False)
+    anything was computed (`read_batch`): the same files (those of `kinds`, see
+    `report_paths`), not checked again, replaced together but not flushed to disk one by one
+    (`replace_files` without `durable`)."""
+    paths = report_paths(project.spec.name, out_dir, kinds)
+    _replace(report_texts(project, result, paths), out_dir, durable=False)
+
+
+_WRITERS = {"out": out_text, "res": res_text, "sigma": sigma_text, "json": results_json,
+            "observations": observations_csv}
 
 
 def report_texts(project: Project, result: Adjustment,
                  paths: dict[str, pathlib.Path]) -> dict[pathlib.Path, str]:
-    """The text of every report, by its path (`report_paths`)."""
+    """The text of each report of `paths` (`report_paths`: by kind), by its path."""
     # The residuals, statistics and point tables gathered once; the collector paused while
     # hundreds of thousands of rows are formatted (none of them in a cycle).
     with shared_tables(), paused_gc():
-        return {
-            paths["out"]: out_text(project, result),
-            paths["res"]: res_text(project, result),
-            paths["sigma"]: sigma_text(project, result),
-            paths["json"]: results_json(project, result),
-            paths["observations"]: observations_csv(project, result),
-        }
+        return {path: _WRITERS[kind](project, result) for kind, path in paths.items()}
 
 
 def _replace(texts: dict[pathlib.Path, str], out_dir, *, durable: bool) -> None:
