@@ -378,6 +378,23 @@ def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeyp
     assert len(list((tmp_path / _programs.FOLDER).glob("batch_adjust-*"))) == 1
 
 
+def test_the_datum_screen_passes_a_defined_datum_and_flags_a_defect():
+    """`_datum_suspect` (the batch's screen, a shifted Cholesky): a full-rank N passes, padded
+    too; a rank defect, an unobserved unknown or a NaN is left to `check_datum`."""
+    j = np.random.default_rng(0).normal(size=(60, 8))
+    j[:, 5] *= 1e-4  # badly scaled, well conditioned once equilibrated
+    assert not bool(_batch._datum_suspect(jnp.asarray(j.T @ j), 8, 1e-9))
+    defect = j.copy()
+    defect[:, 7] = defect[:, 0] - 2 * defect[:, 1]  # s_min/s_max ~ 1e-16
+    assert bool(_batch._datum_suspect(jnp.asarray(defect.T @ defect), 8, 1e-9))
+    padded = np.zeros((10, 10))
+    padded[:8, :8] = j.T @ j
+    assert not bool(_batch._datum_suspect(jnp.asarray(padded), 8, 1e-9))
+    assert bool(_batch._datum_suspect(jnp.asarray(padded), 9, 1e-9))  # unknown 9 unobserved
+    padded[2, 3] = np.nan
+    assert bool(_batch._datum_suspect(jnp.asarray(padded), 8, 1e-9))
+
+
 def test_batched_datum_check_equals_check_datum(projects, tmp_path):
     """The batched datum screen lets the good projects through and gives a defective one the
     error `check_datum` raises for it alone (no control, scale from the distances: the six

@@ -101,17 +101,19 @@ class BatchStatistics(eqx.Module):
 def _datum_suspect(normal: Float[Array, "n n"], n_free, rtol: float):
     """False where the datum is surely defined at the approximations, from N = JᵀJ there
     (`n_free` of its leading unknowns real): N finite, every real column observed, and the
-    equilibrated N's eigenvalues λ = s² (s the singular values of the equilibrated J) with
-    λ_min/λ_max above 4·rtol² + 1e-12: a defect, s_min/s_max < rtol, lies below it even with
-    N's rounding (~1e-16 λ_max). True: `check_datum` decides (the exact test, from J itself,
-    and the message)."""
+    equilibrated N (unit diagonal, padding I: its largest eigenvalue at most its trace n)
+    minus (4·rtol² + 1e-12)·n·I positive definite (its Cholesky factor finite), so that its
+    eigenvalues λ = s² (s the singular values of the equilibrated J) have λ_min/λ_max above
+    4·rtol² + 1e-12: a defect, s_min/s_max < rtol, lies below it even with N's rounding
+    (~1e-16 λ_max). True: `check_datum` decides (the exact test, from J itself, and the
+    message). A Cholesky factorisation, a third of an eigenvalue decomposition's work."""
     n = normal.shape[0]
     real = jnp.arange(n) < n_free
     finite = jnp.all(jnp.isfinite(normal))
     observed = jnp.all(jnp.where(real, jnp.diag(normal) > 0, True))
     scaled = equilibrated(jnp.where(finite, normal, 1.0), real)[0]
-    eigenvalues = jnp.linalg.eigvalsh(jnp.where(finite, scaled, jnp.eye(n)))
-    regular = eigenvalues[0] > (4 * rtol**2 + 1e-12) * eigenvalues[-1]
+    shifted = jnp.where(finite, scaled, jnp.eye(n)) - (4 * rtol**2 + 1e-12) * n * jnp.eye(n)
+    regular = jnp.all(jnp.isfinite(jnp.linalg.cholesky(shifted)))
     return ~(finite & observed & regular)
 
 
