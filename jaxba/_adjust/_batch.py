@@ -106,7 +106,8 @@ def _datum_suspect(normal: Float[Array, "n n"], n_free, rtol: float):
     eigenvalues λ = s² (s the singular values of the equilibrated J) have λ_min/λ_max above
     4·rtol² + 1e-12: a defect, s_min/s_max < rtol, lies below it even with N's rounding
     (~1e-16 λ_max). True: `check_datum` decides (the exact test, from J itself, and the
-    message). A Cholesky factorisation, a third of an eigenvalue decomposition's work."""
+    message). Vmapped over 10 projects of 278 unknowns the factorisation takes 5-7 ms, the
+    eigenvalues it replaces took 71-75 ms."""
     n = normal.shape[0]
     real = jnp.arange(n) < n_free
     finite = jnp.all(jnp.isfinite(normal))
