@@ -7,13 +7,15 @@ exact rounding ties; the IDs long, non-ASCII (their width counted in characters,
 `str.ljust` does, not in bytes) and, in the CSV, holding commas and quotes.
 """
 
+import csv
+import io
 import math
 
 import numpy as np
 import pytest
 
 from jaxba._report._cells import texts
-from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _field, _lines, _piece
+from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _lines, _piece
 from jaxba._report._text import number_table
 
 IDS = ["P1", "p" * 70, "Pünkt-7", "点12", "ñ", "📷cam", 'a,b', 'say "x"', "x" * 3]
@@ -84,7 +86,8 @@ def test_residual_table_of_ascii_ids_and_of_no_rows():
 
 @pytest.mark.parametrize("finite", [False, True])  # rows of many kinds, or of a few
 def test_observation_lines_are_the_row_by_row_csv(finite):
-    """Each row's text (IDs with commas, quotes and `%`), then its numbers and flags."""
+    """Each row's text (IDs with commas, quotes and `%`), then its numbers and flags: each
+    number the value of its `%.10g` in at most 10 significant digits."""
     n = 300
     rng = np.random.default_rng(9)
     filled = NUMBER_COLUMNS[:8] + FLAG_COLUMNS
@@ -95,19 +98,31 @@ def test_observation_lines_are_the_row_by_row_csv(finite):
         numbers = np.where(np.isfinite(numbers), numbers, -0.0)
     ids = [*IDS, "5%d", "100%", "%%s"]
     codes = [rng.integers(0, len(ids), n) for _ in range(7)]
-
-    def field(name, x):
-        if name not in filled or not math.isfinite(x):
-            return ""
-        return ("%d" if name in FLAG_COLUMNS else "%.10g") % x
-
-    expected = "".join(
-        ",".join([*(_field(ids[column[i]]) for column in codes),
-                  *(field(name, row[filled.index(name)] if name in filled else math.nan)
-                    for name in NUMBER_COLUMNS + FLAG_COLUMNS)]) + "\n"
-        for i, row in enumerate(numbers.tolist()))
     texts = [[_piece(ids[k]) for k in column.tolist()] for column in codes]
-    assert _lines(texts, numbers, filled) == expected
+    lines = _lines(texts, numbers, filled)
+    assert lines.endswith("\n") and lines.count("\n") == n
+    for i, (row, values) in enumerate(zip(csv.reader(io.StringIO(lines)), numbers.tolist())):
+        assert row[:7] == [ids[column[i]] for column in codes]
+        for name, text in zip(NUMBER_COLUMNS + FLAG_COLUMNS, row[7:], strict=True):
+            x = values[filled.index(name)] if name in filled else math.nan
+            if not math.isfinite(x):
+                assert text == ""
+            elif name in FLAG_COLUMNS:
+                assert text == str(int(x))
+            else:
+                assert float(text) == float(f"{x:.10g}"), (text, x)
+                assert len(text.split("e")[0].replace("-", "").replace(".", "").strip("0")) <= 10
+
+
+def test_observation_lines_of_scalar_rows_leave_the_image_columns_empty():
+    """v, r, w filled: the eight image-point columns before them empty, one row per kind of
+    flags."""
+    filled = ("v", "r", "w", *FLAG_COLUMNS)
+    numbers = np.array([[0.25, 0.5, -1.5, 0.0, 1.0], [np.nan, 0.5, 2.0, 1.0, np.nan]])
+    assert _lines([["a,", "b,"]], numbers, filled) == (
+        "a," + "," * 8 + "0.25,0.5,-1.5,0,1\n" + "b," + "," * 8 + ",0.5,2.0,1,\n")
+    with pytest.raises(ValueError, match="not consecutive"):
+        _lines([["a,"]], np.zeros((1, 2)), ("x", "vx"))
 
 
 def test_observation_lines_of_no_rows_and_of_flags_not_0_or_1():

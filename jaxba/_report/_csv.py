@@ -2,13 +2,15 @@
 
 Image points first (one row per point: x and y together, sorted by image like NAME.res), then
 the scalar observations of the other groups (control, GNSS/INS, camera priors, distances), group
-by group. Numbers are written with 10 significant digits (`%.10g`); an empty field is a value
+by group. Numbers are written with at most 10 significant digits (as `%.10g` rounds them, the
+shortest text that reads back to the rounded value: `1e-7`, `65.0`); an empty field is a value
 that does not apply to the row's type or is not available (no reliability computed, the r of
 an observation removed by data snooping).
 """
 
 import csv
 import io
+import itertools
 import pathlib
 
 import numpy as np
@@ -16,6 +18,7 @@ import numpy as np
 from .._project._build import Project
 from .._statistics._adjustment import Adjustment
 from ._collect import ScalarObservation, image_residuals, other_observations
+from ._shortest import number_rows, significant
 
 TEXT_COLUMNS = ("type", "group", "image", "point", "point_b", "camera", "coordinate")
 NUMBER_COLUMNS = ("x", "y", "vx", "vy", "rx", "ry", "wx", "wy", "v", "r", "w")
@@ -31,56 +34,41 @@ def _field(text: str) -> str:
 
 
 def _piece(text: str) -> str:
-    """`text` as one CSV field followed by its comma, ready to stand in a `%` format."""
-    return _field(text).replace("%", "%%") + ","
+    """`text` as one CSV field followed by its comma."""
+    return _field(text) + ","
 
 
 def _lines(texts: list, numbers: np.ndarray, filled: tuple[str, ...]) -> str:
     """CSV lines of rows, each ending in a newline: the text fields, then the number and flag
-    columns, `filled` ones from `numbers` (n, len(filled)) as `%.10g` (flags 0/1: as `%d`
-    prints them), empty where not finite, the others empty.
+    columns, `filled` ones from `numbers` (n, len(filled)), the others empty. Numbers at 10
+    significant digits (`significant`), empty where not finite; flags 0, 1 or empty (NaN).
 
     `texts`: the pieces of the rows' text fields, column k the k-th piece of every row ((n,)
-    str: `_piece`s, or several fields in one), put side by side. Each row's format is its text
-    followed by the format of its numbers (`%.10g` where finite) and flags (their text) from
-    a few made once; the numbers are printed by one `%` over all rows."""
+    str: `_piece`s, or several fields in one), put side by side. The filled number columns
+    are consecutive ones of `NUMBER_COLUMNS`; their text comes from one `number_rows`."""
     numbers = np.asarray(numbers, dtype=float).reshape(-1, len(filled))
-    n = len(numbers)
     flags = [j for j, name in enumerate(filled) if name in FLAG_COLUMNS]
     shown = [j for j, name in enumerate(filled) if name not in FLAG_COLUMNS]
-    values = numbers[:, shown]
-    finite = np.isfinite(values)
+    first = NUMBER_COLUMNS.index(filled[shown[0]])
+    if tuple(filled[j] for j in shown) != NUMBER_COLUMNS[first:first + len(shown)]:
+        raise ValueError(f"the number columns {filled} are not consecutive ones")
     given = np.isfinite(numbers[:, flags])
-    states = np.where(given, numbers[:, flags], 2.0)  # 2: empty
+    states = np.where(given, numbers[:, flags], 2.0).astype(int)  # 2: empty
     if not np.all(~given | (states == 0) | (states == 1)):
         raise ValueError("a flag of observations.csv is neither 0 nor 1")
-    # A row's kind: which of its numbers are finite (bits), its flags' states (base 3).
-    kind = finite @ (1 << np.arange(len(shown))) + states.astype(int) @ (
-        3 ** np.arange(len(flags)) << len(shown))
-    kinds, row_kind = np.unique(kind, return_inverse=True)
-    formats = np.array([_row_format(int(k), filled, len(shown)) for k in kinds.tolist()],
+    # The columns after the numbers: empty number columns, then the flags, per flag state.
+    after = "," * (len(NUMBER_COLUMNS) - first - len(shown))
+    endings = np.array([after + "".join("," + "01"[s] if s < 2 else "," for s in kind) + "\n"
+                        for kind in itertools.product(range(3), repeat=len(flags))],
                        dtype=object)
-    pieces = np.empty((n, len(texts) + 1), dtype=object)
+    pieces = np.empty((len(numbers), len(texts) + 2), dtype=object)
     for k, column in enumerate(texts):
         pieces[:, k] = column
-    pieces[:, -1] = formats[row_kind.reshape(-1)]
-    return "".join(pieces.ravel().tolist()) % tuple(values[finite].tolist())
-
-
-def _row_format(kind: int, filled: tuple[str, ...], n_numbers: int) -> str:
-    """The `%` format of the number and flag columns of a row of `kind` (see `_lines`)."""
-    fields, number, flag = [], 0, 0
-    for name in NUMBER_COLUMNS + FLAG_COLUMNS:
-        if name not in filled:
-            fields.append("")
-        elif name in FLAG_COLUMNS:
-            state = (kind >> n_numbers) // 3**flag % 3
-            fields.append("" if state == 2 else str(state))
-            flag += 1
-        else:
-            fields.append("%.10g" if kind >> number & 1 else "")
-            number += 1
-    return ",".join(fields) + "\n"
+    pieces[:, -2] = number_rows(significant(numbers[:, shown]), missing="")
+    pieces[:, -1] = endings[states @ 3 ** np.arange(len(flags))[::-1]]
+    if first:
+        pieces[:, -2] = "," * first + pieces[:, -2]
+    return "".join(pieces.ravel().tolist())
 
 
 def _image_point_lines(project: Project, result: Adjustment) -> str:

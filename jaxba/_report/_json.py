@@ -30,6 +30,7 @@ from ._collect import (
 from ._no_sigma import no_sigma_entries
 from ._outputs import OBSERVATIONS_FILE
 from ._rigs import frame_table, mount_correlations, mounts_tree, rigs_tree
+from ._shortest import number_texts
 from ._summaries import group_summaries, image_residual_summaries
 
 
@@ -90,8 +91,8 @@ class _Deferred:
 
 def _points_text(project: Project, result: Adjustment, depth: int, indent: str) -> str:
     """The "points" value of results.json as `_layout` writes `_points`, formatted in one `%`
-    over all points with float reprs (json writes floats by `float.__repr__`). Points with a
-    non-finite number (null in JSON) go through `_layout`."""
+    over all points, their numbers printed by orjson (`number_texts`: null where not
+    finite)."""
     if depth != 2:
         return _layout(_points(project, result), depth, indent)
     points = point_table(project, result)
@@ -101,35 +102,32 @@ def _points_text(project: Project, result: Adjustment, depth: int, indent: str) 
     values, stds = np.asarray(points.values, dtype=float), np.asarray(points.stds, dtype=float)
     # Per point the semi-axes, then the unit vector of each axis (column k of `directions`).
     ellipsoid = np.column_stack([axes, np.swapaxes(directions, 1, 2).reshape(len(axes), -1)])
-    finite = np.isfinite(values).all(axis=1) & np.isfinite(stds).all(axis=1)
-    finite &= ~has | np.isfinite(ellipsoid).all(axis=1)
     inner, leaf = indent + "  ", indent + "    "
     names = [_string(name).replace("%", "%%") for name in points.names]
-    fields = [f'{name}: {{"value": %r, "std": %r, "status": %s}}' for name in names]
-    axes_text = "[" + ", ".join(["%r"] * axes.shape[1]) + "]"
+    fields = [f'{name}: {{"value": %s, "std": %s, "status": %s}}' for name in names]
+    axes_text = "[" + ", ".join(["%s"] * axes.shape[1]) + "]"
     direction_text = "[" + ", ".join([axes_text] * axes.shape[1]) + "]"
     with_ellipsoid = f'"ellipsoid": {{"axes": {axes_text}, "directions": {direction_text}}}'
-    # One template per kind of point: without an ellipsoid, with one, with a non-finite number.
+    # One template per kind of point: without an ellipsoid, with one.
     templates = np.array([
-        *("%s: {\n" + leaf + f",\n{leaf}".join(lines) + f"\n{inner}}}"
-          for lines in (fields, [*fields, with_ellipsoid])), "%s"], dtype=object)
-    kind = np.where(finite, has.astype(int), 2)
+        "%s: {\n" + leaf + f",\n{leaf}".join(lines) + f"\n{inner}}}"
+        for lines in (fields, [*fields, with_ellipsoid])], dtype=object)
+    kind = has.astype(int)
     status = np.asarray(points.status, dtype=object)
     encoded = {name: _string(name) for name in set(status.ravel().tolist())}
-    size = 1 + 3 * values.shape[1]  # the fields of a point without an ellipsoid
+    n_names = values.shape[1]
+    size = 1 + 3 * n_names  # the fields of a point without an ellipsoid
     width = size + ellipsoid.shape[1] * bool(has.any())  # no ellipsoid: no columns for one
+    numbers = np.column_stack([values, stds, ellipsoid[:, :width - size]])
+    numbers = np.array(number_texts(numbers), dtype=object).reshape(numbers.shape)
     table = np.empty((len(kind), width), dtype=object)
     table[:, 0] = list(map(_string, points.ids))
-    for j in range(values.shape[1]):
-        table[:, 1 + 3 * j] = values[:, j].tolist()
-        table[:, 2 + 3 * j] = stds[:, j].tolist()
+    table[:, 1:size:3] = numbers[:, :n_names]
+    table[:, 2:size:3] = numbers[:, n_names:2 * n_names]
+    for j in range(n_names):
         table[:, 3 + 3 * j] = [encoded[name] for name in status[:, j].tolist()]
-    for j, column in enumerate(ellipsoid.T[:width - size]):
-        table[:, size + j] = column.tolist()
-    for k in np.flatnonzero(~finite).tolist():
-        entry = _point_entry(points, axes, directions, has, k)
-        table[k, 0] = f"{table[k, 0]}: {_layout(entry, depth - 1, inner)}"
-    used = np.arange(table.shape[1]) < np.array([size, table.shape[1], 1])[kind][:, None]
+    table[:, size:] = numbers[:, 2 * n_names:]
+    used = np.arange(width) < np.array([size, width])[kind][:, None]
     text = f",\n{inner}".join(templates[kind].tolist()) % tuple(table[used].tolist())
     return "{\n" + inner + text + f"\n{indent}}}"
 

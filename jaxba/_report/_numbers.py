@@ -54,7 +54,7 @@ def _fixed(x: np.ndarray, places: int, width: int, pad: int) -> np.ndarray:
     transposed: the integer part and the decimals apart, digits four at a time."""
     finite = np.isfinite(x)
     scaled = np.where(finite, np.abs(x), 0.0) * _FLOAT_POWERS[places]
-    decided = finite & _decidable(scaled)
+    decided = finite & decidable(scaled)
     m = np.rint(np.where(decided, scaled, 0.0))  # an integer below 2^50
     whole = np.floor(m / _FLOAT_POWERS[places])  # exact: m / 10^places is 2^-50 from the next
     negative = np.signbit(x)
@@ -106,7 +106,7 @@ def _column_chars(quads: list[np.ndarray], digits: int) -> np.ndarray:
     return np.stack(rows[len(rows) - digits:])
 
 
-def _decidable(scaled: np.ndarray) -> np.ndarray:
+def decidable(scaled: np.ndarray) -> np.ndarray:
     """Where rounding `scaled` (a float64 product of one rounding) to an integer gives what
     rounding the exact product gives: far enough from a tie, within the exact integers."""
     distance = np.abs(scaled - np.floor(scaled) - 0.5)
