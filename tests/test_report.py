@@ -173,6 +173,18 @@ def test_json_strict_with_nan(lab):
     assert "NaN" not in results_json(project, result)
 
 
+@pytest.mark.parametrize("nan_std", [False, True])
+def test_json_points_text_is_the_points_tree(lab, nan_std):
+    """results.json's points, laid out in one pass with orjson's numbers, read back to the
+    very tree `results_dict` builds: every value, σ, status and ellipsoid, null for NaN."""
+    project, result = lab
+    result = _fake_result(project, nan_std=True) if nan_std else result
+    points = results_dict(project, result)["points"]
+    assert any("ellipsoid" in entry for entry in points.values())
+    assert any(entry["X"]["std"] is None for entry in points.values()) == nan_std
+    assert json.loads(results_json(project, result))["points"] == points
+
+
 def test_res_rows_and_rms(lab):
     project, result = lab
     rows = _data_lines(res_text(project, result))
