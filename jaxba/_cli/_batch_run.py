@@ -72,6 +72,8 @@ def run_batch(
     `jobs`: worker processes of this machine that each adjust a share of the projects
     from end to end, reports included (`_batch_processes`; at most one per `SHARE` projects,
     so that a worker's start-up is paid for; not with a `scheduler`); 1: all in this process.
+    The workers import the calling script again (Python's `multiprocessing`): a script
+    calls `run_batch` with `jobs` above 1 under `if __name__ == "__main__":`.
     `workers`: worker processes already started (`worker_processes(worker_count(len(paths),
     jobs))`, so that their start-up overlaps the reading): the projects are adjusted on them
     (on fewer where fewer than `SHARE` each are pending), whatever `jobs`.
