@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-_FLOAT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
+EXACT_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
 _QUADS = np.array([b"%04d" % k for k in range(10_000)]).view(np.uint32)  # "0000" .. "9999"
 _EXACT = 2.0**50  # scaled magnitudes below: ulp at most 1/4, so round() decidable
 _CHUNK = 1 << 14  # values printed together: their temporaries stay in the cache
@@ -53,19 +53,19 @@ def _fixed(x: np.ndarray, places: int, width: int, pad: int) -> np.ndarray:
     Built a character at a time over all values (a row of the transposed cells), then
     transposed: the integer part and the decimals apart, digits four at a time."""
     finite = np.isfinite(x)
-    scaled = np.where(finite, np.abs(x), 0.0) * _FLOAT_POWERS[places]
+    scaled = np.where(finite, np.abs(x), 0.0) * EXACT_POWERS[places]
     decided = finite & decidable(scaled)
     m = np.rint(np.where(decided, scaled, 0.0))  # an integer below 2^50
-    whole = np.floor(m / _FLOAT_POWERS[places])  # exact: m / 10^places is 2^-50 from the next
+    whole = np.floor(m / EXACT_POWERS[places])  # exact: m / 10^places is 2^-50 from the next
     negative = np.signbit(x)
-    digits = np.maximum(np.searchsorted(_FLOAT_POWERS, whole, side="right"), 1)
+    digits = np.maximum(np.searchsorted(EXACT_POWERS, whole, side="right"), 1)
     whole_width = width - places - (places > 0)  # characters before the point
     if np.any(digits + negative > whole_width):
         raise ValueError(f"a number is wider than its column ({width} characters)")
     cells = np.empty((width, x.size), dtype=np.uint8)
     if places:
         cells[whole_width] = ord(".")
-        fraction = m - whole * _FLOAT_POWERS[places]
+        fraction = m - whole * EXACT_POWERS[places]
         cells[whole_width + 1:] = _column_chars(_float_quads(fraction, places), places)
     # Digit k of the integer part (10^k) in row whole_width - 1 - k where k < digits, a "-"
     # where k == digits for a negative value, `pad` elsewhere.

@@ -9,9 +9,8 @@ where repr writes `2e-05`).
 import numpy as np
 import orjson
 
-from ._numbers import decidable
+from ._numbers import EXACT_POWERS, decidable
 
-_POWERS = 10.0 ** np.arange(23)  # exact doubles 10^0 .. 10^22
 _DECADE = 330
 with np.errstate(over="ignore"):
     _DECADES = 10.0 ** np.arange(-_DECADE, _DECADE + 1)  # 10^k, k = -330 .. 330 (inf past 308)
@@ -48,11 +47,11 @@ def significant(values, digits: int = 10) -> np.ndarray:
     safe = np.where(usable, magnitude, 1.0)
     # Decimals to keep (negative: tens to drop), corrected where log10 rounded across a decade.
     keep = digits - 1 - np.floor(np.log10(safe)).astype(np.int64)
-    scaled = safe * _DECADES[np.clip(keep, -_DECADE, _DECADE) + _DECADE]
-    keep -= scaled >= 10.0**digits
-    keep += scaled < 10.0 ** (digits - 1)
+    estimate = safe * _DECADES[np.clip(keep, -_DECADE, _DECADE) + _DECADE]  # ~digits digits
+    keep -= estimate >= 10.0**digits
+    keep += estimate < 10.0 ** (digits - 1)
     exact = usable & (np.abs(keep) <= 22)
-    factor = _POWERS[np.where(exact, np.abs(keep), 0)]
+    factor = EXACT_POWERS[np.where(exact, np.abs(keep), 0)]
     up = keep >= 0
     scaled = np.where(exact, np.where(up, safe * factor, safe / factor), 0.0)  # one rounding
     exact &= decidable(scaled)  # not within a rounding error of a tie
