@@ -1,6 +1,7 @@
 """Batch adjustment: padded, vmapped solves equal single adjustments; `jaxba batch` with
 failing projects; Monte Carlo and bootstrap replicates against the formal precision."""
 
+import concurrent.futures
 import dataclasses
 import json
 import math
@@ -188,6 +189,54 @@ def test_tables_read_where_the_projects_are_adjusted(projects, tmp_path):
                 assert b[key] == pytest.approx(value, rel=BATCH_RTOL, abs=1e-12), key
             else:
                 assert b[key] == value, key
+
+
+class _StartedAfter:
+    """A stand-in for `Workers.starter`: done once asked `n` times."""
+
+    def __init__(self, n: int):
+        self.asked, self.n = 0, n
+
+    def done(self) -> bool:
+        self.asked += 1
+        return self.asked > self.n
+
+
+def test_tables_are_read_here_while_the_workers_start(projects, tmp_path):
+    """While the worker processes start, the caller reads the tables of the shares' projects,
+    one of each share in turn, and stops once they are started; a project whose table it
+    cannot read is left unread, for its worker to fail with the reader's message."""
+    root, paths, _ = projects
+    folder = root / "unreadable_table"
+    shutil.copytree(paths[0].parent, folder)
+    toml = folder / paths[0].name
+    toml.write_text(toml.read_text().replace('name = "p0"', 'name = "unreadable_table"', 1))
+    (folder / "ground_points.txt").write_bytes(b"\xff\xfe not text")
+    entries = read_batch([*paths, toml], tmp_path / "out", tables=False)
+    parts = _batch_processes.shares(entries, 2)
+    assert [[e.name for e in part] for part in parts] == [["p0", "p1"], ["p2", "unreadable_table"]]
+    _batch_processes._read_while_starting(parts, _StartedAfter(2))
+    assert [e.spec is not None for e in entries] == [True, False, True, False]
+    _batch_processes._read_while_starting(parts, _StartedAfter(100))
+    assert [e.spec is not None for e in entries] == [True, True, True, False]
+    rows = run_batch([*paths, toml], tmp_path / "out", entries=entries)
+    assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed"]
+    assert "ground_points.txt" in rows[3]["reason"]
+
+
+def test_a_worker_that_cannot_start_stops_the_batch_with_its_error():
+    """The workers are started on a thread; what stopped a start is raised by
+    `Workers.ready`, before any share is handed out."""
+
+    class Broken:
+        def submit(self, function):
+            raise OSError("no forkserver")
+
+    starter = concurrent.futures.Future()
+    _batch_processes._start_all(Broken(), 2, starter)
+    workers = _batch_processes.Workers(Broken(), None, 2, starter)
+    with pytest.raises(OSError, match="no forkserver"):
+        workers.ready()
 
 
 @pytest.mark.slow

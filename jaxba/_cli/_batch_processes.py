@@ -13,20 +13,25 @@ A forked copy of a process that runs jax's threads is not safe, and the caller i
 loads jax. On Linux the workers are forked from a "forkserver" process that imports the
 pipeline once (`PRELOAD`, ~1.5 CPU s; importing starts none of jax's threads) and forks a
 worker per share, which then sets up jax; elsewhere each worker is spawned and imports the
-pipeline itself. They are started before the projects are read (`worker_processes`), so
-that the imports overlap the reading of the project files.
+pipeline itself. They are started on a thread of the caller before the projects are read
+(`worker_processes`), so that the forkserver's imports overlap the reading of the project
+files.
 """
 
 import concurrent.futures
 import contextlib
 import dataclasses
+import itertools
 import math
 import multiprocessing
 import queue as queue_module
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 
+from .._io._project import read_project_tables
+from .._project._errors import ProjectError
 from ._batch_read import BatchEntry
 
 # Seconds to wait, once every share has returned, for messages still on their way.
@@ -34,8 +39,12 @@ LAST_MESSAGES = 10.0
 
 _queue = None  # a worker's channel to the parent (set by `_start_worker`)
 
-# What every worker runs, imported once by the forkserver before it forks the workers.
-PRELOAD = ("jaxba._cli._batch_adjust", "jaxba._report._write", "jaxba._jax_setup")
+# What every worker runs, imported once by the forkserver before it forks the workers: the
+# pipeline, and what its first solve would import in each worker (scipy's BLAS, which jax's
+# CPU linear algebra loads when it first lowers a program; the special functions of the
+# statistics' χ² and normal quantiles: ~0.1 s together).
+PRELOAD = ("jaxba._cli._batch_adjust", "jaxba._report._write", "jaxba._jax_setup",
+           "scipy.linalg.cython_blas", "scipy.special")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,19 +57,25 @@ class Share:
 
 @dataclasses.dataclass(frozen=True)
 class Workers:
-    """Started worker processes (`worker_processes`): the pool, the channel their messages
-    come back on, and how many there are."""
+    """Worker processes (`worker_processes`): the pool, the channel their messages come back
+    on, how many there are, and the thread that starts them (`ready` waits for it)."""
 
     pool: concurrent.futures.ProcessPoolExecutor
     channel: object
     size: int
+    starter: concurrent.futures.Future
+
+    def ready(self) -> None:
+        """Wait until every worker has been started; raise what stopped one."""
+        self.starter.result()
 
 
 @contextlib.contextmanager
 def worker_processes(n: int) -> Iterator[Workers | None]:
-    """`n` worker processes started now, each setting up jax and importing the pipeline
-    while the caller goes on (reading the projects); shut down when the block ends, after
-    their work. None for n < 2 (nothing started: all in the calling process)."""
+    """`n` worker processes started now, on a thread, while the caller goes on (reading the
+    projects): starting the first waits for the forkserver's imports (~1 s). Each worker
+    sets up jax and imports the pipeline. Shut down when the block ends, after their work.
+    None for n < 2 (nothing started: all in the calling process)."""
     if n < 2:
         yield None
         return
@@ -68,9 +83,26 @@ def worker_processes(n: int) -> Iterator[Workers | None]:
     channel = context.Queue()
     with concurrent.futures.ProcessPoolExecutor(
             n, mp_context=context, initializer=_start_worker, initargs=(channel,)) as pool:
-        for _ in range(n):  # a process is started per task while none is idle: all n now
+        starter: concurrent.futures.Future = concurrent.futures.Future()
+        threading.Thread(target=_start_all, args=(pool, n, starter), daemon=True,
+                         name="jaxba-worker-start").start()
+        try:
+            yield Workers(pool, channel, n, starter)
+        finally:
+            concurrent.futures.wait([starter])  # no shutdown while a start is under way
+
+
+def _start_all(pool: concurrent.futures.ProcessPoolExecutor, n: int,
+               starter: concurrent.futures.Future) -> None:
+    """Start the `n` processes of `pool` (a process is started per task while none is idle);
+    `starter` gets None, or the exception that stopped a start."""
+    try:
+        for _ in range(n):
             pool.submit(_started)
-        yield Workers(pool, channel, n)
+    except BaseException as error:  # noqa: BLE001 (handed to the caller, `Workers.ready`)
+        starter.set_exception(error)
+    else:
+        starter.set_result(None)
 
 
 def _start_method() -> multiprocessing.context.BaseContext:
@@ -112,6 +144,8 @@ def run_on_processes(
     mode and `row` (its summary row). A worker that dies (killed, out of memory) fails its
     projects that were not finished, with that reason; the others go on."""
     parts = shares(entries, jobs)
+    _read_while_starting(parts, workers.starter)
+    workers.ready()
     say(f"adjusting on {len(parts)} worker processes")
     futures = {workers.pool.submit(_adjust_share, Share(_portable(part), chunk_size)): part
                for part in parts}
@@ -127,6 +161,21 @@ def run_on_processes(
         pending -= done
         if not pending and last == math.inf:
             last = time.monotonic() + LAST_MESSAGES
+
+
+def _read_while_starting(parts: list[list[BatchEntry]],
+                         starter: concurrent.futures.Future) -> None:
+    """Read the tables of the shares' projects here, one project of each share in turn,
+    until the workers are started (`starter` done): the forkserver's imports take ~1 s in
+    which this process would wait. The workers read the others' tables. A project that
+    cannot be read is left to its worker, which fails it with the reason."""
+    for row in itertools.zip_longest(*parts):
+        for entry in row:
+            if starter.done():
+                return
+            if entry is not None and entry.spec is None and entry.head is not None:
+                with contextlib.suppress(ProjectError, ValueError, OSError):
+                    entry.spec = read_project_tables(entry.head)
 
 
 def _portable(part: list[BatchEntry]) -> list[BatchEntry]:
