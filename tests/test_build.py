@@ -6,6 +6,7 @@ import numpy as np
 
 import jaxba
 from jaxba._problem._observations import ImagePoints
+from jaxba._project._build import put_on_device
 
 
 def _equations(jaxpr) -> int:
@@ -63,3 +64,23 @@ def test_parts_name_every_camera(tmp_path):
     cameras = np.array([project.spec.images[i].camera for i in project.image_ids])
     np.testing.assert_array_equal(np.asarray(names)[index],
                                   "image_points:" + cameras[np.asarray(group.image)])
+
+
+def test_a_project_built_off_the_device_holds_the_same_arrays(tmp_path):
+    """`on_device=False` (the batch's: padded and stacked in NumPy) leaves the problem's
+    arrays NumPy arrays, equal to the default's device arrays; `put_on_device` transfers
+    them, the structure unchanged."""
+    truth = jaxba.write_synthetic_project(tmp_path / "p", seed=3, n_images=6, n_targets=20)
+    spec = jaxba.read_project(truth.project_file)
+    device, host = jaxba.build_project(spec), jaxba.build_project(spec, on_device=False)
+    device_leaves, device_tree = jax.tree.flatten(device.problem)
+    host_leaves, host_tree = jax.tree.flatten(host.problem)
+    assert host_tree == device_tree
+    arrays = [k for k, leaf in enumerate(device_leaves) if isinstance(leaf, jax.Array)]
+    assert arrays and not any(isinstance(host_leaves[k], jax.Array) for k in arrays)
+    for k in arrays:
+        np.testing.assert_array_equal(host_leaves[k], device_leaves[k])
+    moved = put_on_device(host)
+    assert jax.tree.structure(moved.problem) == device_tree
+    assert all(isinstance(jax.tree.leaves(moved.problem)[k], jax.Array) for k in arrays)
+    assert moved.labels == device.labels

@@ -55,7 +55,7 @@ def adjust_entries(
             if entry.spec is None:  # its project file only was read (`read_batch(tables=False)`)
                 entry.spec = (read_project(entry.path) if entry.head is None
                               else read_project_tables(entry.head))
-            entry.project = build_project(entry.spec)
+            entry.project = build_project(entry.spec, on_device=False)  # padded in NumPy
         except (ProjectError, ValueError, OSError) as error:
             entry.status, entry.reason = "failed", str(error)
             say(f"failed  {entry.path}: {entry.reason}")

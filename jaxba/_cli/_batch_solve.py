@@ -17,7 +17,7 @@ from .._adjust._adjust import NotConvergedError
 from .._adjust._adjust_project import adjust_project
 from .._adjust._batch import adjust_padded
 from .._adjust._padding import BatchShape, pad_problems
-from .._project._build import Project
+from .._project._build import Project, put_on_device
 from .._statistics._adjustment import Adjustment
 from .._statistics._datum import DatumError
 
@@ -49,7 +49,7 @@ def solve_chunk(chunk: Chunk) -> list[Outcome]:
     if chunk.single:
         (project,) = chunk.projects
         try:
-            return [Outcome("single", adjust_project(project))]
+            return [Outcome("single", adjust_project(put_on_device(project)))]
         except (DatumError, NotConvergedError) as error:
             return [Outcome("single", reason=str(error))]
     projects = list(chunk.projects)

@@ -362,6 +362,12 @@ def missing_approximations(spec: ProjectSpec) -> str:
     return " and ".join(parts) + " have no approximations"
 
 
+def put_on_device(project: Project) -> Project:
+    """`project` with its problem's NumPy arrays put on the device in one transfer (that of
+    `build_project(spec, on_device=False)`)."""
+    return dataclasses.replace(project, problem=_on_device(project.problem))
+
+
 def _on_device(problem: BundleProblem) -> BundleProblem:
     """`problem` with its NumPy arrays put on the device in one transfer."""
     leaves, treedef = jax.tree.flatten(problem)
@@ -393,12 +399,16 @@ _LABELS: dict[tuple, list[str]] = {}  # the IDs of `_labels` -> their labels
 _LABELS_SIZE = 16
 
 
-def build_project(spec: ProjectSpec) -> Project:
+def build_project(spec: ProjectSpec, *, on_device: bool = True) -> Project:
     """The BundleProblem of a project, in mm (image) and object units; angles in radians.
 
     Every image and point needs its approximation: a spec with missing ones (`-` EOPs, tie
     points absent from the points table) is refused (`ProjectError`); `complete_project`
-    computes them."""
+    computes them.
+
+    The problem's arrays are put on the device in one transfer; `on_device=False` leaves
+    them NumPy arrays (`jaxba batch` pads and stacks its projects in NumPy and transfers each
+    chunk at once; `put_on_device` transfers one later)."""
     if not spec.complete:
         raise ProjectError(
             f"{spec.path.name}: {missing_approximations(spec)}; `jaxba adjust` and `jaxba"
@@ -458,7 +468,7 @@ def build_project(spec: ProjectSpec) -> Project:
     )
     warped = point_warp is not None
     initial = Parameters(iop, eop, xyz, mounts, np.zeros((1, 2)) if warped else None)
-    problem = _on_device(BundleProblem(
+    problem = BundleProblem(
         initial=initial,
         free=Parameters(iop_free, eop_free, xyz_free, mounts_free,
                         np.ones((1, 2), dtype=bool) if warped else None),
@@ -467,7 +477,9 @@ def build_project(spec: ProjectSpec) -> Project:
         robust=robust,
         ties=_ties(spec, camera_rows, iop),
         gauge=_gauge_positions(initial, gauge),
-    ))
+    )
+    if on_device:
+        problem = _on_device(problem)
     camera_ids: dict[str, list[str]] = {}
     for cid, (model, _) in camera_rows.items():
         camera_ids.setdefault(model, []).append(cid)
