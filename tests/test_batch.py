@@ -191,6 +191,28 @@ def test_tables_read_where_the_projects_are_adjusted(projects, tmp_path):
                 assert b[key] == value, key
 
 
+def test_free_networks_are_adjusted_alone_in_a_batch(projects, tmp_path):
+    """A free network's inner constraints tie every unknown in its own order, which a padded
+    chunk does not keep: `jaxba batch` adjusts each alone ("single"), beside the batched
+    projects, with `adjust_project`'s estimates and σ."""
+    _, paths, _ = projects
+    free = []
+    for k in range(2):
+        truth = jaxba.write_synthetic_project(tmp_path / f"free{k}", name=f"free{k}",
+                                              seed=10 + k, n_images=6, n_targets=20)
+        text = truth.project_file.read_text()
+        truth.project_file.write_text(text.replace("[adjustment]", '[adjustment]\ndatum = "free"'))
+        free.append(truth.project_file)
+    rows = run_batch([*free, *paths], tmp_path / "out")
+    assert [(row["status"], row["mode"]) for row in rows] == [("ok", "single")] * 2 + [
+        ("ok", "batch")] * len(paths)
+    for path, row in zip(free, rows):
+        alone = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(path)))
+        assert row["sigma0"] == pytest.approx(float(alone.sigma0), rel=1e-12)
+        assert row["C1.smac.c.std"] == pytest.approx(
+            float(np.asarray(alone.precision.std.cameras["smac"])[0, 2]), rel=1e-9)
+
+
 class _StartedAfter:
     """A stand-in for `Workers.starter`: done once asked `n` times."""
 

@@ -33,11 +33,12 @@ WRITERS = 2  # threads writing reports while the chunks are solved
 def _needs_single(project) -> bool:
     """Whether the project is adjusted alone (`jaxba.adjust_project`), not in a vmapped chunk:
     a robust loss, variance components, data snooping, a board warp (the chunk's padded
-    blocks have none), or a stopping rule other than the statistical one."""
+    blocks have none), a free network (its inner constraints tie every unknown in the
+    project's own order: not padded), or a stopping rule other than the statistical one."""
     settings = project.spec.settings
     return (project.problem.robust is not None or settings.variance_components
             or settings.data_snooping or project.problem.initial.warp is not None
-            or settings.stop != "statistical")
+            or settings.datum == "free" or settings.stop != "statistical")
 
 
 def adjust_entries(
