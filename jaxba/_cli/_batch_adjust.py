@@ -20,9 +20,8 @@ from collections.abc import Callable
 
 from .._adjust._padding import batch_kind, batch_shape
 from .._dask import executor
-from .._io._project import read_project, read_project_tables
-from .._project import ProjectError, build_project
-from ._batch_read import BatchEntry
+from .._project import build_project
+from ._batch_read import PROJECT_ERRORS, BatchEntry, read_whole
 from ._batch_rows import summary_row
 from ._batch_solve import Chunk, Outcome, solve_chunk
 
@@ -54,10 +53,9 @@ def adjust_entries(
     for entry in entries:
         try:
             if entry.spec is None:  # its project file only was read (`read_batch(tables=False)`)
-                entry.spec = (read_project(entry.path) if entry.head is None
-                              else read_project_tables(entry.head))
+                entry.spec = read_whole(entry)
             entry.project = build_project(entry.spec, on_device=False)  # padded in NumPy
-        except (ProjectError, ValueError, OSError) as error:
+        except PROJECT_ERRORS as error:
             entry.status, entry.reason = "failed", str(error)
             say(f"failed  {entry.path}: {entry.reason}")
             finished()

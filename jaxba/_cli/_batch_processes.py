@@ -30,9 +30,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 
-from .._io._project import read_project_tables
-from .._project._errors import ProjectError
-from ._batch_read import BatchEntry
+from ._batch_read import PROJECT_ERRORS, BatchEntry, read_whole
 
 # Seconds to wait, once every share has returned, for messages still on their way.
 LAST_MESSAGES = 10.0
@@ -173,9 +171,9 @@ def _read_while_starting(parts: list[list[BatchEntry]],
         for entry in row:
             if starter.done():
                 return
-            if entry is not None and entry.spec is None and entry.head is not None:
-                with contextlib.suppress(ProjectError, ValueError, OSError):
-                    entry.spec = read_project_tables(entry.head)
+            if entry is not None and entry.spec is None:
+                with contextlib.suppress(*PROJECT_ERRORS):
+                    entry.spec = read_whole(entry)
 
 
 def _portable(part: list[BatchEntry]) -> list[BatchEntry]:

@@ -10,7 +10,7 @@ import json
 import pathlib
 
 from .._files._paths import check_folder, check_targets, resolved
-from .._io._project import ProjectFile, read_project, read_project_file
+from .._io._project import ProjectFile, read_project, read_project_file, read_project_tables
 from .._project import ProjectError
 from .._project._spec import ProjectSpec
 from .._report._outputs import REPORTS, report_paths
@@ -34,6 +34,17 @@ class BatchEntry:
     reports: tuple[str, ...] = REPORTS  # the kinds of report it writes (`report_paths`)
     previous: dict | None = None  # resumed: its results.json
     row: dict | None = None  # its summary row, once adjusted
+
+
+# What fails one project of a batch alone, while it is read or built (a malformed table, a
+# file gone, a project that cannot be built).
+PROJECT_ERRORS = (ProjectError, ValueError, OSError)
+
+
+def read_whole(entry: BatchEntry) -> ProjectSpec:
+    """`entry`'s whole project: its tables read after its project file (`head`, where
+    `read_batch(tables=False)` read only that), or all of it. Raises `PROJECT_ERRORS`."""
+    return read_project(entry.path) if entry.head is None else read_project_tables(entry.head)
 
 
 def summary_paths(out_dir) -> dict[str, pathlib.Path]:
