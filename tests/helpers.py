@@ -236,3 +236,8 @@ def synthetic_aerial(seed: int = 0, noise_mm: float = 0.005, gnss_sigma: float =
                             jnp.ones(points.shape, bool), jnp.ones((1, 6), bool))
     problem = jaxba.BundleProblem(initial=initial, free=free, groups=(group, gnss, control))
     return problem, truth
+
+
+def significant_digits(text: str) -> int:
+    """The significant digits a number's text spells: "-0.00120" and "1.2e-3" have 2."""
+    return len(text.split("e")[0].replace("-", "").replace(".", "").strip("0"))

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import significant_digits
 
 from jaxba._report._shortest import number_rows, number_texts, significant
 
@@ -26,10 +27,6 @@ def _awkward(seed: int) -> np.ndarray:
     return np.concatenate([wide, usual, ties, -ties, SPECIAL])
 
 
-def _significant_digits(text: str) -> int:
-    return len(text.split("e")[0].replace("-", "").replace(".", "").strip("0"))
-
-
 @pytest.mark.parametrize("digits", [1, 6, 10, 15])
 def test_significant_rounds_as_percent_g(digits):
     """Every value rounds to the double `%.{digits}g` reads back as, and prints in at most
@@ -41,7 +38,7 @@ def test_significant_rounds_as_percent_g(digits):
         assert mine == expected or (math.isnan(mine) and math.isnan(expected)), (x, mine)
         assert math.copysign(1, mine) == math.copysign(1, x)
     texts = number_texts(rounded)
-    assert max(_significant_digits(t) for t in texts if t != "null") <= digits
+    assert max(significant_digits(t) for t in texts if t != "null") <= digits
 
 
 def test_significant_keeps_the_shape():
