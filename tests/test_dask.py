@@ -7,6 +7,7 @@ import os
 import shutil
 import signal
 import sys
+import threading
 import time
 
 import equinox as eqx
@@ -134,25 +135,30 @@ def test_dask_batch_equals_the_in_process_batch(local, on_dask):
 
 
 def test_a_killed_worker_loses_no_project(cluster, projects, local, tmp_path):
-    """A worker process killed (SIGKILL) while it solves a chunk, after the first results
-    came back: its chunks run again on the other worker (or its restarted successor)."""
+    """A worker process killed (SIGKILL) while it solves a chunk: its chunks run again on the
+    other worker (or its restarted successor). The killer watches from a thread started
+    before the chunks are submitted, so that it sees the first ones in flight: waiting for
+    a finished project first raced with the last chunks (all done before it looked, on a
+    fast machine)."""
     _, client = cluster
     killed = []
 
     def kill_a_busy_worker():
-        if killed:
-            return
-        for _ in range(100):  # the next task reaches a worker within milliseconds
+        for _ in range(3000):  # 30 s: the chunks are submitted within milliseconds
             busy = [address for address, keys in client.processing().items() if keys]
             if busy:
-                break
-            time.sleep(0.05)
-        pids = client.run(os.getpid, workers=busy[:1])
-        os.kill(pids[busy[0]], signal.SIGKILL)
-        killed.append(busy[0])
+                pids = client.run(os.getpid, workers=busy[:1])
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append(busy[0])
+                return
+            time.sleep(0.01)
 
-    rows = run_batch(projects, tmp_path / "out", scheduler=client, chunk_size=CHUNK,
-                     advance=kill_a_busy_worker)
+    killer = threading.Thread(target=kill_a_busy_worker)
+    killer.start()
+    try:
+        rows = run_batch(projects, tmp_path / "out", scheduler=client, chunk_size=CHUNK)
+    finally:
+        killer.join()
     assert killed
     assert [r["status"] for r in rows] == ["ok"] * N_PROJECTS
     _assert_rows_equal(rows, local[1])
