@@ -15,7 +15,7 @@ from helpers import jacfwd_jacobian, with_control_and_huber
 
 import jaxba
 from jaxba._problem._bundle import free_indices
-from jaxba._problem._linearisation import dense_jacobian, normal_equations
+from jaxba._problem._linearisation import _add_key_products, dense_jacobian, normal_equations
 from jaxba.advanced import flatten, unflatten
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
@@ -89,3 +89,23 @@ def test_dense_jacobian_from_row_blocks_matches_forward_mode(problem):
     np.testing.assert_allclose(np.asarray(jacobian) / scale, np.asarray(reference) / scale,
                                rtol=0, atol=NORMAL_RTOL)
     np.testing.assert_allclose(residuals, reference_residuals, rtol=RESIDUAL_RTOL, atol=0)
+
+
+@pytest.mark.parametrize("rows", [1, 2, 3, 40])
+def test_key_products_of_few_rows_equal_the_whole_blocks(rows):
+    """`_add_key_products` adds BᵀB of each key at its columns: keys of few rows (each pair
+    of slots added once and mirrored) and of many (whole blocks) give the scatter of every
+    entry, with slots that share a column (ties) and slots on the dropped column n."""
+    rng = np.random.default_rng(rows)
+    keys, slots, n = 30, 7, 12
+    blocks = rng.normal(size=(keys, rows, slots))
+    columns = rng.integers(0, n + 1, size=(keys, slots))  # n: the dropped column
+    columns[:, 3] = columns[:, 1]  # two slots of every row on one column
+    start = rng.normal(size=(n + 1, n + 1))
+    start = start + start.T
+    expected = start.copy()
+    for b, c in zip(blocks, columns):
+        np.add.at(expected, (c[:, None], c[None, :]), b.T @ b)
+    added = np.asarray(_add_key_products(jnp.asarray(start), jnp.asarray(columns),
+                                         jnp.asarray(blocks)))
+    np.testing.assert_allclose(added, expected, rtol=1e-13, atol=1e-12)

@@ -24,9 +24,11 @@ from jaxba._timing import CompileLog
 
 ROOT = pathlib.Path(jaxba.__file__).resolve().parents[1]
 
-# The exported and the traced batch program compile to the same arithmetic: bit-identical
-# with XLA's default flags; under the tests' cheaper compilation (conftest.py) a sum (the
-# cost) was rounded differently, 7e-14 relative.
+# The exported and the traced programs compile to the same arithmetic: bit-identical with
+# XLA's default flags. Under the tests' cheaper compilation (conftest.py) XLA compiles some
+# loops and sums apart in an export and in the traced program, so that they round
+# differently, ~2e-16 of an array's scale. A residual, a difference of two coordinates,
+# carries the coordinates' rounding: 2e-15 mm of 10 mm on a residual of 3e-6 mm.
 EXPORT_RTOL = 1e-12
 
 
@@ -64,10 +66,26 @@ def _equal(a, b) -> bool:
             and all(np.array_equal(p, q) for p, q in zip(leaves_a, leaves_b)))
 
 
-def _close(a, b) -> bool:
-    return jax.tree.structure(a) == jax.tree.structure(b) and all(
-        np.allclose(p, q, rtol=EXPORT_RTOL, atol=0.0)
-        for p, q in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+def _assert_same_adjustment(result, reference, observed: float):
+    """Estimates, σ or covariance and σ̂0² equal to `EXPORT_RTOL` of each array's largest
+    value; the residuals observed - computed to `EXPORT_RTOL` of the largest observation."""
+    def estimates(adjustment):
+        precision = adjustment.precision
+        return [jaxba.advanced.flatten(adjustment.parameters),
+                jaxba.advanced.flatten(precision.std), precision.sigma0_squared,
+                *([] if precision.covariance is None else [precision.covariance])]
+
+    for got, expected in zip(estimates(result), estimates(reference), strict=True):
+        scale = np.abs(expected).max()
+        np.testing.assert_allclose(got, expected, rtol=0.0, atol=EXPORT_RTOL * scale)
+    for got, expected in zip(result.residuals, reference.residuals, strict=True):
+        np.testing.assert_allclose(got, expected, rtol=0.0, atol=EXPORT_RTOL * observed)
+
+
+def _largest_observation(problem) -> float:
+    return max(float(np.max(np.abs(np.asarray(value)[np.isfinite(value)]), initial=0.0))
+               for group in problem.groups
+               for value in [getattr(group, "measured", getattr(group, "observed", 0.0))])
 
 
 def _usable(path, box, y) -> bool:
@@ -233,7 +251,8 @@ def test_no_export_where_none_can_be_made_or_used(folder, monkeypatch):
 def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
     """`adjust_padded` of two projects: the first call exports and stores the batch's
     program, a later process (nothing loaded yet) reads it and exports nothing; both equal
-    the traced program's adjustments (estimates, covariance, residuals) to `EXPORT_RTOL`."""
+    the traced program's adjustments (estimates, covariance, residuals) to `EXPORT_RTOL`
+    (`_assert_same_adjustment`)."""
     problems = [
         jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
             tmp_path / f"p{k}", name=f"p{k}", seed=50 + k, n_images=6, n_targets=20,
@@ -249,26 +268,17 @@ def test_the_batch_program_is_stored_then_loaded(folder, tmp_path, monkeypatch):
     monkeypatch.setattr(_programs, "_cache_folder", lambda: None)
     traced = _batch.adjust_padded(batch, max_steps=30)
     assert all(t.converged for t in traced)
-
-    def arrays(result):
-        return (jaxba.advanced.flatten(result.parameters), result.precision.covariance,
-                result.precision.sigma0_squared, *result.residuals)
-
     for results in (stored, loaded):
-        for result, reference in zip(results, traced, strict=True):
-            assert _close(arrays(result), arrays(reference))
+        for result, reference, problem in zip(results, traced, problems, strict=True):
+            assert result.precision.covariance is not None
+            _assert_same_adjustment(result, reference, _largest_observation(problem))
 
 
 @pytest.mark.parametrize("backend", ["dense", "schur"])
 def test_an_adjustment_is_stored_then_loaded(folder, tmp_path, monkeypatch, backend):
     """`jaxba.adjust` with every step reported (as the command line runs it): the first call
     stores its programs (the steps among them), a later process reads them and exports
-    nothing; both equal the traced programs' estimates and σ to `EXPORT_RTOL` of each
-    array's largest value, and the residuals observed - computed to `EXPORT_RTOL` of the
-    largest observation. (Not of every entry: the image frames are made in a loop, which
-    XLA compiles apart in an export and in the traced program, so that sums round
-    differently, ~2e-16 of an array's scale; a residual, a difference of two coordinates,
-    carries the coordinates' rounding: 1e-14 mm of 10 mm on a residual of 4e-4 mm.)"""
+    nothing; both equal the traced programs' estimates and σ (`_assert_same_adjustment`)."""
     project = jaxba.build_project(jaxba.read_project(jaxba.write_synthetic_project(
         tmp_path / "p", name="p", seed=7, n_images=6, n_targets=20).project_file))
     heard = []
@@ -276,11 +286,6 @@ def test_an_adjustment_is_stored_then_loaded(folder, tmp_path, monkeypatch, back
     def adjust():
         heard.append([])
         return jaxba.adjust(project.problem, solver=backend, on_iteration=heard[-1].append)
-
-    def arrays(result):
-        return (jaxba.advanced.flatten(result.parameters),
-                jaxba.advanced.flatten(result.precision.std), result.precision.sigma0_squared,
-                *result.residuals)
 
     stored = adjust()
     names = {path.name.rpartition("-")[0] for path in folder.iterdir()}
@@ -294,13 +299,8 @@ def test_an_adjustment_is_stored_then_loaded(folder, tmp_path, monkeypatch, back
     assert traced.converged and traced.backend == backend
     assert stored.steps == loaded.steps == traced.steps
     assert len(heard[0]) == len(heard[1]) == len(heard[2]) > 1
-    observed = max(float(np.max(np.abs(np.asarray(value)[np.isfinite(value)]), initial=0.0))
-                   for group in project.problem.groups
-                   for value in [getattr(group, "measured", getattr(group, "observed", 0.0))])
     for result in (stored, loaded):
-        for k, (got, expected) in enumerate(zip(arrays(result), arrays(traced), strict=True)):
-            scale = np.abs(expected).max() if k < 3 else observed
-            np.testing.assert_allclose(got, expected, rtol=0.0, atol=EXPORT_RTOL * scale)
+        _assert_same_adjustment(result, traced, _largest_observation(project.problem))
 
 
 def test_a_registry_changed_by_the_trace_stores_nothing(folder, monkeypatch):

@@ -237,10 +237,8 @@ def normal_equations(
         # Every key's rows as one (max_rows·k, n_live) matrix: one batched product.
         blocks = blocks.reshape(blocks.shape[0], -1, blocks.shape[-1])
         e = e.reshape(e.shape[0], -1)
-        outer = jnp.einsum("kmi,kmj->kij", blocks, blocks)
-        weighted = jnp.einsum("kmi,km->ki", blocks, e)
-        normal = normal.at[columns[:, :, None], columns[:, None, :]].add(outer)
-        gradient = gradient.at[columns].add(weighted)
+        normal = _add_key_products(normal, columns, blocks)
+        gradient = gradient.at[columns].add(jnp.einsum("kmi,km->ki", blocks, e))
     normal, gradient = normal[:n, :n], gradient[:n]
     whole_groups = [g for g, slots in zip(problem.groups, plan.live) if slots is None]
     if whole_groups:
@@ -248,6 +246,30 @@ def normal_equations(
         normal = normal + rows.T @ rows
         gradient = gradient + rows.T @ e
     return normal, gradient
+
+
+def _add_key_products(normal: Float[Array, "n n"], columns: Int[Array, "keys s"],
+                      blocks: Float[Array, "keys m s"]) -> Float[Array, "n n"]:
+    """`normal` plus every key's BᵀB (its rows' blocks B, m x s) added at the key's columns.
+
+    A key of many rows (m > s: an image's points on a fixed target) forms BᵀB by one
+    batched product and adds its s² entries. A key of few rows (a row per measured point,
+    m = 2) is dominated by the adding (XLA's scatter): each pair of slots i <= j is formed
+    and added once, to the upper triangle, which is then mirrored; the pairs i = j, in both
+    halves, are taken off once. 10 projects of 278 unknowns and 17 slots a row: 19 against
+    40 ms per N."""
+    keys, m, s = blocks.shape
+    if m > s:
+        outer = jnp.einsum("kmi,kmj->kij", blocks, blocks)
+        return normal.at[columns[:, :, None], columns[:, None, :]].add(outer)
+    size = normal.shape[0]
+    i, j = np.triu_indices(s)  # (0, 0), (0, 1), ... (s-1, s-1): i[i == j] is 0 .. s-1
+    pairs = jnp.einsum("kmp,kmp->kp", blocks[:, :, i], blocks[:, :, j])
+    upper = jnp.zeros(size * size, normal.dtype).at[
+        (columns[:, i] * size + columns[:, j]).ravel()].add(pairs.ravel()).reshape(size, size)
+    squares = jnp.zeros(size, normal.dtype).at[columns.ravel()].add(
+        pairs[:, np.flatnonzero(i == j)].ravel())
+    return normal + upper + upper.T - jnp.diag(squares)
 
 
 def _group_columns(problem: BundleProblem, index: np.ndarray) -> tuple:
