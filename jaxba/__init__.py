@@ -5,12 +5,8 @@ Public names are imported from their modules when first used (`jaxba._lazy`), so
 the Schur backend's pieces) are in `jaxba.advanced`.
 """
 
-from importlib.metadata import version as _distribution_version
-
 from . import advanced as advanced
 from ._lazy import lazy_exports
-
-__version__ = _distribution_version(__name__)  # one source: pyproject.toml
 
 _public, __dir__, __all__ = lazy_exports(__name__, {
     "._statistics._adjustment": ("Adjustment",),
@@ -100,6 +96,11 @@ _public, __dir__, __all__ = lazy_exports(__name__, {
 
 
 def __getattr__(name: str) -> object:
+    if name == "__version__":  # one source: pyproject.toml, read from the installed metadata
+        from importlib.metadata import version  # when asked: ~35 ms of imports
+
+        globals()[name] = version(__name__)
+        return globals()[name]
     if name in advanced.__all__:
         raise AttributeError(f"jaxba.{name} is internal: it is jaxba.advanced.{name}")
     return _public(name)

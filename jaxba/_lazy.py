@@ -7,6 +7,8 @@ second on a small machine): bad input is reported before jax is loaded.
 import importlib
 from collections.abc import Callable, Mapping
 
+from ._gc import paused_gc
+
 
 def lazy_exports(
     package: str, exports: Mapping[str, tuple[str, ...]]
@@ -21,7 +23,9 @@ def lazy_exports(
     def __getattr__(name: str) -> object:
         if name not in where:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
-        value = getattr(importlib.import_module(where[name], package), name)
+        with paused_gc():  # imports make no garbage; the collector's passes walked jax's
+            module = importlib.import_module(where[name], package)  # objects (~0.1 s)
+        value = getattr(module, name)
         namespace[name] = value
         return value
 
