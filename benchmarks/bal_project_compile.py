@@ -29,6 +29,8 @@ import subprocess
 import sys
 import tempfile
 
+from _processes import process_environment
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 JAXBA = [sys.executable, "-m", "jaxba"]
 DATA = pathlib.Path(os.environ.get("JAXBA_BAL_DATA", "/work/shared/data/bal"))
@@ -38,7 +40,7 @@ DEFAULT = ["problem-16-22106-pre.txt.bz2", "problem-49-7776-pre.txt.bz2"]
 def _run(command: list[str], cache: pathlib.Path, expect=(0,)) -> tuple[float, float]:
     """CPU seconds (user + system) and peak RSS (MiB) of `command` in a fresh process with
     an empty cache, from GNU time."""
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", JAX_COMPILATION_CACHE_DIR=str(cache))
+    env = process_environment(JAX_COMPILATION_CACHE_DIR=str(cache))
     usage = cache.with_suffix(".time")
     done = subprocess.run(["/usr/bin/time", "-f", "%U %S %M", "-o", str(usage), *command],
                           env=env, capture_output=True, text=True, cwd=ROOT)

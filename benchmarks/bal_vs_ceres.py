@@ -15,11 +15,12 @@ import argparse
 import bz2
 import gzip
 import json
-import os
 import pathlib
 import subprocess
 import sys
 import tempfile
+
+from _processes import process_environment
 
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -78,7 +79,7 @@ def run_ceres(executable, plain, linear_solver, threads) -> dict:
 
 
 def run_jaxba(path, work) -> dict:
-    environment = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    environment = process_environment()
     output = subprocess.run(
         [sys.executable, "-c", JAXBA_RUN, str(path), str(work / "jaxba-out")],
         check=True,
@@ -92,7 +93,7 @@ def run_jaxba(path, work) -> dict:
 
 
 def run_peer(peer: str, path) -> dict:
-    environment = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    environment = process_environment()
     output = subprocess.run(
         [sys.executable, str(HERE / "bal_peers.py"), peer, str(path)],
         check=True,

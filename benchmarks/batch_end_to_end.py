@@ -40,6 +40,7 @@ import tempfile
 import time
 
 import numpy as np
+from _processes import process_environment
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ZHANG = ROOT / "configs" / "zhang"
@@ -125,7 +126,7 @@ def adopt_orphans() -> None:
 def timed(command: list[str], home: pathlib.Path, stdin: str = "") -> tuple[float, float, str]:
     """Wall s, CPU s (user + system of the process and of every process it started) and
     stdout."""
-    env = dict(os.environ, HOME=str(home), OPENBLAS_NUM_THREADS="1")
+    env = process_environment(HOME=str(home))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, check=True, env=env, input=stdin, capture_output=True,

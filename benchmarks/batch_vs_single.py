@@ -21,6 +21,8 @@ import sys
 import tempfile
 import time
 
+from _processes import process_environment
+
 import jaxba
 
 
@@ -37,7 +39,7 @@ def write_projects(root: pathlib.Path, n: int) -> list[pathlib.Path]:
 
 
 def timed(command: list[str], home: pathlib.Path) -> float:
-    env = dict(os.environ, HOME=str(home), OPENBLAS_NUM_THREADS="1")
+    env = process_environment(HOME=str(home))
     start = time.perf_counter()
     subprocess.run(command, check=True, env=env, stdout=subprocess.DEVNULL)
     return time.perf_counter() - start

@@ -38,6 +38,7 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from _processes import process_environment  # noqa: E402
 from bal_vs_ceres import build_ceres  # noqa: E402
 from blocks import write_block  # noqa: E402
 
@@ -184,7 +185,7 @@ def measured_run(command: list[str], work: pathlib.Path, *, memory_gib: float, t
     def cap() -> None:
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
-    environment = dict(env or os.environ, OPENBLAS_NUM_THREADS="1")
+    environment = process_environment(env)
     wrapped = ["/usr/bin/time", "-f", "%e %M", "-o", str(timing), *command]
     child = subprocess.Popen(wrapped, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              env=environment, preexec_fn=cap, start_new_session=True)
@@ -218,7 +219,7 @@ def run_jaxba_cli(project: pathlib.Path, work: pathlib.Path, **caps) -> dict:
     home = work / "home"
     home.mkdir(exist_ok=True)
     run = measured_run([sys.executable, "-c", CLI, "adjust", str(project), "--out", str(out)],
-                       work, env=dict(os.environ, HOME=str(home)), ok_codes=(0, 1), **caps)
+                       work, env=process_environment(HOME=str(home)), ok_codes=(0, 1), **caps)
     if run["ok"] and not (out / "results.json").exists():
         run |= {"ok": False, "failure": failure(1, run["stderr"], caps["memory_gib"])}
     if run["ok"]:

@@ -31,6 +31,8 @@ import sys
 import tempfile
 import time
 
+from _processes import process_environment
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 JAXBA = [sys.executable, "-m", "jaxba"]
 EVERY_NAME = "import jaxba; [getattr(jaxba, name) for name in jaxba.__all__]"
@@ -38,8 +40,7 @@ EVERY_NAME = "import jaxba; [getattr(jaxba, name) for name in jaxba.__all__]"
 
 def _wall(command: list[str], home: pathlib.Path, *, expect: int = 0) -> float:
     """Seconds of one run of `command` in a fresh process with HOME=`home`."""
-    env = dict(os.environ, HOME=str(home), OPENBLAS_NUM_THREADS="1")
-    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env = process_environment(HOME=str(home))
     start = time.perf_counter()
     done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
     seconds = time.perf_counter() - start

@@ -32,6 +32,8 @@ import sys
 import tempfile
 import time
 
+from _processes import process_environment
+
 EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
           "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
           "/jax/core/compile/backend_compile_duration": "load"}
@@ -74,7 +76,7 @@ def _child(argv: list[str]) -> None:
 
 
 def _run(argv: list[str]) -> dict:
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    env = process_environment()
     command = [sys.executable, __file__, "--child", *argv]
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     if done.returncode not in (0, 1):
@@ -112,7 +114,7 @@ def _adjust(project: str, out: str, *, record: bool) -> dict | None:
     argv = ["adjust", project, "--out", out]
     if record:
         return _run(argv)
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    env = process_environment()
     command = [sys.executable, "-m", "jaxba", *argv]
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     if done.returncode not in (0, 1):
