@@ -1,10 +1,11 @@
 """`normal_equations` (per-row Jacobian blocks gathered by key) against JᵀJ and Jᵀẽ of a dense
 forward-mode Jacobian of all residuals: two SMAC cameras with GNSS/INS and distances, weighted
 control under a Huber loss, a free network (inner constraints: a group that is not row-local),
-Zhang's OpenCV-camera calibration, and a block whose points are all fixed (its distances
-depend on no free unknown)."""
+Zhang's OpenCV-camera calibration, the same with fy tied to fx, and a block whose points are
+all fixed (its distances depend on no free unknown)."""
 
 import pathlib
+import shutil
 
 import equinox as eqx
 import jax
@@ -32,7 +33,8 @@ def _synthetic(directory, datum_line=None, **kwargs):
 
 
 @pytest.fixture(scope="module", params=["two_cameras_gnss", "control_huber", "free_network",
-                                        "zhang_opencv", "fixed_points"])
+                                        "zhang_opencv", "zhang_fy_tied_to_fx",
+                                        "fixed_points"])
 def problem(request, tmp_path_factory):
     directory = tmp_path_factory.mktemp(request.param)
     if request.param == "two_cameras_gnss":
@@ -48,6 +50,16 @@ def problem(request, tmp_path_factory):
         assert any(isinstance(group, jaxba.Distances) for group in problem.groups)
         return eqx.tree_at(lambda p: p.free.points, problem,
                            jnp.zeros_like(problem.free.points))
+    if request.param == "zhang_fy_tied_to_fx":
+        shutil.copytree(CONFIGS / "zhang", directory, dirs_exist_ok=True)
+        cameras = directory / "cameras.toml"
+        free = 'free = ["fx", "fy", "cx", "cy", "skew", "k1", "k2"]'
+        assert free in cameras.read_text()
+        cameras.write_text(cameras.read_text().replace(
+            free, 'free = ["fx", "cx", "cy", "skew", "k1", "k2"]\nties = { fy = "fx" }'))
+        problem = jaxba.build_project(jaxba.read_project(directory / "zhang.toml")).problem
+        assert problem.ties
+        return problem
     return jaxba.build_project(jaxba.read_project(CONFIGS / "zhang" / "zhang.toml")).problem
 
 
@@ -60,11 +72,12 @@ def _dense_normal_equations(problem, params):
 
 def test_normal_equations_match_a_dense_jacobian(problem):
     index = free_indices(problem)
-    # Away from the optimum, so that the residuals (and the Huber loss's clipping) matter.
+    # Away from the optimum, so that the residuals (and the Huber loss's clipping) matter; a
+    # point the solver can reach (`with_free`): tied entries at their sources' values.
     flat = flatten(problem.initial)
     scale = np.where(np.abs(flat[index]) > 1, 1e-4, 1e-3)
     flat[index] += np.random.default_rng(0).normal(size=index.size) * scale
-    params = unflatten(problem.initial, flat)
+    params = problem.with_free(unflatten(problem.initial, flat))
     plan = jaxba.advanced.linearisation_plan(problem)
     normal, gradient = (np.asarray(a) for a in jax.jit(normal_equations)(problem, params, plan))
     dense_normal, dense_gradient, residual_norm = _dense_normal_equations(problem, params)
