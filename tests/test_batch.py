@@ -213,6 +213,28 @@ def test_free_networks_are_adjusted_alone_in_a_batch(projects, tmp_path):
             float(np.asarray(alone.precision.std.cameras["smac"])[0, 2]), rel=1e-9)
 
 
+def test_projects_with_different_ties_are_padded_apart(projects, tmp_path):
+    """A padded chunk holds one set of ties: projects whose ties differ are of different
+    kinds (`batch_kind`), so `jaxba batch` pads them apart, each batched, none failed and
+    retried alone; the tied parameter takes its source's value, as `adjust_project` gives."""
+    _, paths, _ = projects
+    folder = tmp_path / "tied"
+    shutil.copytree(paths[1].parent, folder)
+    cameras = folder / "cameras.toml"
+    free = 'free = ["xp", "yp", "c", "K1", "K2", "K3", "P1", "P2"]'
+    assert free in cameras.read_text()
+    cameras.write_text(cameras.read_text().replace(
+        free, free.replace(', "P2"', "") + '\nties = { P2 = "P1" }'))
+    tied = folder / paths[1].name
+    lines = []
+    rows = run_batch([paths[0], tied, paths[2]], tmp_path / "out", progress=lines.append)
+    assert not any("failed" in line for line in lines), lines
+    assert [(row["status"], row["mode"]) for row in rows] == [("ok", "batch")] * 3
+    assert rows[1]["C1.smac.P2"] == rows[1]["C1.smac.P1"] != 0
+    alone = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(tied)))
+    assert rows[1]["sigma0"] == pytest.approx(float(alone.sigma0), rel=1e-10)
+
+
 class _StartedAfter:
     """A stand-in for `Workers.starter`: done once asked `n` times."""
 

@@ -79,7 +79,20 @@ def batch_kind(problem: BundleProblem) -> tuple:
         for g in problem.groups
     )
     cameras = tuple((m, np.shape(b)[1]) for m, b in sorted(problem.initial.cameras.items()))
-    return groups, cameras, problem.initial.mounts is None, problem.refraction, problem.robust
+    return (groups, cameras, problem.initial.mounts is None, problem.refraction, problem.robust,
+            _tied_entries(problem))
+
+
+def _tied_entries(problem: BundleProblem) -> tuple:
+    """`problem.ties` as ((model, camera row, parameter), source's) pairs: the same whatever
+    rows padding adds (a padded batch holds one set of ties)."""
+    if not problem.ties:
+        return ()
+    entry = {}
+    for model, block in positions_of(problem.initial).cameras.items():
+        for (row, column), position in np.ndenumerate(np.asarray(block)):
+            entry[int(position)] = (model, row, column)
+    return tuple((entry[dependent], entry[source]) for dependent, source in problem.ties)
 
 
 def _stack_rows(leaves, n: int, fill=None) -> np.ndarray:
