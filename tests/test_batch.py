@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 
 import jaxba
@@ -31,6 +32,7 @@ from jaxba._models._cameras import CAMERA_MODELS
 from jaxba._problem._bundle import free_positions
 from jaxba._report import write_reports
 from jaxba._report._outputs import OBSERVATIONS_FILE, REPORT_SETS
+from jaxba._solvers._solution import stop_reason
 from jaxba._statistics._summary import variance_test
 
 BATCH_RTOL = 1e-8  # each batch result equals the single adjustment to 1e-8 relative
@@ -211,6 +213,26 @@ def test_free_networks_are_adjusted_alone_in_a_batch(projects, tmp_path):
         assert row["sigma0"] == pytest.approx(float(alone.sigma0), rel=1e-12)
         assert row["C1.smac.c.std"] == pytest.approx(
             float(np.asarray(alone.precision.std.cameras["smac"])[0, 2]), rel=1e-9)
+
+
+def test_a_batched_project_stopped_by_its_step_limit_says_so(projects):
+    """Stopped by `max_steps`, a batched adjustment says why in the single adjustment's words
+    (`stop_reason`), not optimistix's code read as "unknown"."""
+    _, _, built = projects
+    for result in adjust_batch([p.problem for p in built[:2]], max_steps=1):
+        assert not result.converged
+        assert result.message == "the maximum number of steps (1) was reached"
+
+
+def test_a_stop_reason_read_from_the_host_names_it():
+    """A solve's result moved to the host (a NumPy scalar value, as a batch's is) is read
+    like one on the device."""
+    on_host = jax.tree.map(lambda value: np.asarray(value)[()], optx.RESULTS.nonfinite)
+    assert isinstance(jax.tree.leaves(on_host)[0], np.generic)
+    assert stop_reason(on_host, 9) == optx.RESULTS[optx.RESULTS.nonfinite] != "unknown"
+    reached = jax.tree.map(lambda value: np.asarray(value)[()],
+                           optx.RESULTS.nonlinear_max_steps_reached)
+    assert stop_reason(reached, 9) == "the maximum number of steps (9) was reached"
 
 
 def test_projects_with_different_ties_are_padded_apart(projects, tmp_path):

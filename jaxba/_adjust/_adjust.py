@@ -4,13 +4,13 @@ from collections.abc import Callable
 
 import jax
 import numpy as np
-import optimistix as optx
 
 from .._float64 import require_float64
 from .._problem._bundle import BundleProblem, free_indices, observed_minus_computed
 from .._problem._checks import check_problem
 from .._problem._parameters import parameter_labels
 from .._solvers._progress import Iteration, StepRecorder
+from .._solvers._solution import stop_reason
 from .._solvers._solve import stopping_rule
 from .._statistics._adjustable import adjustable
 from .._statistics._adjustment import Adjustment
@@ -24,13 +24,6 @@ from .._timing import Timings
 
 class NotConvergedError(RuntimeError):
     """The adjustment stopped without meeting its convergence criteria."""
-
-
-def _stop_reason(result: optx.RESULTS, max_steps: int) -> str:
-    """Why an unconverged solve stopped, in words."""
-    if result == optx.RESULTS.nonlinear_max_steps_reached:
-        return f"the maximum number of steps ({max_steps}) was reached"
-    return optx.RESULTS[result]
 
 
 def _stalled(iterations: list[Iteration]) -> bool:
@@ -119,7 +112,7 @@ def adjust(
             raise error
         raise NotConvergedError("the adjustment produced non-finite residuals (NaN or inf)")
     converged = bool(solution.converged)  # read in its program: an `==` here compiles one
-    message = "converged" if converged else _stop_reason(result, max_steps)
+    message = "converged" if converged else stop_reason(result, max_steps)
     if throw and not converged:
         raise NotConvergedError(f"no convergence after {int(steps)} steps: {message}")
     with timings.phase("statistics"):

@@ -13,7 +13,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
 from .._gc import paused_gc
@@ -33,7 +32,7 @@ from .._programs import call_stored
 from .._solvers._compiled import solver_jit
 from .._solvers._dense import Dense, cofactors, equilibrated, scale_from_normal
 from .._solvers._progress import Iteration
-from .._solvers._solution import Solution
+from .._solvers._solution import Solution, stop_reason
 from .._solvers._solve import solve
 from .._statistics._adjustment import Adjustment
 from .._statistics._covariance import precision_from_covariance
@@ -292,10 +291,11 @@ def adjust_padded(
         (max_steps, rtol, atol, datum_rtol, chunk_size)))
     with paused_gc():  # many small objects, none in a cycle
         return _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels,
-                        datum_rtol)
+                        datum_rtol, max_steps)
 
 
-def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels, datum_rtol):
+def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels, datum_rtol,
+             max_steps):
     """`adjust_padded`'s Adjustments (or DatumErrors) from the program's outputs (NumPy)."""
     stddev = [group.stddev for group in batch.host.groups]
     whitened = _group_rows(batch.host, stats.whitened)
@@ -319,7 +319,7 @@ def _results(batch, solution, stats, sigma0s, alphas, familywises, check, labels
             [s[k, n] for s, n in zip(stddev, rows)], [e[k, n] for e, n in zip(whitened, rows)],
             [v[k, n] for v, n in zip(residuals, rows)],
             None if alphas[k] is None else [r[k, n] for r, n in zip(redundancy, rows)],
-            n_observations, n_free, sigma0s[k], alphas[k], familywises[k],
+            n_observations, n_free, sigma0s[k], alphas[k], familywises[k], max_steps,
         ))
     return results
 
@@ -337,11 +337,13 @@ def _group_rows(host: BundleProblem, flat: np.ndarray) -> list[np.ndarray]:
 
 
 def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whitened, residuals,
-                redundancy, n_observations, n_free, sigma0, alpha, familywise) -> Adjustment:
+                redundancy, n_observations, n_free, sigma0, alpha, familywise, max_steps
+                ) -> Adjustment:
     """The `Adjustment` of problem `k` of a padded batch: from the batch's `solution` and
     `free` (the stacked problem's, NumPy), its ½eᵀe at the start, its cofactors (padded),
     and per group its rows of the stacked σ, the batch's whitened residuals e, residuals v
-    and (with `alpha`) redundancy numbers r (NaN where masked)."""
+    and (with `alpha`) redundancy numbers r (NaN where masked); `max_steps` the solve's
+    (its message where it was reached)."""
     params = _unpad_parameters(solution.parameters, problem.initial, k)
     redundancy_total = n_observations - n_free
     final_cost = 0.5 * float(sum(np.sum(e**2) for e in whitened))
@@ -367,7 +369,7 @@ def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whit
         residuals=tuple(residuals),
         iterations=iterations,
         converged=converged,
-        message="converged" if converged else str(optx.RESULTS[_take(solution.result, k)]),
+        message="converged" if converged else stop_reason(_take(solution.result, k), max_steps),
         steps=int(solution.steps[k]),
         sigma0_prior=float(sigma0),
         reliability=reliability,
