@@ -84,26 +84,32 @@ def _assert_rows_equal(rows, expected, *, modes=None):
         assert not differ, (row["name"], [(key, row[key], want[key]) for key in differ])
 
 
-def _numbers(tree, scale=None):
-    """Every number of a results.json tree, in order, but its timings, as (value, scale): a
-    number in a list of numbers is scaled by the list's largest magnitude (the components of
-    an ellipsoid's unit directions by 1), any other by itself."""
+def _numbers(tree, key=None):
+    """Every number of a results.json tree, in order, but its timings, as (value, scale):
+    the entries of a covariance matrix scaled by σi σj, of a correlation matrix and of an
+    ellipsoid's unit directions by 1 (their accuracy is absolute), any other number by
+    itself."""
     if isinstance(tree, dict):
-        return [x for key, value in tree.items() if key != "timings" for x in _numbers(value)]
+        return [x for name, value in tree.items() if name != "timings"
+                for x in _numbers(value, name)]
+    if key == "covariance":
+        matrix = np.asarray(tree, dtype=float)
+        sigma = np.sqrt(np.abs(np.diag(matrix)))
+        return list(zip(matrix.ravel().tolist(), np.outer(sigma, sigma).ravel().tolist()))
+    if key in ("matrix", "directions"):
+        return [(value, 1.0) for value in np.ravel(np.asarray(tree, dtype=float)).tolist()]
     if isinstance(tree, list):
-        flat = [abs(float(v)) for v in tree if isinstance(v, int | float)]
-        inner = max(flat) if len(flat) == len(tree) and flat else None
-        return [x for value in tree for x in _numbers(value, inner)]
+        return [x for value in tree for x in _numbers(value, key)]
     if isinstance(tree, int | float) and not isinstance(tree, bool):
-        return [(float(tree), abs(float(tree)) if scale is None else scale)]
+        return [(float(tree), abs(float(tree)))]
     return []
 
 
 def _assert_reports_equal(out, expected_out):
     """Every number of each project's results.json equal to `EQUAL_RTOL` of its scale
-    (`_numbers`): each array as a whole, as the programs' outputs are compared, since two
-    compilations of one program may round an entry near zero differently (5.7e-17 on an
-    ellipsoid direction's component of -4.3e-5, seen under the tests' XLA flags)."""
+    (`_numbers`), since two compilations of one program may round an entry near zero
+    differently (5.7e-17 on an ellipsoid direction's component of -4.3e-5, seen under the
+    tests' XLA flags)."""
     for folder in sorted(p for p in expected_out.iterdir() if p.is_dir()):
         names = sorted(p.name for p in folder.iterdir())
         assert sorted(p.name for p in (out / folder.name).iterdir()) == names
