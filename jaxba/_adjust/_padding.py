@@ -40,7 +40,7 @@ from .._problem._linearisation import (
     pad_plans,
 )
 from .._problem._observations import AbstractObservationGroup
-from .._problem._parameters import Parameters, flatten, positions_of, unflatten
+from .._problem._parameters import Parameters, positions_of, unflatten
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,12 +119,9 @@ def _stack_groups(groups: list[AbstractObservationGroup], n: int) -> AbstractObs
 
 def _padded_ties(problem: BundleProblem, shapes: Parameters) -> tuple:
     """`problem.ties` as positions of the padded Parameters shaped like `shapes`."""
-    own_positions = positions_of(problem.initial)
-    own, padded = own_positions.cameras, positions_of(shapes).cameras
-    position = np.zeros(flatten(own_positions).size, dtype=int)
-    for model, block in own.items():
-        position[np.ravel(block)] = np.ravel(padded[model][: block.shape[0]])
-    return tuple((int(position[d]), int(position[s])) for d, s in problem.ties)
+    padded = positions_of(shapes).cameras
+    return tuple((int(padded[model][row, column]), int(padded[source][at, of]))
+                 for (model, row, column), (source, at, of) in _tied_entries(problem))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,7 +172,7 @@ def _pad_each(problems, shape: BatchShape
         points=np.zeros((shape.points, 3)),
         mounts=None if shape.mounts is None else np.zeros((shape.mounts, 6)),
     )
-    ties = {_padded_ties(problem, shapes) if problem.ties else () for problem in problems}
+    ties = {_padded_ties(problem, shapes) for problem in problems}
     if len(ties) > 1:
         raise ValueError("the problems tie different camera parameters (BundleProblem.ties);"
                          " pad only problems with the same ties")
