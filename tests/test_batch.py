@@ -224,6 +224,36 @@ def test_a_batched_project_stopped_by_its_step_limit_says_so(projects):
         assert result.message == "the maximum number of steps (1) was reached"
 
 
+@pytest.mark.slow  # the diverging project's own solve, compiled for its shape
+def test_a_project_that_does_not_converge_in_its_batch_is_adjusted_alone(projects, tmp_path):
+    """A batched solve keeps no iterations, so it cannot tell a solve stuck far from the
+    solution from one cut short: a project that stops unconverged in its batch is adjusted
+    again alone, and its row and reports say what `jaxba adjust` says (which approximations
+    it diverged from). Here its tie points lie 5 m off (the network is 4 m across)."""
+    _, paths, _ = projects
+    folder = tmp_path / "diverging"
+    shutil.copytree(paths[0].parent, folder)
+    project = folder / paths[0].name
+    project.write_text(project.read_text().replace('name = "p0"', 'name = "diverging"', 1))
+    table = folder / "ground_points.txt"
+    rows = [line.split() for line in table.read_text().splitlines()]
+    for row in rows:
+        if len(row) > 4 and row[4] == "-":
+            row[3] = repr(float(row[3]) + 5.0)
+    table.write_text("\n".join(" ".join(row) for row in rows) + "\n")
+    lines = []
+    rows = run_batch([*paths[1:], project], tmp_path / "out", progress=lines.append)
+    alone = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(project)))
+    assert not alone.converged and "diverged from the approximations" in alone.message
+    assert [(row["status"], row["mode"]) for row in rows] == [("ok", "batch")] * 2 + [
+        ("not converged", "single")]
+    assert rows[2]["reason"] == alone.message
+    assert rows[2]["sigma0"] == pytest.approx(float(alone.sigma0), rel=1e-9)
+    assert "diverging: not converged in its batch; adjusting it alone" in lines
+    results = json.loads((tmp_path / "out" / "diverging" / "results.json").read_text())
+    assert results["message"] == alone.message and len(results["iterations"]) > 2
+
+
 def test_a_stop_reason_read_from_the_host_names_it():
     """A solve's result moved to the host (a NumPy scalar value, as a batch's is) is read
     like one on the device."""

@@ -11,7 +11,8 @@ sequential re-adjustments); its summary row says so. The chunks run on an execut
 all at once. Reports are written here as each chunk's results come back, by writer threads
 while the next chunks are solved. A chunk whose task raised (a worker that kept dying under
 it, a bug) is tried again one project at a time, so that only the project at fault fails,
-with the exception as its reason.
+with the exception as its reason; a project that stops unconverged in its chunk is adjusted
+again alone, whose iterations tell why (`jaxba adjust`'s message).
 """
 
 import collections
@@ -97,7 +98,8 @@ def _chunks(ready: list[BatchEntry], size: int) -> list[tuple[list[BatchEntry], 
 
 def _solve(run, chunks, say, finished, total: int) -> None:
     """Solve `chunks` on `run`, record the outcomes and write the reports as they come; a
-    chunk of several projects whose task raised is tried again one project at a time.
+    chunk of several projects whose task raised is tried again one project at a time, a
+    project that did not converge in its chunk alone (`_unconverged_in_batch`).
 
     The reports of a chunk are written by a writer thread while the next chunk is solved
     (XLA, file writes and fsync release the GIL; `WRITERS` threads, so that one formats
@@ -139,13 +141,29 @@ def _solve(run, chunks, say, finished, total: int) -> None:
                         continue
                     reason = f"{type(outcomes).__name__}: {outcomes}".strip()
                     outcomes = [Outcome("single" if chunk.single else "", reason=reason)]
-                written.append((members, writer.submit(_record_all, members, outcomes,
-                                                       write_batch_reports)))
+                kept = []
+                for entry, outcome in zip(members, outcomes):
+                    if _unconverged_in_batch(outcome):
+                        say(f"{entry.name}: not converged in its batch; adjusting it alone")
+                        again.append(([entry], Chunk((entry.project,), single=True)))
+                    else:
+                        kept.append((entry, outcome))
+                if kept:
+                    members, outcomes = map(list, zip(*kept))
+                    written.append((members, writer.submit(_record_all, members, outcomes,
+                                                           write_batch_reports)))
                 report(block=False)
             report(block=True)
             chunks = again
     finally:
         writer.shutdown(wait=True, cancel_futures=True)
+
+
+def _unconverged_in_batch(outcome: Outcome) -> bool:
+    """A batched solve that stopped unconverged: adjusted again alone, whose iterations
+    tell a solve stuck far from the solution (and which approximations it left) from one
+    merely cut short, as `jaxba adjust` says it."""
+    return outcome.mode == "batch" and outcome.result is not None and not outcome.result.converged
 
 
 def _record_all(members: list[BatchEntry], outcomes: list[Outcome], write_reports) -> None:
