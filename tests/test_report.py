@@ -494,6 +494,8 @@ def test_pixel_camera_model_reports(tmp_path):
     assert {len(row) for row in rows} == {11}
     out = out_text(project, result)
     assert "pixel units" in out and "mm based" not in out and "rms_vx_mm" not in out
+    # A fixed target: no point has a free coordinate, so no (empty) ellipsoid table.
+    assert "Error ellipsoids" not in out and "Object points" in out
 
 
 def test_datum_backend_variance_test_and_outliers_in_out_json_and_console(lab):

@@ -325,7 +325,11 @@ def _reliability_section(project: Project, result: Adjustment) -> list[str]:
 
 
 def _ellipsoid_section(project: Project, result: Adjustment) -> list[str]:
+    """The 1σ semi-axes of every point with a free coordinate; [] where there is none (a
+    calibration on a fixed target)."""
     axes, _, has = point_ellipsoids(project, result)
+    if not has.any():
+        return []
     decimals = decimals_for(axes[has], low=4)
     ids = np.asarray(project.point_ids, dtype=object)[has].tolist()
     return [
@@ -463,7 +467,8 @@ def out_text(project: Project, result: Adjustment) -> str:
         lines += ["", *rig_section(project, result)]
     lines += ["", *_image_section(project, image_table(project, result))]
     lines += ["", *_point_section(point_table(project, result))]
-    lines += ["", *_ellipsoid_section(project, result)]
+    ellipsoids = _ellipsoid_section(project, result)
+    lines += ["", *ellipsoids] if ellipsoids else []
     lines += ["", "status per coordinate: - free, 0 fixed, w weighted (observed with a prior σ)"]
     return "\n".join(lines) + "\n"
 
