@@ -237,6 +237,6 @@ def _adjust_share(share: Share) -> list[tuple]:
     from ._batch_adjust import adjust_entries
 
     adjust_entries(share.entries, lambda line: _queue.put(("say", line)),
-                   lambda: _queue.put(("finished", "")), share.chunk_size)
+                   lambda: _queue.put(("finished", "")), share.chunk_size, writers=1)
     _queue.put(("done", ""))  # after this share's messages: the channel keeps their order
     return [(entry.status, entry.reason, entry.mode, entry.row) for entry in share.entries]
