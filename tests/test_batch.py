@@ -8,7 +8,9 @@ import math
 import os
 import pathlib
 import shutil
+import subprocess
 import sys
+import textwrap
 
 import equinox as eqx
 import jax
@@ -500,6 +502,36 @@ def test_workers_are_forked_from_a_server_that_imports_the_pipeline_once():
     command = pathlib.Path(f"/proc/{server}/cmdline").read_bytes().decode()
     assert "forkserver" in command
     assert all(module in command for module in _batch_processes.PRELOAD)
+
+
+def test_the_forkserver_ends_without_the_interpreter_s_clean_up(tmp_path):
+    """The forkserver holds the caller's stdout and stderr until it ends, so a reader of the
+    batch's output waits for it: it leaves with `os._exit` once the caller has ended. An exit
+    handler that a module imported before the pipeline registers (so it would run after the
+    quick exit's) never runs; the module was imported there (its other file exists)."""
+    imported, cleaned_up = tmp_path / "imported", tmp_path / "cleaned_up"
+    (tmp_path / "exit_marker.py").write_text(
+        f"import atexit, pathlib\npathlib.Path({str(imported)!r}).touch()\n"
+        f"atexit.register(pathlib.Path({str(cleaned_up)!r}).touch)\n")
+    caller = tmp_path / "caller.py"
+    caller.write_text(textwrap.dedent("""
+        import os
+        from jaxba._cli import _batch_processes
+        _batch_processes.PRELOAD = ("exit_marker", *_batch_processes.PRELOAD)
+        if __name__ == "__main__":
+            with _batch_processes.worker_processes(2) as workers:
+                print(workers.pool.submit(os.getppid).result())
+    """))
+    # Its output read to the end: the caller and the forkserver have both ended. (The
+    # forkserver finds exit_marker through PYTHONPATH: Python 3.11's ignores the caller's
+    # sys.path.)
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(tmp_path), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    done = subprocess.run([sys.executable, str(caller)], capture_output=True, text=True,
+                          timeout=300, env=environment)
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout) != 0 and imported.exists()
+    assert not cleaned_up.exists()
 
 
 def test_a_mixed_batch_compiles_one_program_per_kind(projects, tmp_path, monkeypatch):
