@@ -27,7 +27,6 @@ import dataclasses
 import itertools
 import math
 import multiprocessing
-import multiprocessing.forkserver
 import os
 import queue as queue_module
 import sys
@@ -262,10 +261,13 @@ def _end_at_once() -> None:
 def _imported_by_a_forkserver() -> bool:
     """Whether this module is being imported by a forkserver's preload (a frame of
     `multiprocessing.forkserver.main` on the stack): only then is this process a
-    forkserver."""
+    forkserver (which has imported that module to run it)."""
+    forkserver = sys.modules.get("multiprocessing.forkserver")
+    if forkserver is None:
+        return False
     frame = sys._getframe(1)
     while frame is not None:
-        if frame.f_code is multiprocessing.forkserver.main.__code__:
+        if frame.f_code is forkserver.main.__code__:
             return True
         frame = frame.f_back
     return False
