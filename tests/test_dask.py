@@ -33,10 +33,12 @@ def cluster():
     """(cluster, client): 2 single-threaded worker processes. They share this process's
     compilation cache (its folder is in the environment they inherit), as `jaxba batch
     --scheduler local` does: each test solves in this process first, so the workers load
-    what it compiled, and never write an entry this process is reading."""
+    what it compiled, and never write an entry this process is reading. The dashboard (where
+    bokeh is installed) on a free port: None means distributed's default, 8787, which a
+    cluster of another test process may hold."""
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
     ) as cluster, distributed.Client(cluster) as client:
         yield cluster, client
 
