@@ -241,3 +241,13 @@ def synthetic_aerial(seed: int = 0, noise_mm: float = 0.005, gnss_sigma: float =
 def significant_digits(text: str) -> int:
     """The significant digits a number's text spells: "-0.00120" and "1.2e-3" have 2."""
     return len(text.split("e")[0].replace("-", "").replace(".", "").strip("0"))
+
+
+def move_tie_points(points_table, dz: float) -> None:
+    """Shift the approximate Z of every tie point (a row whose σ columns are `- - -`) of a
+    points table (`point_id X Y Z sX sY sZ`) by `dz`, object units."""
+    rows = [line.split() for line in points_table.read_text().splitlines()]
+    for row in rows:
+        if len(row) > 4 and row[4] == "-":
+            row[3] = repr(float(row[3]) + dz)
+    points_table.write_text("\n".join(" ".join(row) for row in rows) + "\n")

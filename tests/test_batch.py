@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
+from helpers import move_tie_points
 
 import jaxba
 from jaxba import _programs
@@ -237,12 +238,7 @@ def test_a_project_that_does_not_converge_in_its_batch_is_adjusted_alone(project
     shutil.copytree(paths[0].parent, folder)
     project = folder / paths[0].name
     project.write_text(project.read_text().replace('name = "p0"', 'name = "diverging"', 1))
-    table = folder / "ground_points.txt"
-    rows = [line.split() for line in table.read_text().splitlines()]
-    for row in rows:
-        if len(row) > 4 and row[4] == "-":
-            row[3] = repr(float(row[3]) + 5.0)
-    table.write_text("\n".join(" ".join(row) for row in rows) + "\n")
+    move_tie_points(folder / "ground_points.txt", 5.0)
     lines = []
     rows = run_batch([*paths[1:], project], tmp_path / "out", progress=lines.append)
     alone = jaxba.adjust_project(jaxba.build_project(jaxba.read_project(project)))

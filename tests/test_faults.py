@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import move_tie_points
 
 import jaxba
 from jaxba._cli._main import EXIT_INTERNAL, EXIT_INTERRUPTED, main
@@ -555,12 +556,7 @@ def test_divergence_names_the_approximations(synthetic, tmp_path, capsys, solver
     with reports marked not converged, and one warning naming what it diverged from and the
     images with the largest residuals, instead of optimistix's bare message."""
     project = _tables(synthetic, tmp_path / "p")
-    path = project.parent / "ground_points.txt"
-    rows = _rows(path)
-    for row in rows:
-        if len(row) > 4 and row[4] == "-":
-            row[3] = repr(float(row[3]) + 5.0)
-    _write_rows(path, rows)
+    move_tie_points(project.parent / "ground_points.txt", 5.0)
     code, out, err = _run("adjust", project, "--out", tmp_path / "out", "--solver", solver,
                           capsys=capsys)
     assert code == 1, err

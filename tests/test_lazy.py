@@ -24,7 +24,6 @@ def test_every_public_name_loads_without_the_heavy_modules():
     assert _loaded(script, NOT_WITH_THE_NAMES) == []
 
 
-
 def test_import_jaxba_loads_neither_jax_nor_the_package_metadata():
     """`import jaxba` (the command line's start, its input checks) loads no jax and no
     `importlib.metadata` (~35 ms); `jaxba.__version__` reads the metadata when asked."""
