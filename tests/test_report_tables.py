@@ -17,7 +17,7 @@ from helpers import significant_digits
 
 from jaxba._report._cells import texts
 from jaxba._report._csv import FLAG_COLUMNS, NUMBER_COLUMNS, _lines, _piece
-from jaxba._report._text import number_table
+from jaxba._report._text_tables import number_table
 
 IDS = ["P1", "p" * 70, "Pünkt-7", "点12", "ñ", "📷cam", 'a,b', 'say "x"', "x" * 3]
 
