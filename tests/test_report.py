@@ -518,7 +518,8 @@ def test_datum_backend_variance_test_and_outliers_in_out_json_and_console(lab):
     group = result.problem.groups[0]
     flagged = (f"image {project.image_ids[int(group.image[0])]}"
                f" point {project.point_ids[int(group.point[0])]} y")
-    test = f"chi-square test FAILED: r sigma0^2/prior^2 = {1.5 * r:.1f} in [{low:.1f}, {high:.1f}]"
+    test = (f"chi-square test FAILED: r sigma0^2/prior^2 = {1.5 * r:.1f} not in"
+            f" [{low:.1f}, {high:.1f}]")
     outliers = (f"1 with |w| > {CRITICAL:.2f} (alpha 0.001 per test): image_points:C1 {flagged}"
                 " |w| 4.50; 1 removed by data snooping")
     header = out_text(project, result).split("\n\n")[1]

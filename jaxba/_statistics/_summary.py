@@ -55,9 +55,10 @@ class VarianceTest:
 
     def text(self) -> str:
         """E.g. `chi-square test passed: r sigma0^2/prior^2 = 2433.7 in [2308.9, 2582.9]
-        (redundancy 2444, alpha 0.05: sigma0 0.972 to 1.028)`."""
-        verdict = "passed" if self.passed else "FAILED"
-        return (f"chi-square test {verdict}: r sigma0^2/prior^2 = {self.statistic:.1f} in"
+        (redundancy 2444, alpha 0.05: sigma0 0.972 to 1.028)`; where it fails, "FAILED"
+        and "not in" the interval."""
+        verdict, where = ("passed", "in") if self.passed else ("FAILED", "not in")
+        return (f"chi-square test {verdict}: r sigma0^2/prior^2 = {self.statistic:.1f} {where}"
                 f" [{self.low:.1f}, {self.high:.1f}] (redundancy {self.redundancy}, alpha"
                 f" {self.alpha:g}: sigma0 {self.sigma0_low:.4g} to {self.sigma0_high:.4g})")
 
