@@ -15,7 +15,6 @@ are no-ops where the C library is not glibc.
 """
 
 import ctypes
-import ctypes.util
 import functools
 
 _M_TRIM_THRESHOLD = -1  # glibc malloc.h
@@ -26,12 +25,14 @@ TRIM_THRESHOLD = 1024 * 1024
 
 @functools.cache
 def _glibc():
-    """glibc, or None (another C library, or none found)."""
+    """glibc, or None (another C library, or none). The C library the process runs on,
+    through its global symbols (`CDLL(None)`; `ctypes.util.find_library` would spawn
+    `ldconfig -p`, ~3 ms at every start); Windows has no such handle (TypeError)."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc = ctypes.CDLL(None)
         libc.malloc_trim.argtypes, libc.mallopt.argtypes = [ctypes.c_size_t], [ctypes.c_int] * 2
         return libc
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):
         return None
 
 

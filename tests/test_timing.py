@@ -1,12 +1,15 @@
 """Phase timings: compilations are counted inside the phase that triggers them, announced
 before a big one, and not counted again for a program already compiled."""
 
+import platform
+import subprocess
 import threading
 
 import jax
 import jax.numpy as jnp
 import pytest
 
+from jaxba._memory import _glibc, tune_allocator
 from jaxba._timing import CompileLog, Phase, Timings
 
 N_OPS = 3000  # enough operations that lowering the program takes well over _LONG_LOWERING
@@ -73,3 +76,21 @@ def test_a_log_counts_its_own_threads_compilations_only():
     with CompileLog() as log:
         jax.jit(lambda x: x * 5.0 - 3.0)(jnp.ones(7)).block_until_ready()
     assert log.count == 1 and log.seconds > 0.0
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's malloc_trim and mallopt")
+def test_the_c_library_is_found_without_starting_a_process(monkeypatch):
+    """glibc comes from the process's own symbols: `ctypes.util.find_library` spawned
+    `ldconfig -p` at every start-up."""
+    def no_process(*args, **kwargs):
+        raise AssertionError("a process was started")
+
+    monkeypatch.setattr(subprocess.Popen, "__init__", no_process)
+    _glibc.cache_clear()
+    try:
+        libc = _glibc()
+        assert libc is not None
+        assert libc.malloc_trim(0) in (0, 1)  # glibc's: 1 where memory was released
+        tune_allocator()
+    finally:
+        _glibc.cache_clear()
