@@ -131,6 +131,10 @@ def test_batch_equals_single_adjustment(batch_and_single):
     batch, single = batch_and_single
     for b, s in zip(batch, single):
         assert b.converged and s.converged
+        # Only the start and the solution are kept, numbered as the single adjustment's.
+        assert b.n_iterations == s.n_iterations > 1 and b.steps == s.steps
+        assert [it.iteration for it in b.iterations] == [0, s.n_iterations]
+        assert b.iterations[-1].cost == pytest.approx(s.iterations[-1].cost, rel=BATCH_RTOL)
         assert _flat_close(b.parameters, s.parameters, BATCH_RTOL)
         assert _flat_close(b.precision.std, s.precision.std, BATCH_RTOL)
         assert b.precision.redundancy == s.precision.redundancy

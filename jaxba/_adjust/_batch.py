@@ -251,7 +251,8 @@ def adjust_batch(
 
     Each returned `Adjustment` equals `adjust(problem)` of that problem alone (to rounding):
     parameters, σ̂0² = σ0² eᵀe / r, Cxx = σ̂0² (σ0² JᵀJ)⁻¹, residuals. Its `iterations`
-    hold only the start and the solution (no per-step report inside a batch). With `alpha`
+    hold only the start and the solution, numbered as the solve counted its accepted steps
+    (no per-step report inside a batch). With `alpha`
     (one per problem or one for all) `reliability` is filled in as `reliability(result,
     alpha=..., familywise=...)` would. No datum check: call `check_datum` first, or
     `adjust_padded(..., check=True)` (the CLI's `run_batch` does). `shape`: the padded
@@ -353,10 +354,12 @@ def _adjustment(problem, solution, free, k, initial_cost, cofactor, stddev, whit
     index = np.flatnonzero(free_mask(_unpad_parameters(free, problem.initial, k)))
     prec = precision_from_covariance(problem, params, covariance, sigma0_squared,
                                      redundancy_total, n_observations, index)
+    # The start and the solution, numbered as the solve counted its accepted steps.
     iterations = [
-        Iteration(0, initial_cost, sigma0**2 * 2 * initial_cost / max(redundancy_total, 1)),
-        Iteration(1, final_cost, sigma0_squared),
-    ]
+        Iteration(0, initial_cost, sigma0**2 * 2 * initial_cost / max(redundancy_total, 1))]
+    last = int(solution.accepted_steps[k]) - 1  # step 0, the start, is accepted
+    if last > 0:
+        iterations.append(Iteration(last, final_cost, sigma0_squared))
     reliability = None
     if alpha is not None:
         reliability = group_reliability(tuple(stddev), tuple(redundancy), tuple(whitened),

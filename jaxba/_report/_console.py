@@ -89,13 +89,12 @@ def summary_lines(project: Project, result: Adjustment) -> list[str]:
         for entry in found:
             ids = {key: value for key, value in entry.items() if key not in ("group", "w")}
             lines.append(f"  {entry['group']} {describe(ids)}  |w| {entry['w']:.2f}")
-    n_iterations = max(len(result.iterations) - 1, 0)
     steps = f"{result.steps} solver steps, {result.backend} backend"
     if result.converged:
-        lines.append(f"converged after {n_iterations} iterations ({steps})")
+        lines.append(f"converged after {result.n_iterations} iterations ({steps})")
     else:
         lines.append(
-            f"NOT converged after {n_iterations} iterations ({steps});"
+            f"NOT converged after {result.n_iterations} iterations ({steps});"
             " the reports show the last iterate"
         )
         lines.append(f"  solver: {result.message}")

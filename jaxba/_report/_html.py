@@ -144,7 +144,7 @@ def _summary(project: Project, result: Adjustment) -> str:
     sigma0 = math.sqrt(precision.sigma0_squared)
     rows = [
         ["status", _e("converged" if result.converged else "not converged: " + result.message)],
-        ["iterations", f'<span id="iterations">{max(len(result.iterations) - 1, 0)}</span>'],
+        ["iterations", f'<span id="iterations">{result.n_iterations}</span>'],
         ["backend", _e(result.backend)],
         ["images / points", f"{len(project.image_ids)} / {len(project.point_ids)}"],
         ["observations", str(precision.n_observations)],

@@ -62,7 +62,7 @@ def _header(project: Project, result: Adjustment) -> list[str]:
         ("project file", str(project.spec.path)),
         ("program", f"jaxba {__version__}"),
         ("converged", f"{_flag(result.converged)} ({result.message})"),
-        ("iterations", f"{max(len(result.iterations) - 1, 0)} (solver steps {result.steps})"),
+        ("iterations", f"{result.n_iterations} (solver steps {result.steps})"),
         ("a priori sigma0", f"{project.spec.settings.sigma0:g}"),
         ("a posteriori sigma0", f"{math.sqrt(precision.sigma0_squared):.6f}"),
         ("sigma0^2", f"{precision.sigma0_squared:.6f}"),

@@ -25,7 +25,8 @@ class Adjustment:
     - `residuals`: per observation group, v = observed - computed in the observation's
       units (masked entries 0), same shapes as the group's residuals;
     - `iterations`: every accepted iterate with its cost ½Σe² and σ̂0² (re-adjustments
-      for variance components or data snooping continue the numbering);
+      for variance components or data snooping continue the numbering; a batched solve
+      keeps the first and the last), `n_iterations` the last one's number;
     - `converged`, `message`, `steps` (solver steps, rejected ones included);
     - `backend`: the normal-equation backend that solved, "dense" or "schur";
     - `timings`: wall seconds per phase ("datum check", "solve", "statistics", ...) with
@@ -72,6 +73,12 @@ class Adjustment:
     def sigma0(self) -> float:
         """A posteriori σ̂0."""
         return float(np.sqrt(self.precision.sigma0_squared))
+
+    @property
+    def n_iterations(self) -> int:
+        """Accepted iterations after the approximations: the last one's number (a batched
+        solve keeps only the first and the last iterate, numbered as it counted them)."""
+        return self.iterations[-1].iteration if self.iterations else 0
 
     @functools.cached_property
     def _unknowns(self) -> UnknownTables:

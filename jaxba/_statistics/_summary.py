@@ -195,10 +195,9 @@ def camera_lines(result) -> list[str]:
 def brief_report(result, ids: Ids) -> str:
     """A few lines on `result` (an `Adjustment`): see the module docstring."""
     precision = result.precision
-    n_iterations = max(len(result.iterations) - 1, 0)
     state = "converged" if result.converged else f"NOT converged ({result.message})"
     items = [
-        ("solver", f"{state} after {n_iterations} iterations ({result.steps} steps),"
+        ("solver", f"{state} after {result.n_iterations} iterations ({result.steps} steps),"
                    f" {result.backend} backend"),
         ("sigma0", f"{result.sigma0:.6g} (a priori {result.sigma0_prior:g})"),
         ("observations", f"{precision.n_observations}, unknowns {precision.n_unknowns},"
